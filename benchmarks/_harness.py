@@ -1,0 +1,94 @@
+"""Small benchmark harness: figures, timing by median, markdown + JSON-lines output.
+
+A benchmark is a module ``benchmarks/bench_<name>.py`` with a docstring (its first
+line is shown by ``--list``) and a function ``run(quick: bool) -> list[Figure]``.
+Benchmarks measure; they assert nothing and CI does not run them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass
+class Figure:
+    """One measured number. ``target``: the figure an issue sets; ``peer``: the other tool
+    measured in the same run, with ``ratio`` = our value / peer value for
+    higher-is-better figures and peer / ours otherwise (so > 1 always means we win)."""
+
+    benchmark: str
+    case: str
+    metric: str
+    value: float
+    unit: str
+    higher_is_better: bool
+    target: float | None = None
+    peer: str | None = None
+    ratio: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    def as_json(self) -> dict:
+        d = asdict(self)
+        extra = d.pop("extra")
+        d = {k: v for k, v in d.items() if v is not None}
+        d.update(extra)
+        return d
+
+    @property
+    def meets_target(self) -> bool | None:
+        if self.target is None:
+            return None
+        return self.value >= self.target if self.higher_is_better else self.value <= self.target
+
+
+def median_time(fn: Callable[[], object], *, repeat: int = 7, number: int = 1,
+                warmup: int = 1) -> float:
+    """Median wall time in seconds of ``number`` calls of ``fn``, over ``repeat`` runs,
+    divided by ``number``. The median resists the noise of a shared machine."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        times.append((time.perf_counter() - t0) / number)
+    return statistics.median(times)
+
+
+def ratio(ours: float, peer: float, *, higher_is_better: bool) -> float:
+    """Ratio > 1 when we win, whatever the direction of the metric."""
+    if higher_is_better:
+        return ours / peer if peer else float("inf")
+    return peer / ours if ours else float("inf")
+
+
+def machine_description() -> str:
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+            f"Python {platform.python_version()}")
+
+
+def format_markdown(figures: list[Figure]) -> str:
+    head = "| case | metric | value | unit | target | peer | ratio |"
+    lines = [head, "|---|---|---:|---|---:|---|---:|"]
+    for f in figures:
+        target = "" if f.target is None else (
+            f"{f.target:g} {'ok' if f.meets_target else 'MISSED'}")
+        ratio_s = "" if f.ratio is None else f"{f.ratio:.1f}x"
+        lines.append(f"| {f.case} | {f.metric} | {f.value:.4g} | {f.unit} | {target} | "
+                     f"{f.peer or ''} | {ratio_s} |")
+    return "\n".join(lines)
+
+
+def emit(name: str, figures: list[Figure]) -> None:
+    print(f"## benchmark `{name}` ({machine_description()})\n")
+    print(format_markdown(figures))
+    print()
+    for f in figures:
+        print(json.dumps(f.as_json()))

@@ -1,0 +1,1 @@
+"""The ``faceanalysis`` command: one module per subcommand, registered in :mod:`.main`."""

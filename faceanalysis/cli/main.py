@@ -1,0 +1,68 @@
+"""Entry point of the ``faceanalysis`` command.
+
+Each subcommand is a module of this package exposing ``HELP`` (one line),
+``configure(parser)`` and ``run(args) -> int``. Commands stay thin: they translate
+arguments and call the library. Exit codes: 0 success, 1 failure (a one-line
+message, no traceback), 2 usage error (argparse).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from faceanalysis._version import __version__
+from faceanalysis.errors import FaceAnalysisError
+
+# Subcommand name -> module under faceanalysis.cli. Order is the order of --help.
+SUBCOMMANDS: dict[str, str] = {
+    "info": "info",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="faceanalysis",
+        description="Analyse facial motion in video into muscle contractions, resynthesise "
+                    "it with a physics-based face model, and validate the loop.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"faceanalysis {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more log output on stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
+    for name, module_name in SUBCOMMANDS.items():
+        module = importlib.import_module(f"faceanalysis.cli.{module_name}")
+        sp = sub.add_parser(name, help=module.HELP,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.configure(sp)
+        sp.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "_run", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    from faceanalysis.cli._common import configure_logging
+
+    configure_logging(args.verbose, getattr(args, "quiet", False))
+    try:
+        return int(args._run(args) or 0)
+    except (FaceAnalysisError, ValueError, FileNotFoundError, FileExistsError,
+            NotADirectoryError, IsADirectoryError, PermissionError) as exc:
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"faceanalysis: error: {message}", file=sys.stderr)
+        logging.getLogger(__name__).debug("details", exc_info=True)
+        return 1
+    except KeyboardInterrupt:
+        print("faceanalysis: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,54 @@
+import json
+import subprocess
+import sys
+
+from faceanalysis import __version__
+from faceanalysis.cli.main import SUBCOMMANDS
+
+
+def test_version(run_cli):
+    code, out, _ = run_cli("--version")
+    assert code == 0
+    assert out.strip() == f"faceanalysis {__version__}"
+
+
+def test_help_lists_every_subcommand(run_cli):
+    code, out, _ = run_cli("--help")
+    assert code == 0
+    for name in SUBCOMMANDS:
+        assert name in out
+
+
+def test_unknown_subcommand_is_a_one_line_usage_error():
+    proc = subprocess.run([sys.executable, "-m", "faceanalysis", "nosuchcmd"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert "invalid choice: 'nosuchcmd'" in proc.stderr
+
+
+def test_no_subcommand_prints_help_and_fails(run_cli):
+    code, _, err = run_cli()
+    assert code == 2
+    assert "usage:" in err
+
+
+def test_info_json_reports_core_libraries(run_cli):
+    code, out, _ = run_cli("info", "--json")
+    assert code == 0
+    info = json.loads(out)
+    assert info["faceanalysis"] == __version__
+    for lib in ("numpy", "scipy", "cv2", "skimage", "pandas"):
+        assert info[lib], lib
+
+
+def test_user_errors_become_one_line_exit_1(monkeypatch, run_cli):
+    import faceanalysis.cli.info as info_cmd
+
+    def boom(args):
+        raise FileNotFoundError("clip.mp4: no such file")
+
+    monkeypatch.setattr(info_cmd, "run", boom)
+    code, _, err = run_cli("info")
+    assert code == 1
+    assert err.strip() == "faceanalysis: error: clip.mp4: no such file"
