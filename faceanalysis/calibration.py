@@ -1,0 +1,135 @@
+"""Calibration on the neutral frame: map model space into the tracked head frame.
+
+004 (V-D) calibrates on an image of the neutral face: the head reference frame's
+origin comes from the hairline, and the muscle vectors are placed relative to it
+from the fiducial points. Here the map is an affine transform fitted by least
+squares from the model's rest fiducials (cm, y up) to the neutral fiducials
+expressed in the head frame, so that face proportions that differ from the model
+(width, length) are absorbed, and fiducial motion in later frames can be taken
+back into model units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def to_head_frame(points: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """Express image points in the head reference frame.
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., F, 2)
+        Image points (x right, y down, pixels).
+    head : ndarray, shape (..., 4)
+        Head frame per frame: origin x, origin y, scale (px per unit), roll (radians):
+        the angle of the head's x axis in image coordinates, ``atan2(dy, dx)`` with y
+        down, so a positive roll is clockwise on screen.
+
+    Returns
+    -------
+    ndarray, shape (..., F, 2)
+        ``R(-roll) (p - origin) / scale``: translation, in-plane rotation and scale removed.
+    """
+    points = np.asarray(points, dtype=float)
+    head = np.asarray(head, dtype=float)
+    rel = points - head[..., None, 0:2]
+    cos, sin = np.cos(head[..., 3])[..., None], np.sin(head[..., 3])[..., None]
+    x = cos * rel[..., 0] + sin * rel[..., 1]
+    y = -sin * rel[..., 0] + cos * rel[..., 1]
+    return np.stack([x, y], axis=-1) / head[..., 2, None, None]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Affine map from model space (cm, y up) to head-frame coordinates of the neutral face.
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (2, 2)
+        Linear part: head-frame displacement = ``matrix @ model displacement``.
+    offset : ndarray, shape (2,)
+    neutral : ndarray, shape (F, 2)
+        Neutral fiducials in head-frame coordinates.
+    residual : float
+        RMS fit residual of the neutral fiducials, in head-frame units.
+    """
+
+    matrix: np.ndarray
+    offset: np.ndarray
+    neutral: np.ndarray
+    residual: float
+
+    def model_displacements(self, fiducials: np.ndarray, head: np.ndarray) -> np.ndarray:
+        """Fiducial displacements from neutral, in model cm, for tracked frames.
+
+        Parameters
+        ----------
+        fiducials : ndarray, shape (T, F, 2)
+            Tracked image fiducials.
+        head : ndarray, shape (T, 4)
+            Tracked head frames.
+        """
+        q = to_head_frame(fiducials, head)
+        return (q - self.neutral) @ np.linalg.inv(self.matrix).T
+
+    def to_head(self, model_points: np.ndarray) -> np.ndarray:
+        """Model points (..., 2) into head-frame coordinates."""
+        return np.asarray(model_points, dtype=float) @ self.matrix.T + self.offset
+
+
+def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
+              model_rest: np.ndarray) -> Calibration:
+    """Fit the model-to-head-frame map on the neutral frame.
+
+    Parameters
+    ----------
+    neutral_fiducials : ndarray, shape (F, 2)
+        Image fiducials of the neutral frame, pixels.
+    neutral_head : ndarray, shape (4,)
+        Head frame of the neutral frame (x, y, scale, roll).
+    model_rest : ndarray, shape (F, 2)
+        The same fiducials on the model at rest (cm, x = subject's left, y up).
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    ValueError
+        If shapes disagree, values are not finite, or the fiducials are degenerate
+        (collinear), so that no affine map is defined.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rest = np.array([[-3., 4.], [3., 4.], [0., -5.], [-2., -3.]])
+    >>> image = np.c_[100 + 10 * rest[:, 0], 120 - 10 * rest[:, 1]]
+    >>> cal = calibrate(image, np.array([100., 120., 10., 0.]), rest)
+    >>> np.round(cal.matrix, 6) + 0.0
+    array([[ 1.,  0.],
+           [ 0., -1.]])
+    """
+    p = np.asarray(neutral_fiducials, dtype=float)
+    r = np.asarray(model_rest, dtype=float)
+    head = np.asarray(neutral_head, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 2 or r.shape != p.shape:
+        raise ValueError(f"neutral fiducials {p.shape} and model fiducials {r.shape} must both "
+                         "have shape (F, 2)")
+    if head.shape != (4,):
+        raise ValueError(f"neutral head frame must have 4 values, got shape {head.shape}")
+    if not (np.isfinite(p).all() and np.isfinite(r).all() and np.isfinite(head).all()):
+        raise ValueError("calibration needs finite neutral fiducials and head frame")
+    if head[2] <= 0:
+        raise ValueError(f"head scale must be positive, got {head[2]}")
+    q = to_head_frame(p, head)
+    design = np.c_[r, np.ones(len(r))]
+    if np.linalg.matrix_rank(design) < 3:
+        raise ValueError("neutral fiducials are degenerate (collinear): cannot calibrate")
+    coef, *_ = np.linalg.lstsq(design, q, rcond=None)
+    matrix, offset = coef[:2].T, coef[2]
+    residual = float(np.sqrt(np.mean(np.sum((design @ coef - q) ** 2, axis=1))))
+    return Calibration(matrix=matrix, offset=offset, neutral=q, residual=residual)

@@ -1,0 +1,202 @@
+"""Muscle contractions from fiducial displacements.
+
+Two estimators share one input, the fiducial displacements from the neutral frame in
+model units (see :mod:`faceanalysis.calibration`), and one model of how muscles move
+fiducials (:class:`~faceanalysis.response.FiducialResponse`):
+
+``tw93``
+    The paper's scheme (004, section V-D): every muscle independently, from its own
+    fiducial point, by inverting eq. 5 (``x' = x + c b m``) along the muscle's image-plane
+    direction. Here ``b m``, the point's displacement at full contraction, comes from the
+    physics model, so tissue mechanics are included, and the tabulated response is
+    inverted level by level rather than linearly.
+``joint``
+    All contractions at once: bounded least squares of every fiducial coordinate against
+    the sum of all muscles' responses, ``min ||d - sum_m D_m(c_m)||^2 + lam ||c||^2``
+    subject to ``0 <= c_m <= upper_m``. Muscles whose effects overlap (inner and major
+    frontalis on the brow, zygomaticus and depressor on the mouth corner) share the
+    explanation instead of each claiming all of it.
+
+Bounds are the only thing that keeps values in [0, 1]: no clipping after the fact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from faceanalysis.response import FiducialResponse
+
+ESTIMATORS = ("joint", "tw93")
+
+#: Which fiducial each muscle is read from by the tw93 estimator (004, V-D).
+TW93_FIDUCIALS: dict[str, str] = {
+    **{f"frontalis_inner_{s}": f"brow_inner_{s}" for s in "lr"},
+    **{f"frontalis_major_{s}": f"brow_mid_{s}" for s in "lr"},
+    **{f"frontalis_outer_{s}": f"brow_outer_{s}" for s in "lr"},
+    **{f"zygomaticus_major_{s}": f"mouth_corner_{s}" for s in "lr"},
+    **{f"depressor_labii_{s}": f"mouth_corner_{s}" for s in "lr"},
+    **{f"levator_labii_nasi_{s}": f"furrow_top_{s}" for s in "lr"},
+    "jaw_rotation": "chin",
+}
+
+
+def _check_displacements(d: np.ndarray, response: FiducialResponse) -> np.ndarray:
+    d = np.asarray(d, dtype=float)
+    if d.ndim == 2:
+        d = d[None]
+    n_fid = len(response.fiducials)
+    if d.ndim != 3 or d.shape[1:] != (n_fid, 2):
+        raise ValueError(f"displacements must have shape (T, {n_fid}, 2), got {d.shape}")
+    return d
+
+
+def estimate_tw93(displacements: np.ndarray, response: FiducialResponse) -> np.ndarray:
+    """Per-muscle inversion of eq. 5 of 004 in the image plane.
+
+    For muscle ``m`` read from fiducial ``f``, the observed displacement of ``f`` is
+    projected on the unit direction of ``f``'s displacement at full contraction,
+    ``u = D_m(1) / |D_m(1)|``, and the contraction is the level at which the model's
+    projected displacement ``D_m(c) . u`` equals it (linear between tabulated
+    levels; the bounds 0 and ``upper`` hold where it falls outside).
+
+    Parameters
+    ----------
+    displacements : ndarray, shape (T, F, 2)
+        Fiducial displacements from neutral in model units (cm, y up); NaN for lost frames.
+    response : FiducialResponse
+
+    Returns
+    -------
+    ndarray, shape (T, M)
+        One column per ``response.muscles``; muscles the scheme does not read
+        (no entry in :data:`TW93_FIDUCIALS`) are NaN, lost frames are NaN.
+    """
+    d = _check_displacements(displacements, response)
+    out = np.full((d.shape[0], len(response.muscles)), np.nan)
+    for m, name in enumerate(response.muscles):
+        fid = TW93_FIDUCIALS.get(name)
+        if fid is None or fid not in response.fiducials:
+            continue
+        f = response.fiducials.index(fid)
+        curve = response.displacement[m, :, f]          # (L, 2)
+        full = curve[-1]
+        norm = np.linalg.norm(full)
+        if norm == 0:
+            continue
+        u = full / norm
+        along = curve @ u                                # monotone in a sane model
+        if np.any(np.diff(along) <= 0):
+            along = np.maximum.accumulate(along + np.arange(along.size) * 1e-12)
+        observed = d[:, f] @ u
+        values = response.levels * response.upper[m]
+        est = np.interp(observed, along, values)        # np.interp holds the end values
+        est[~np.isfinite(observed)] = np.nan
+        out[:, m] = est
+    return out
+
+
+def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
+                   weights: np.ndarray | None = None, regularization: float = 1e-3,
+                   outer_iterations: int = 8, inner_iterations: int = 300,
+                   initial: np.ndarray | None = None) -> np.ndarray:
+    """Bounded least-squares fit of all contractions at once, frame by frame.
+
+    Minimises, for each frame independently,
+    ``sum_f w_f |d_f - sum_m D_{m,f}(c_m)|^2 + lam * sum_m (c_m / upper_m)^2``
+    subject to ``0 <= c_m <= upper_m``, where ``D_m`` is the model's piecewise-linear
+    response. The problem is solved for all frames together (vectorised): Gauss-Newton
+    linearisation of the response, then an accelerated projected-gradient (FISTA)
+    solve of the box-constrained quadratic.
+
+    Parameters
+    ----------
+    displacements : ndarray, shape (T, F, 2)
+        Fiducial displacements from neutral in model units; NaN rows are lost frames.
+    response : FiducialResponse
+    weights : ndarray, shape (F,), optional
+        Per-fiducial weights (default 1).
+    regularization : float, keyword-only
+        ``lam``, relative to the mean squared full-contraction response; a small value
+        breaks ties between muscles the fiducials cannot tell apart, in favour of
+        smaller contractions.
+    outer_iterations, inner_iterations : int, keyword-only
+        Gauss-Newton and projected-gradient iterations.
+    initial : ndarray, shape (T, M) or (M,), optional
+        Starting contractions (default zero, the neutral face).
+
+    Returns
+    -------
+    ndarray, shape (T, M)
+        Contractions, one column per ``response.muscles``; NaN rows for lost frames.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from faceanalysis.response import FiducialResponse
+    >>> levels = np.linspace(0, 1, 3)
+    >>> disp = np.zeros((2, 3, 1, 2))
+    >>> disp[0, :, 0, 1] = levels            # muscle a lifts the point
+    >>> disp[1, :, 0, 0] = 2 * levels        # muscle b pulls it sideways
+    >>> resp = FiducialResponse(("a", "b"), ("p",), np.zeros((1, 2)), disp,
+    ...                         np.ones(2), levels)
+    >>> np.round(estimate_joint(np.array([[[1.0, 0.5]]]), resp, regularization=0), 3)
+    array([[0.5, 0.5]])
+    """
+    d = _check_displacements(displacements, response)
+    if regularization < 0:
+        raise ValueError(f"regularization must be >= 0, got {regularization}")
+    if outer_iterations < 1 or inner_iterations < 1:
+        raise ValueError("outer_iterations and inner_iterations must be >= 1")
+    n_t, n_f = d.shape[0], d.shape[1]
+    n_m = len(response.muscles)
+    w = np.ones(n_f) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (n_f,) or np.any(w < 0) or not np.isfinite(w).all():
+        raise ValueError(f"weights must be {n_f} finite non-negative values")
+    sw = np.repeat(np.sqrt(w), 2)                         # per coordinate
+
+    valid = np.isfinite(d).all(axis=(1, 2))
+    out = np.full((n_t, n_m), np.nan)
+    if not valid.any():
+        return out
+    dv = d[valid].reshape(-1, n_f * 2) * sw
+    upper = response.upper
+    scale = np.mean((response.displacement[:, -1].reshape(n_m, -1) * sw) ** 2) * n_f * 2
+    lam = regularization * scale / upper**2               # per control
+
+    if initial is None:
+        c = np.zeros((dv.shape[0], n_m))
+    else:
+        c = np.broadcast_to(np.asarray(initial, dtype=float), (n_t, n_m))[valid].copy()
+        c = np.clip(c, 0.0, upper)                         # a start point, not a result
+
+    for _ in range(outer_iterations):
+        jac = response.jacobian(c) * sw[None, :, None]    # (T, K, M)
+        res = dv - response.predict(c).reshape(-1, n_f * 2) * sw
+        hess = np.einsum("tkm,tkn->tmn", jac, jac) + np.diag(lam)
+        grad0 = np.einsum("tkm,tk->tm", jac, res) - lam * c
+        lo, hi = -c, upper - c
+        lipschitz = np.linalg.eigvalsh(hess)[:, -1][:, None]
+        step = np.zeros_like(c)
+        y = step.copy()
+        t = 1.0
+        for _ in range(inner_iterations):
+            g = np.einsum("tmn,tn->tm", hess, y) - grad0
+            new = np.clip(y - g / lipschitz, lo, hi)
+            t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+            y = new + ((t - 1.0) / t_new) * (new - step)
+            step, t = new, t_new
+        c = np.clip(c + step, 0.0, upper)                  # rounding only: step is in-box
+        if np.abs(step).max() < 1e-7:
+            break
+    out[valid] = c
+    return out
+
+
+def estimate(displacements: np.ndarray, response: FiducialResponse, *,
+             estimator: str = "joint", **kwargs) -> np.ndarray:
+    """Dispatch to :func:`estimate_joint` or :func:`estimate_tw93` by name."""
+    if estimator == "joint":
+        return estimate_joint(displacements, response, **kwargs)
+    if estimator == "tw93":
+        return estimate_tw93(displacements, response)
+    raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")

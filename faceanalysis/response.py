@@ -1,0 +1,114 @@
+"""The face model's fiducial response: how each muscle moves the 11 fiducial points.
+
+Estimation inverts this response. It is tabulated once per face model by
+equilibrating the model with one muscle (or the jaw) at a time at a few contraction
+levels, and recording the orthographic x-y displacement of every fiducial. Between
+levels the response is piecewise linear; muscles combine additively, the
+assumption under which 004 (section V-D) inverts eq. 5 muscle by muscle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class FiducialResponse:
+    """Tabulated fiducial displacement per muscle and contraction level.
+
+    Parameters
+    ----------
+    muscles : tuple of str
+        Names of the controls (muscles and possibly ``"jaw_rotation"``), length M.
+    fiducials : tuple of str
+        Fiducial names, length F.
+    rest : ndarray, shape (F, 2)
+        Rest positions of the fiducials in model space (cm, x = subject's left, y up).
+    displacement : ndarray, shape (M, L, F, 2)
+        Displacement of each fiducial (cm) when control m alone is at level
+        ``levels[l] * upper[m]``; ``displacement[:, 0]`` must be zero.
+    upper : ndarray, shape (M,)
+        Upper bound of each control (1 for muscles, the largest jaw angle in radians).
+    levels : ndarray, shape (L,)
+        Uniform levels in [0, 1], from 0 to 1.
+    """
+
+    muscles: tuple[str, ...]
+    fiducials: tuple[str, ...]
+    rest: np.ndarray
+    displacement: np.ndarray
+    upper: np.ndarray
+    levels: np.ndarray
+
+    def __post_init__(self):
+        m, f = len(self.muscles), len(self.fiducials)
+        disp = np.asarray(self.displacement, dtype=float)
+        if disp.ndim != 4 or disp.shape[0] != m or disp.shape[2] != f or disp.shape[3] != 2:
+            raise ValueError(f"displacement must have shape (M={m}, L, F={f}, 2), "
+                             f"got {disp.shape}")
+        levels = np.asarray(self.levels, dtype=float)
+        if levels.shape != (disp.shape[1],) or levels.size < 2:
+            raise ValueError("levels must have one entry per tabulated level (at least 2)")
+        if not np.allclose(levels, np.linspace(0.0, 1.0, levels.size)):
+            raise ValueError("levels must be uniform from 0 to 1")
+        if np.abs(disp[:, 0]).max(initial=0.0) > 1e-9:
+            raise ValueError("displacement at level 0 must be zero")
+        upper = np.asarray(self.upper, dtype=float)
+        if upper.shape != (m,) or np.any(upper <= 0):
+            raise ValueError("upper must hold one positive bound per control")
+        object.__setattr__(self, "displacement", disp)
+        object.__setattr__(self, "levels", levels)
+        object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "rest", np.asarray(self.rest, dtype=float).reshape(f, 2))
+
+    @property
+    def n_levels(self) -> int:
+        return self.levels.size
+
+    def _segments(self, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = np.clip(c / self.upper, 0.0, 1.0) * (self.n_levels - 1)
+        idx = np.minimum(np.floor(s).astype(np.intp), self.n_levels - 2)
+        return idx, s - idx
+
+    def predict(self, c: np.ndarray) -> np.ndarray:
+        """Fiducial displacements (T, F, 2) for controls ``c`` of shape (T, M) or (M,)."""
+        c = np.atleast_2d(np.asarray(c, dtype=float))
+        idx, frac = self._segments(c)
+        m = np.arange(len(self.muscles))
+        d0 = self.displacement[m, idx]            # (T, M, F, 2)
+        d1 = self.displacement[m, idx + 1]
+        return np.einsum("tm,tmfk->tfk", 1.0 - frac, d0) + np.einsum("tm,tmfk->tfk", frac, d1)
+
+    def jacobian(self, c: np.ndarray) -> np.ndarray:
+        """Slope of the response (T, F*2, M) at ``c`` (right-hand slope at breakpoints)."""
+        c = np.atleast_2d(np.asarray(c, dtype=float))
+        idx, _ = self._segments(c)
+        m = np.arange(len(self.muscles))
+        step = self.upper / (self.n_levels - 1)   # control units per level
+        slope = (self.displacement[m, idx + 1] - self.displacement[m, idx]) / step[:, None, None]
+        t, mm, f, _ = slope.shape
+        return slope.reshape(t, mm, f * 2).transpose(0, 2, 1)
+
+    def full_displacement(self, muscle: str) -> np.ndarray:
+        """Displacement (F, 2) of every fiducial at the muscle's full contraction."""
+        return self.displacement[self.index(muscle), -1]
+
+    def index(self, muscle: str) -> int:
+        try:
+            return self.muscles.index(muscle)
+        except ValueError:
+            raise ValueError(f"unknown control {muscle!r}; known: {', '.join(self.muscles)}") \
+                from None
+
+    def save(self, path) -> None:
+        np.savez_compressed(path, muscles=np.array(self.muscles),
+                            fiducials=np.array(self.fiducials), rest=self.rest,
+                            displacement=self.displacement, upper=self.upper, levels=self.levels)
+
+    @classmethod
+    def load(cls, path) -> FiducialResponse:
+        with np.load(path) as z:
+            return cls(tuple(str(s) for s in z["muscles"]), tuple(str(s) for s in z["fiducials"]),
+                       z["rest"], z["displacement"], z["upper"], z["levels"])

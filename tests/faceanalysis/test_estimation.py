@@ -1,0 +1,137 @@
+import numpy as np
+import pytest
+
+from faceanalysis.calibration import calibrate, to_head_frame
+from faceanalysis.estimators import estimate, estimate_joint, estimate_tw93
+from faceanalysis.response import FiducialResponse
+
+FIDS = ("brow_inner_l", "brow_mid_l", "mouth_corner_l", "chin")
+
+
+def _response(rng, *, saturation=0.3):
+    """Four controls with overlapping, saturating (biphasic-like) responses."""
+    levels = np.linspace(0, 1, 6)
+    muscles = ("frontalis_inner_l", "frontalis_major_l", "zygomaticus_major_l", "jaw_rotation")
+    upper = np.array([1.0, 1.0, 1.0, 0.3])
+    disp = np.zeros((4, 6, 4, 2))
+    shape = levels - saturation * levels**2          # monotone, saturating
+    disp[0, :, 0] = np.outer(shape, [0.0, 0.5])      # inner brow up
+    disp[0, :, 1] = np.outer(shape, [0.0, 0.2])
+    disp[1, :, 0] = np.outer(shape, [0.05, 0.25])    # major brow: overlaps inner
+    disp[1, :, 1] = np.outer(shape, [0.0, 0.5])
+    disp[2, :, 2] = np.outer(shape, [0.6, 0.5])      # corner up and out
+    disp[3, :, 3] = np.outer(shape, [0.0, -1.2])     # chin down
+    disp[3, :, 2] = np.outer(shape, [0.0, -0.3])     # jaw also drags the corner
+    rest = rng.normal(size=(4, 2)) * 3
+    return FiducialResponse(muscles, FIDS, rest, disp, upper, levels)
+
+
+def test_response_interpolates_tabulated_levels(rng):
+    resp = _response(rng)
+    c = np.zeros((1, 4))
+    c[0, 0] = 0.6
+    np.testing.assert_allclose(resp.predict(c)[0], resp.displacement[0, 3])
+    jac = resp.jacobian(np.full((1, 4), 0.1))
+    assert jac.shape == (1, 8, 4)
+
+
+def test_response_rejects_bad_tables(rng):
+    resp = _response(rng)
+    bad = resp.displacement.copy()
+    bad[:, 0] += 1.0
+    with pytest.raises(ValueError, match="level 0"):
+        FiducialResponse(resp.muscles, resp.fiducials, resp.rest, bad, resp.upper, resp.levels)
+    with pytest.raises(ValueError, match="shape"):
+        FiducialResponse(resp.muscles[:2], resp.fiducials, resp.rest, resp.displacement,
+                         resp.upper[:2], resp.levels)
+
+
+def test_joint_recovers_overlapping_muscles_within_bounds(rng):
+    resp = _response(rng)
+    truth = rng.uniform(0, 1, size=(200, 4)) * resp.upper
+    d = resp.predict(truth) + rng.normal(scale=1e-3, size=(200, 4, 2))
+    est = estimate_joint(d, resp, regularization=1e-6)
+    assert np.all(est >= 0) and np.all(est <= resp.upper)
+    rmse = np.sqrt(np.mean((est - truth) ** 2, axis=0)) / resp.upper
+    assert np.all(rmse < 0.02), rmse
+
+
+def test_joint_beats_tw93_when_muscles_overlap(rng):
+    resp = _response(rng)
+    truth = rng.uniform(0, 1, size=(200, 4)) * resp.upper
+    d = resp.predict(truth)
+    joint = estimate(d, resp, estimator="joint", regularization=1e-6)
+    tw93 = estimate(d, resp, estimator="tw93")
+    err_joint = np.sqrt(np.nanmean((joint - truth) ** 2, axis=0))
+    err_tw93 = np.sqrt(np.nanmean((tw93 - truth) ** 2, axis=0))
+    # the inner frontalis shares its fiducial with the major frontalis: tw93 over-reads it
+    assert err_tw93[0] > 5 * err_joint[0]
+
+
+def test_tw93_is_exact_for_an_isolated_muscle(rng):
+    resp = _response(rng)
+    truth = np.zeros((5, 4))
+    truth[:, 3] = np.linspace(0, 0.3, 5)          # jaw alone moves the chin
+    est = estimate_tw93(resp.predict(truth), resp)
+    np.testing.assert_allclose(est[:, 3], truth[:, 3], atol=1e-9)
+
+
+def test_out_of_range_motion_hits_the_bound_not_beyond(rng):
+    resp = _response(rng)
+    d = resp.predict(np.array([[0, 0, 1.0, 0]])) * 3.0   # three times the full pull
+    est = estimate_joint(d, resp)
+    assert est[0, 2] == pytest.approx(1.0)
+    assert estimate_tw93(d, resp)[0, 2] == pytest.approx(1.0)
+
+
+def test_lost_frames_stay_nan_and_others_are_unaffected(rng):
+    resp = _response(rng)
+    truth = rng.uniform(0, 1, size=(6, 4)) * resp.upper
+    d = resp.predict(truth)
+    d[2] = np.nan
+    est = estimate_joint(d, resp, regularization=1e-6)
+    assert np.isnan(est[2]).all()
+    assert np.isfinite(np.delete(est, 2, axis=0)).all()
+    assert np.isnan(estimate_tw93(d, resp)[2]).all()
+
+
+def test_estimators_validate_input(rng):
+    resp = _response(rng)
+    with pytest.raises(ValueError, match="shape"):
+        estimate_joint(np.zeros((3, 5, 2)), resp)
+    with pytest.raises(ValueError, match="choose from joint, tw93"):
+        estimate(np.zeros((1, 4, 2)), resp, estimator="magic")
+    with pytest.raises(ValueError, match="weights"):
+        estimate_joint(np.zeros((1, 4, 2)), resp, weights=np.ones(3))
+
+
+def test_calibration_undoes_similarity_and_recovers_displacements(rng):
+    rest = rng.normal(size=(11, 2)) * 4
+    head = np.array([130.0, 40.0, 7.5, 0.2])
+    cos, sin = np.cos(head[3]), np.sin(head[3])
+    rot = np.array([[cos, -sin], [sin, cos]])
+
+    def to_image(model_pts, h):
+        local = model_pts * [1, -1] * 9.0      # 9 px per cm, y flipped
+        return local @ rot.T * (h[2] / 7.5) + h[:2]
+
+    cal = calibrate(to_image(rest, head), head, rest)
+    assert cal.residual < 1e-9
+    motion = rng.normal(scale=0.3, size=(11, 2))
+    head2 = np.array([140.0, 35.0, 7.5 * 1.1, 0.2])   # translated and scaled head
+    d = cal.model_displacements(to_image(rest + motion, head2)[None], head2[None])
+    np.testing.assert_allclose(d[0], motion, atol=1e-9)
+
+
+def test_head_frame_removes_roll():
+    pts = np.array([[[10.0, 0.0]]])
+    head = np.array([[0.0, 0.0, 1.0, np.pi / 2]])     # head x axis points down the image
+    np.testing.assert_allclose(to_head_frame(pts, head), [[[0.0, -10.0]]], atol=1e-12)
+
+
+def test_calibration_rejects_degenerate_input():
+    rest = np.c_[np.arange(4.0), np.arange(4.0)]
+    with pytest.raises(ValueError, match="collinear"):
+        calibrate(rest * 10, np.array([0, 0, 1.0, 0]), rest)
+    with pytest.raises(ValueError, match="finite"):
+        calibrate(np.full((4, 2), np.nan), np.array([0, 0, 1.0, 0]), rest)
