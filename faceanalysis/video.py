@@ -1,0 +1,542 @@
+"""Streaming frame input: video files that OpenCV can read, and folders of images.
+
+:func:`open_video` returns a :class:`VideoSource`, an iterable of :class:`Frame`
+objects that decodes one frame at a time, so memory stays flat however long the
+video is. Frame rate and timestamps come from the container unless the caller
+gives ``fps``. Frames that fail to decode in the middle of a stream are yielded
+with ``ok=False`` (the caller counts them as lost and goes on); a stream that
+stops decoding before the end announced by its container (a truncated file) ends
+the iteration with a warning and is recorded in :attr:`VideoSource.missing_tail`.
+
+:func:`to_gray_float` and :func:`to_bgr_uint8` normalise any frame (grey, BGR,
+BGRA; 8-bit, 16-bit or float) for the trackers and for drawing.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "DEFAULT_FPS",
+    "IMAGE_SUFFIXES",
+    "MIN_FACE_SIZE",
+    "Frame",
+    "VideoSource",
+    "open_video",
+    "to_bgr_uint8",
+    "to_gray_float",
+]
+
+log = logging.getLogger(__name__)
+
+#: Frame rate assumed for a folder of images (or a video without one) when no ``fps`` is given.
+DEFAULT_FPS = 30.0
+
+#: File name suffixes read from an image folder (compared case-insensitively).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+#: Smallest frame side (pixels) on which the face trackers can work; see ``min_size``.
+MIN_FACE_SIZE = 64
+
+# Leading bytes of common video containers: a file that carries one of them but
+# that OpenCV cannot open is an empty or damaged video, not "not a video".
+_CONTAINER_MAGIC: tuple[tuple[int, bytes], ...] = (
+    (4, b"ftyp"), (4, b"moov"), (4, b"mdat"), (4, b"wide"), (4, b"free"), (4, b"skip"),
+    (0, b"RIFF"), (0, b"\x1aE\xdf\xa3"), (0, b"\x00\x00\x01\xba"), (0, b"\x00\x00\x01\xb3"),
+    (0, b"FLV"), (0, b"OggS"), (0, b"\x30\x26\xb2\x75"),
+)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame of a :class:`VideoSource`.
+
+    Attributes
+    ----------
+    index : int
+        Frame number in the whole file or folder (0-based), also when ``start > 0``.
+    timestamp : float
+        Seconds from the start of the file: the container's presentation time
+        when it is sane, else ``index / fps``.
+    image : ndarray or None
+        The pixels as decoded, ``(H, W)`` grey or ``(H, W, 3|4)`` BGR(A), dtype
+        ``uint8`` or ``uint16`` (image folders keep their bit depth). ``None``
+        when ``ok`` is false.
+    ok : bool
+        False when the frame could not be decoded; such a frame is lost, not fatal.
+    """
+
+    index: int
+    timestamp: float
+    image: np.ndarray | None
+    ok: bool = True
+
+
+def _natural_key(name: str) -> list:
+    """Sort key that orders ``img2`` before ``img10``."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def _looks_like_container(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if head[:1] == b"\x47" and path.suffix.lower() in (".ts", ".m2ts", ".mts"):
+        return True
+    return any(head[offset:offset + len(magic)] == magic for offset, magic in _CONTAINER_MAGIC)
+
+
+def _check_int(value, name: str, *, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)
+
+
+class VideoSource:
+    """Frames of a video file or of an image folder, decoded one at a time.
+
+    Do not instantiate directly; use :func:`open_video`. Iterating yields
+    :class:`Frame` objects for the frames ``start <= index < end``; each
+    iteration starts again from ``start``. The source is also a context
+    manager: leaving the ``with`` block releases any decoder still open.
+
+    Attributes
+    ----------
+    path : Path
+        The file or folder.
+    kind : {'video', 'images'}
+        What ``path`` is.
+    fps : float
+        Frame rate used for timestamps that the container does not give.
+    fps_origin : {'user', 'container', 'default'}
+        Where ``fps`` came from.
+    size : tuple of int
+        ``(width, height)`` in pixels of the first frame.
+    dtype : numpy dtype
+        Pixel type of the first frame (``uint8`` for videos, ``uint8`` or ``uint16`` for images).
+    channels : int
+        1 (grey), 3 (BGR) or 4 (BGRA) for the first frame.
+    start, end : int, int or None
+        The frame range; ``end`` is exclusive and ``None`` means "to the end".
+    frame_count : int or None
+        Frames in the whole file as announced by the container (exact for folders);
+        ``None`` when unknown.
+    n_failed : int
+        Frames that could not be decoded so far (mid-stream ones and the missing tail).
+    missing_tail : int
+        Frames announced by the container at the end of the range that never decoded
+        (a truncated or damaged file); counted in ``n_failed``, not yielded.
+    """
+
+    def __init__(self, path: Path, kind: str, *, fps: float, fps_origin: str, size: tuple,
+                 dtype: np.dtype, channels: int, start: int, end: int | None,
+                 frame_count: int | None, files: list[Path] | None = None):
+        self.path = path
+        self.kind = kind
+        self.fps = fps
+        self.fps_origin = fps_origin
+        self.size = size
+        self.dtype = dtype
+        self.channels = channels
+        self.start = start
+        self.end = end
+        self.frame_count = frame_count
+        self.n_failed = 0
+        self.missing_tail = 0
+        self._files = files
+        self._capture: cv2.VideoCapture | None = None
+
+    # -- properties -------------------------------------------------------------------------
+    @property
+    def n_frames(self) -> int | None:
+        """Frames in the range ``[start, end)`` as announced; ``None`` when unknown.
+
+        For videos this comes from the container and is an estimate: a damaged
+        file may deliver fewer frames (see :attr:`missing_tail`).
+        """
+        stop = self.end if self.end is not None else self.frame_count
+        return None if stop is None else max(stop - self.start, 0)
+
+    def __repr__(self) -> str:
+        return (f"VideoSource({str(self.path)!r}, kind={self.kind!r}, size={self.size}, "
+                f"fps={self.fps:g}, start={self.start}, end={self.end}, "
+                f"n_frames={self.n_frames})")
+
+    def __len__(self) -> int:
+        n = self.n_frames
+        if n is None:
+            raise TypeError(f"{self.path}: the number of frames is unknown")
+        return n
+
+    # -- context manager --------------------------------------------------------------------
+    def __enter__(self) -> VideoSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the decoder if an iteration left it open."""
+        if self._capture is not None:
+            self._capture.release()
+            self._capture = None
+
+    # -- iteration --------------------------------------------------------------------------
+    def __iter__(self) -> Iterator[Frame]:
+        self.n_failed = 0
+        self.missing_tail = 0
+        if self.kind == "images":
+            return self._iter_images()
+        return self._iter_video()
+
+    def _iter_images(self) -> Iterator[Frame]:
+        files = self._files or []
+        stop = len(files) if self.end is None else self.end
+        width, height = self.size
+        for index in range(self.start, stop):
+            name = files[index]
+            image = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
+            timestamp = index / self.fps
+            if image is None:
+                log.warning("%s: cannot decode image; frame %d marked lost", name, index)
+            elif image.shape[:2] != (height, width):
+                log.warning("%s: image is %dx%d, not %dx%d like the first; frame %d marked lost",
+                            name, image.shape[1], image.shape[0], width, height, index)
+                image = None
+            if image is None:
+                self.n_failed += 1
+                yield Frame(index, timestamp, None, False)
+            else:
+                yield Frame(index, timestamp, image, True)
+
+    def _max_failed_run(self) -> int:
+        # Damage can take out a whole group of pictures (up to ~10 s in common encodings).
+        return max(250, int(10 * self.fps))
+
+    def _iter_video(self) -> Iterator[Frame]:
+        self.close()
+        capture = cv2.VideoCapture(str(self.path))
+        if not capture.isOpened():
+            raise ValueError(f"{self.path}: cannot be opened as a video any more")
+        self._capture = capture
+        stop = self.end if self.end is not None else self.frame_count
+        use_container_time = self.fps_origin != "user"
+        max_run = self._max_failed_run()
+        index = 0          # index of the next frame to come out of the decoder
+        failed_run = 0     # reads that failed since the last good frame
+        previous: float | None = None
+        try:
+            while stop is None or index + failed_run < stop:
+                # Frames before start are decoded and dropped: seeking is not
+                # frame-accurate for every codec.
+                if index + failed_run < self.start:
+                    ok, image = capture.grab(), None
+                else:
+                    ok, image = capture.read()
+                    ok = ok and image is not None
+                if not ok:
+                    failed_run += 1
+                    if failed_run >= max_run:
+                        break
+                    continue
+                # Reads that failed before this good one are frames lost mid-stream.
+                for _ in range(failed_run):
+                    if index >= self.start:
+                        timestamp = (index / self.fps if previous is None
+                                     else previous + 1.0 / self.fps)
+                        log.warning("%s: frame %d could not be decoded; marked lost",
+                                    self.path, index)
+                        self.n_failed += 1
+                        yield Frame(index, timestamp, None, False)
+                        previous = timestamp
+                    index += 1
+                failed_run = 0
+                if index < self.start:
+                    index += 1
+                    continue
+                timestamp = self._timestamp(capture, index, previous, use_container_time)
+                yield Frame(index, timestamp, image, True)
+                previous = timestamp
+                index += 1
+        finally:
+            capture.release()
+            if self._capture is capture:
+                self._capture = None
+        if index < self.start:
+            raise ValueError(f"{self.path}: start frame {self.start} could not be reached; "
+                             f"decoding stops at frame {index}")
+        if stop is not None and index < stop:
+            self.missing_tail = stop - index
+            self.n_failed += self.missing_tail
+            level = logging.WARNING if self.missing_tail > 2 else logging.INFO
+            log.log(level, "%s: frames %d-%d of %d could not be decoded (truncated or "
+                    "damaged file); the analysis ends at frame %d",
+                    self.path, index, stop - 1, stop, index - 1)
+
+    def _timestamp(self, capture, index: int, previous: float | None, use_container: bool
+                   ) -> float:
+        fallback = index / self.fps if previous is None else previous + 1.0 / self.fps
+        if not use_container:
+            return index / self.fps
+        t = capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+        if not math.isfinite(t) or t < 0:
+            return fallback
+        if previous is None:
+            # A first timestamp of 0 after skipping frames means the backend has none.
+            return fallback if (index > 0 and t == 0.0) else t
+        return t if t > previous else fallback
+
+
+def _open_folder(path: Path, fps: float | None) -> dict:
+    files = sorted((p for p in path.iterdir()
+                    if p.is_file() and not p.name.startswith(".")
+                    and p.suffix.lower() in IMAGE_SUFFIXES),
+                   key=lambda p: _natural_key(p.name))
+    if not files:
+        raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})")
+    first = None
+    for name in files:
+        first = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
+        if first is not None:
+            break
+    if first is None:
+        raise ValueError(f"{path}: none of its {len(files)} images can be decoded")
+    if fps is None:
+        log.info("%s: no frame rate for an image folder; assuming %g fps (use --fps)",
+                 path, DEFAULT_FPS)
+    return dict(kind="images", fps=DEFAULT_FPS if fps is None else fps,
+                fps_origin="default" if fps is None else "user", first=first,
+                frame_count=len(files), files=files)
+
+
+def _open_file(path: Path, fps: float | None) -> dict:
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: file is empty (0 bytes)")
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            if _looks_like_container(path):
+                raise ValueError(f"{path}: video has no decodable frames "
+                                 "(empty, truncated or damaged)")
+            raise ValueError(f"{path}: not a video that OpenCV can read")
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+        container_fps = capture.get(cv2.CAP_PROP_FPS)
+        ok, first = capture.read()
+    finally:
+        capture.release()
+    frame_count = int(round(count)) if math.isfinite(count) and 0 < count < 2**40 else None
+    if not ok or first is None:
+        if frame_count is None and count == 0:
+            raise ValueError(f"{path}: video has zero frames")
+        raise ValueError(f"{path}: video has no decodable frames (empty, truncated or damaged)")
+    fps_origin = "user"
+    if fps is None:
+        if math.isfinite(container_fps) and 0 < container_fps <= 1000:
+            fps, fps_origin = float(container_fps), "container"
+        else:
+            log.warning("%s: the container gives no frame rate; assuming %g fps (use --fps)",
+                        path, DEFAULT_FPS)
+            fps, fps_origin = DEFAULT_FPS, "default"
+    return dict(kind="video", fps=fps, fps_origin=fps_origin, first=first,
+                frame_count=frame_count, files=None)
+
+
+def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int = 0,
+               end: int | None = None, min_size: int | None = None) -> VideoSource:
+    """Open a video file or an image folder for streaming.
+
+    Parameters
+    ----------
+    path : path-like
+        A video file that OpenCV (FFmpeg) can read, or a folder of images
+        (``.png``, ``.jpg``, ``.tif``, ``.bmp``; sorted naturally, so ``f2`` comes
+        before ``f10``). Images are read unchanged: grey and 16-bit stay so.
+    fps : float, optional
+        Frame rate. Overrides the container's, and then timestamps are
+        ``index / fps``. Image folders default to :data:`DEFAULT_FPS`.
+    start : int, optional
+        First frame to yield (0-based).
+    end : int, optional
+        Frame at which to stop (exclusive); ``None`` reads to the end.
+    min_size : int, optional
+        Refuse frames whose width or height is smaller than this many pixels
+        (the analysis passes :data:`MIN_FACE_SIZE`).
+
+    Returns
+    -------
+    VideoSource
+        Iterable of :class:`Frame`; also a context manager.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If ``path`` is not a readable video or image folder, has no frames, if
+        ``start``/``end``/``fps`` are invalid or out of range, or if frames are
+        smaller than ``min_size``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np, cv2
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> for i in range(5):
+    ...     _ = cv2.imwrite(str(folder / f"f{i}.png"), np.full((80, 96), 40 * i, np.uint8))
+    >>> with open_video(folder, fps=10, start=1, end=4) as video:
+    ...     print(video.size, video.n_frames)
+    ...     for frame in video:
+    ...         print(frame.index, frame.timestamp, frame.image.shape)
+    (96, 80) 3
+    1 0.1 (80, 96)
+    2 0.2 (80, 96)
+    3 0.3 (80, 96)
+    """
+    path = Path(path)
+    if fps is not None:
+        if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) \
+                or not math.isfinite(fps) or fps <= 0:
+            raise ValueError(f"fps must be a positive number, got {fps!r}")
+        fps = float(fps)
+    start = _check_int(start, "start", minimum=0)
+    if end is not None:
+        end = _check_int(end, "end", minimum=0)
+        if end <= start:
+            raise ValueError(f"end ({end}) must be greater than start ({start})")
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if path.is_dir():
+        info = _open_folder(path, fps)
+    else:
+        try:
+            info = _open_file(path, fps)
+        except PermissionError as exc:
+            raise PermissionError(f"{path}: permission denied") from exc
+    first = info["first"]
+    height, width = first.shape[:2]
+    channels = 1 if first.ndim == 2 else first.shape[2]
+    if min_size is not None and min(width, height) < min_size:
+        raise ValueError(f"{path}: frames are {width}x{height} pixels; the analysis needs at "
+                         f"least {min_size} on each side")
+    frame_count = info["frame_count"]
+    if frame_count is not None:
+        if start >= frame_count:
+            raise ValueError(f"start ({start}) is beyond the last frame ({frame_count - 1}) "
+                             f"of {path}")
+        if end is not None and end > frame_count:
+            raise ValueError(f"end ({end}) is beyond the {frame_count} frames of {path}")
+    return VideoSource(path, info["kind"], fps=info["fps"], fps_origin=info["fps_origin"],
+                       size=(width, height), dtype=first.dtype, channels=channels,
+                       start=start, end=end, frame_count=frame_count, files=info["files"])
+
+
+# -- pixel normalisation -------------------------------------------------------------------
+
+def _scale_of(dtype: np.dtype) -> float | None:
+    if dtype == np.bool_:
+        return 1.0
+    if np.issubdtype(dtype, np.unsignedinteger):
+        return float(np.iinfo(dtype).max)
+    if np.issubdtype(dtype, np.signedinteger):
+        return float(np.iinfo(dtype).max)
+    if np.issubdtype(dtype, np.floating):
+        return None
+    raise ValueError(f"unsupported pixel type {dtype}; use integer or float images")
+
+
+def _check_image(image) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] in (1, 2, 3, 4):
+        return image
+    if image.ndim == 2:
+        return image
+    raise ValueError(f"image must be (H, W) grey or (H, W, 3|4) BGR(A), got shape {image.shape}")
+
+
+def to_gray_float(image, *, dtype=np.float32) -> np.ndarray:
+    """Convert any frame to a 2-D grey image of floats in [0, 1].
+
+    Parameters
+    ----------
+    image : ndarray
+        ``(H, W)`` grey, ``(H, W, 1)``, ``(H, W, 2)`` grey + alpha, ``(H, W, 3)`` BGR
+        (OpenCV order) or ``(H, W, 4)`` BGRA. Integer images are divided by the
+        largest value of their type (255 for ``uint8``, 65535 for ``uint16``);
+        float images are taken to be in [0, 1] already and are not rescaled.
+        Alpha is dropped. Not modified.
+    dtype : numpy float dtype, keyword-only
+        Output type, ``float32`` by default.
+
+    Returns
+    -------
+    ndarray
+        ``(H, W)`` array; colour is reduced with the Rec. 601 luma weights
+        (0.299 R + 0.587 G + 0.114 B), like :func:`cv2.cvtColor`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> to_gray_float(np.full((2, 2), 65535, np.uint16))
+    array([[1., 1.],
+           [1., 1.]], dtype=float32)
+    >>> bgr = np.zeros((1, 1, 3), np.uint8); bgr[..., 2] = 255   # pure red
+    >>> round(float(to_gray_float(bgr)[0, 0]), 3)
+    0.299
+    """
+    image = _check_image(image)
+    scale = _scale_of(image.dtype)
+    if image.ndim == 3:
+        if image.shape[2] >= 3:
+            b, g, r = (image[..., k].astype(np.float64) for k in range(3))
+            grey = 0.114 * b + 0.587 * g + 0.299 * r
+        else:
+            grey = image[..., 0].astype(np.float64)
+    else:
+        grey = image.astype(np.float64)
+    if scale is not None:
+        grey = grey / scale
+    return grey.astype(dtype, copy=False)
+
+
+def to_bgr_uint8(image) -> np.ndarray:
+    """Convert any frame to an 8-bit BGR image for drawing and video writing.
+
+    Parameters
+    ----------
+    image : ndarray
+        Same layouts and types as :func:`to_gray_float`; 16-bit is scaled by
+        1/257 (full range), floats in [0, 1] by 255 and clipped. Not modified.
+
+    Returns
+    -------
+    ndarray
+        ``(H, W, 3)`` ``uint8``, a new array.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> to_bgr_uint8(np.full((1, 2), 65535, np.uint16)).tolist()
+    [[[255, 255, 255], [255, 255, 255]]]
+    """
+    image = _check_image(image)
+    if image.ndim == 3 and image.shape[2] in (1, 2):
+        image = image[..., 0]
+    if image.ndim == 3:
+        image = image[..., :3]
+    if image.dtype != np.uint8:
+        scale = _scale_of(image.dtype)
+        values = image.astype(np.float64)
+        values = values * (255.0 / scale) if scale is not None else values * 255.0
+        image = np.clip(np.rint(values), 0, 255).astype(np.uint8)
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    return np.ascontiguousarray(image).copy()
