@@ -1,0 +1,232 @@
+"""contractions.csv: schema, round trip, validation messages, atomic writing, AU derivation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.optimize import lsq_linear
+
+from faceanalysis import table as table_mod
+from faceanalysis.table import (
+    AU_COLUMNS,
+    FIDUCIALS,
+    HEAD_COLUMNS,
+    JAW,
+    MUSCLES,
+    au_intensities,
+    contraction_columns,
+    empty_table,
+    read_contractions,
+    write_contractions,
+)
+
+
+def filled_table(n=6, rng=None):
+    rng = rng or np.random.default_rng(0)
+    t = empty_table(n, frames=np.arange(10, 10 + n), timestamps=np.arange(n) / 30)
+    t["success"] = 1
+    t.loc[2, "success"] = 0
+    t["confidence"] = rng.uniform(0, 1, n)
+    t[list(HEAD_COLUMNS)] = rng.uniform(0, 200, (n, 4))
+    fid = [c for c in contraction_columns() if c.startswith("fid_")]
+    t[fid] = rng.uniform(0, 640, (n, len(fid)))
+    t[list(MUSCLES)] = rng.uniform(0, 1, (n, len(MUSCLES)))
+    t[JAW] = rng.uniform(-0.05, 0.3, n)
+    t[list(AU_COLUMNS)] = rng.uniform(0, 5, (n, len(AU_COLUMNS)))
+    lost = [c for c in contraction_columns() if c not in ("frame", "timestamp", "success")]
+    t.loc[2, lost] = np.nan
+    return t
+
+
+def test_schema_matches_design():
+    assert len(FIDUCIALS) == 11 and FIDUCIALS[0] == "brow_inner_l" and FIDUCIALS[-1] == "chin"
+    assert len(MUSCLES) == 29 and len(set(MUSCLES)) == 29
+    for name in ("zygomaticus_major_l", "zygomaticus_major_r", "levator_labii_nasi_l",
+                 "orbicularis_oris", "orbicularis_oculi_l", "orbicularis_oculi_r", "risorius_r"):
+        assert name in MUSCLES
+    cols = contraction_columns()
+    assert cols[:8] == ["frame", "timestamp", "success", "confidence",
+                        "head_x", "head_y", "head_scale", "head_roll"]
+    assert cols[8:10] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
+    assert cols.index(JAW) == cols.index("orbicularis_oculi_r") + 1
+    assert cols[-len(AU_COLUMNS):] == list(AU_COLUMNS)
+    assert AU_COLUMNS[0] == "AU01_r" and AU_COLUMNS[-1] == "AU27_r" and len(AU_COLUMNS) == 16
+    assert len(cols) == len(set(cols)) == 4 + 4 + 22 + 29 + 1 + 16
+
+
+def test_round_trip(tmp_path):
+    t = filled_table()
+    original = t.copy()
+    t["note"] = "x"  # extra columns travel after the fixed ones
+    path = write_contractions(t, tmp_path / "contractions.csv")
+    back = read_contractions(path)
+    assert list(back.columns) == contraction_columns() + ["note"]
+    assert back["frame"].dtype == np.int64 and back["success"].tolist() == [1, 1, 0, 1, 1, 1]
+    pd.testing.assert_frame_equal(back[contraction_columns()], original, check_dtype=False,
+                                  atol=1e-3, rtol=0)
+    assert back.loc[2, list(MUSCLES)].isna().all()
+    np.testing.assert_allclose(back[list(MUSCLES)], original[list(MUSCLES)], atol=5e-7)
+    np.testing.assert_allclose(back["timestamp"], original["timestamp"], atol=5e-7)
+    pd.testing.assert_frame_equal(t.drop(columns="note"), original)  # input not modified
+
+
+def test_file_format_is_fixed(tmp_path):
+    t = filled_table(3)
+    t = t[list(reversed(t.columns))]  # column order of the frame does not matter
+    path = write_contractions(t, tmp_path / "c.csv")
+    lines = path.read_text().splitlines()
+    assert lines[0] == ",".join(contraction_columns())
+    first = dict(zip(lines[0].split(","), lines[1].split(",")))
+    assert first["frame"] == "10" and first["success"] == "1"
+    assert len(first["zygomaticus_major_l"].split(".")[1]) == 6
+    lost = dict(zip(lines[0].split(","), lines[3].split(",")))
+    assert lost["zygomaticus_major_l"] == "" and lost["success"] == "0"
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"nope\.csv: no such file"):
+        read_contractions(tmp_path / "nope.csv")
+
+
+def test_missing_columns_are_named(tmp_path):
+    t = filled_table().drop(columns=["risorius_l", "head_roll"])
+    path = tmp_path / "c.csv"
+    t.to_csv(path, index=False)
+    with pytest.raises(ValueError, match=r"missing columns head_roll, risorius_l"):
+        read_contractions(path)
+    with pytest.raises(ValueError, match="missing columns"):
+        write_contractions(t, tmp_path / "out.csv")
+    assert not (tmp_path / "out.csv").exists()
+
+
+def write_with(tmp_path, row, column, value):
+    t = filled_table()
+    path = tmp_path / "c.csv"
+    write_contractions(t, path)
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    df.loc[row, column] = value
+    df.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize(("row", "column", "value", "match"), [
+    (3, "zygomaticus_major_l", "abc", r"line 5 \(frame 13\), column zygomaticus_major_l: "
+                                     r"'abc' is not a number"),
+    (1, "corrugator_r", "1.5", r"line 3 \(frame 11\), column corrugator_r: 1.5 is outside"),
+    (4, "orbicularis_oris", "-0.1", r"frame 14\), column orbicularis_oris: -0.1 is outside"),
+    (0, "AU12_r", "6", r"frame 10\), column AU12_r: 6 is outside \[0, 5\]"),
+    (0, "confidence", "1.2", r"column confidence"),
+    (5, "success", "2", r"frame 15\), column success: 2 is not 0 or 1"),
+    (5, "frame", "12", r"line 7 \(frame 12\), column frame: frame numbers must increase"),
+    (2, "timestamp", "", r"frame 12\), column timestamp: empty cell"),
+    (1, "fid_chin_x", "1,2", r"column fid_chin_x: '1,2' is not a number"),
+])
+def test_bad_cells_are_named(tmp_path, row, column, value, match):
+    path = write_with(tmp_path, row, column, value)
+    with pytest.raises(ValueError, match=match):
+        read_contractions(path)
+
+
+def test_write_refuses_out_of_range_values_and_leaves_no_file(tmp_path):
+    t = filled_table()
+    t.loc[4, "mentalis_l"] = 1.01
+    with pytest.raises(ValueError, match=r"frame 14\), column mentalis_l"):
+        write_contractions(t, tmp_path / "c.csv")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_empty_and_garbage_files(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    with pytest.raises(ValueError, match=r"empty\.csv: file is empty"):
+        read_contractions(empty)
+    binary = tmp_path / "bin.csv"
+    binary.write_bytes(np.random.default_rng(2).bytes(3000))
+    with pytest.raises(ValueError, match=r"bin\.csv"):
+        read_contractions(binary)
+
+
+def test_interrupted_write_keeps_previous_file(tmp_path, monkeypatch):
+    path = tmp_path / "contractions.csv"
+    write_contractions(filled_table(3), path)
+    before = path.read_bytes()
+
+    def broken_to_csv(self, *args, **kwargs):
+        target = args[0]
+        with open(target, "w") as fh:
+            fh.write("frame,timestamp\n0,0.0\n")  # half a table
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", broken_to_csv)
+    with pytest.raises(KeyboardInterrupt):
+        write_contractions(filled_table(6), path)
+    assert path.read_bytes() == before
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_empty_table_validates():
+    with pytest.raises(ValueError, match="non-negative"):
+        empty_table(-1)
+    with pytest.raises(ValueError, match="frames has 2 entries, expected 3"):
+        empty_table(3, frames=[0, 1])
+    assert len(empty_table(0)) == 0
+
+
+# -- action units --------------------------------------------------------------------------
+
+FACS = {
+    1: {"frontalis_inner_l": 0.8, "frontalis_inner_r": 0.8},
+    2: {"frontalis_outer_l": 0.7, "frontalis_outer_r": 0.7},
+    4: {"corrugator_l": 0.9, "corrugator_r": 0.9, "frontalis_inner_l": 0.1,
+        "frontalis_inner_r": 0.1},
+    12: {"zygomaticus_major_l": 0.9, "zygomaticus_major_r": 0.9},
+    26: {JAW: 0.25, "depressor_labii_l": 0.2, "depressor_labii_r": 0.2},
+}
+
+
+def test_au_intensities_recover_known_mixtures(rng):
+    truth = rng.uniform(0, 5, (40, len(FACS)))
+    aus = list(FACS)
+    t = empty_table(40)
+    t[list(MUSCLES)] = 0.0
+    t[JAW] = 0.0
+    for k, au in enumerate(aus):
+        for muscle, weight in FACS[au].items():
+            t[muscle] += truth[:, k] / 5 * weight
+    t.loc[7, "corrugator_l"] = np.nan
+    out = au_intensities(t, FACS)
+    assert list(out.columns) == list(AU_COLUMNS)
+    for k, au in enumerate(aus):
+        got = out[f"AU{au:02d}_r"].to_numpy()
+        np.testing.assert_allclose(np.delete(got, 7), np.delete(truth[:, k], 7), atol=1e-4)
+    assert out.loc[7, ["AU01_r", "AU04_r"]].isna().all()
+    assert out["AU06_r"].isna().all()  # no mapping given: unknown, not zero
+
+
+def test_au_intensities_match_a_reference_bounded_solver(rng):
+    c = rng.uniform(0, 1, (25, len(MUSCLES)))
+    t = pd.DataFrame(c, columns=list(MUSCLES))
+    t[JAW] = rng.uniform(0, 0.3, 25)
+    out = au_intensities(t, FACS)
+    names = sorted({m for au in FACS for m in FACS[au]})
+    A = np.array([[FACS[au].get(m, 0.0) for au in FACS] for m in names])
+    def cost(x, b):
+        return np.sum((A @ (x / 5) - b) ** 2)
+
+    for i in range(25):
+        b = t.loc[i, names].to_numpy(float)
+        ref = lsq_linear(A, b, bounds=(0, 1)).x * 5
+        got = out.loc[i, [f"AU{au:02d}_r" for au in FACS]].to_numpy(float)
+        assert cost(got, b) <= cost(ref, b) + 1e-8
+        assert got.min() >= 0 and got.max() <= 5
+
+
+def test_au_intensities_reject_unknown_muscles():
+    with pytest.raises(ValueError, match="unknown muscles: smile_muscle"):
+        au_intensities(empty_table(1), {12: {"smile_muscle": 1.0}})
+
+
+def test_bounded_solver_handles_degenerate_mapping():
+    x = table_mod._bounded_lsq_batch(np.zeros((3, 2)), np.ones((4, 3)), upper=1.0)
+    assert x.shape == (4, 2) and not x.any()
