@@ -1,0 +1,187 @@
+"""Time-series plot of estimated contractions (``contractions.png``, like Fig. 8 of 004).
+
+Uses matplotlib's object-oriented API with the Agg canvas: no display and no
+global ``pyplot`` state, so it is safe in headless runs and worker processes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from faceanalysis.outputs import atomic_path
+from faceanalysis.table import JAW, MUSCLE_BASES, MUSCLES
+
+__all__ = ["plot_contractions", "save_figure"]
+
+# One colour per muscle (pairs share it); fixed, so a muscle has the same colour in every plot.
+_BASES = MUSCLE_BASES + ("orbicularis_oris", "orbicularis_oculi")
+_PALETTE = (
+    "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+    "#bcbd22", "#7f7f7f", "#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#a6761d",
+)
+_COLOURS = dict(zip(_BASES, _PALETTE))
+
+#: Muscles whose largest contraction is below this are left out of the default plot.
+ACTIVE_THRESHOLD = 0.02
+
+
+def _base(muscle: str) -> tuple[str, str]:
+    """Split ``zygomaticus_major_l`` into ("zygomaticus_major", "l")."""
+    if muscle.endswith(("_l", "_r")):
+        return muscle[:-2], muscle[-1]
+    return muscle, ""
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 150) -> Path:
+    """Save ``fig`` atomically; the format follows the suffix (``.png``, ``.pdf``, ``.svg``)."""
+    path = Path(path)
+    if not path.suffix:
+        raise ValueError(f"{path}: give a suffix such as .png, .pdf or .svg")
+    if fig.canvas is None or not isinstance(fig.canvas, FigureCanvasAgg):
+        FigureCanvasAgg(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:].lower(), facecolor="white")
+    return path
+
+
+def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
+                      muscles: Sequence[str] | None = None, title: str | None = None,
+                      dpi: int = 150) -> Figure:
+    """Plot muscle contractions over time, one line per muscle.
+
+    Left and right muscles of a pair share a colour: solid for the subject's
+    left (``_l``), dashed for the right (``_r``). ``jaw_rotation`` is drawn in
+    degrees on a secondary axis. Frames where tracking failed (``success == 0``)
+    are shaded grey.
+
+    Parameters
+    ----------
+    df : DataFrame
+        A contractions table (see :mod:`faceanalysis.table`); needs ``frame``
+        or ``timestamp`` and the muscle columns to draw. Not modified.
+    path : path-like, optional
+        If given, the figure is saved there atomically (format from the suffix).
+    muscles : sequence of str, optional
+        Muscle columns to draw, in legend order. By default every muscle whose
+        largest contraction reaches 0.02.
+    title : str, optional
+        Figure title; "Estimated muscle contractions" by default.
+    dpi : int, keyword-only
+        Resolution of the saved file (150 by default).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+
+    Raises
+    ------
+    ValueError
+        If a requested muscle is not a known muscle or not in ``df``, or if ``df``
+        has neither ``frame`` nor ``timestamp``.
+
+    Examples
+    --------
+    >>> import numpy as np, pandas as pd
+    >>> t = np.linspace(0, 2, 61)
+    >>> df = pd.DataFrame({"frame": np.arange(61), "timestamp": t, "success": 1,
+    ...                    "zygomaticus_major_l": np.sin(np.pi * t / 2) ** 2,
+    ...                    "zygomaticus_major_r": 0.8 * np.sin(np.pi * t / 2) ** 2})
+    >>> fig = plot_contractions(df)
+    >>> [line.get_linestyle() for line in fig.axes[0].lines]
+    ['-', '--']
+    """
+    if "timestamp" not in df and "frame" not in df:
+        raise ValueError("table has neither a 'frame' nor a 'timestamp' column")
+    if muscles is None:
+        chosen = []
+        for m in MUSCLES:
+            if m in df:
+                values = pd.to_numeric(df[m], errors="coerce").to_numpy(float)
+                if np.isfinite(values).any() and np.nanmax(values) >= ACTIVE_THRESHOLD:
+                    chosen.append(m)
+    else:
+        if isinstance(muscles, str):
+            muscles = [muscles]
+        unknown = [m for m in muscles if m not in MUSCLES]
+        if unknown:
+            raise ValueError(f"unknown muscles: {', '.join(unknown)}; valid names are in "
+                             "faceanalysis.table.MUSCLES")
+        absent = [m for m in muscles if m not in df]
+        if absent:
+            raise ValueError(f"muscles not in the table: {', '.join(absent)}")
+        chosen = list(muscles)
+
+    timestamps = (pd.to_numeric(df["timestamp"], errors="coerce").to_numpy(float)
+                  if "timestamp" in df else None)
+    if timestamps is not None and len(timestamps) and np.isfinite(timestamps).all():
+        x, xlabel = timestamps, "time (s)"
+    elif "frame" in df:
+        x, xlabel = pd.to_numeric(df["frame"]).to_numpy(float), "frame"
+    else:
+        x, xlabel = np.arange(len(df), dtype=float), "row"
+
+    fig = Figure(figsize=(10, 4.8), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    handles: list = []
+    seen_bases: set[str] = set()
+    top = 0.0
+    for m in chosen:
+        values = pd.to_numeric(df[m], errors="coerce").to_numpy(float)
+        base, side = _base(m)
+        colour = _COLOURS.get(base, "#333333")
+        (line,) = ax.plot(x, values, color=colour, lw=1.6,
+                          ls="--" if side == "r" else "-", label=m)
+        if np.isfinite(values).any():
+            top = max(top, float(np.nanmax(values)))
+        if base not in seen_bases:
+            seen_bases.add(base)
+            handles.append(Line2D([], [], color=colour, lw=2, label=base.replace("_", " ")))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("contraction (0-1)")
+    ax.set_ylim(0, min(1.05, max(0.1, 1.1 * top)))
+    if len(x):
+        ax.set_xlim(float(np.nanmin(x)), float(np.nanmax(x)) if len(x) > 1 else x[0] + 1)
+    ax.grid(True, color="#dddddd", lw=0.6)
+    ax.set_axisbelow(True)
+    if not chosen:
+        ax.text(0.5, 0.5, f"no muscle reaches a contraction of {ACTIVE_THRESHOLD:g}",
+                transform=ax.transAxes, ha="center", va="center", color="#666666")
+
+    if JAW in df:
+        jaw = np.degrees(pd.to_numeric(df[JAW], errors="coerce").to_numpy(float))
+        if np.isfinite(jaw).any() and np.nanmax(np.abs(jaw)) > 0:
+            jax = ax.twinx()
+            jax.plot(x, jaw, color="black", lw=1.3, ls=":")
+            jax.set_ylabel("jaw rotation (degrees)")
+            span = max(1.0, float(np.nanmax(np.abs(jaw))))
+            jax.set_ylim(min(0.0, float(np.nanmin(jaw)) * 1.1), span * 1.1)
+            handles.append(Line2D([], [], color="black", lw=1.3, ls=":",
+                                  label="jaw rotation (deg)"))
+
+    if "success" in df:
+        success = pd.to_numeric(df["success"], errors="coerce").to_numpy(float)
+        lost = ~(success > 0)
+        if lost.any():
+            ax.fill_between(x, 0, 1, where=lost, step="mid", color="#999999", alpha=0.25,
+                            lw=0, transform=ax.get_xaxis_transform())
+            handles.append(Patch(color="#999999", alpha=0.25,
+                                 label=f"lost frames ({int(lost.sum())})"))
+    if chosen:
+        handles.append(Line2D([], [], color="#555555", lw=1.6, label="left (_l)"))
+        handles.append(Line2D([], [], color="#555555", lw=1.6, ls="--", label="right (_r)"))
+    if handles:
+        fig.legend(handles=handles, loc="outside right upper", frameon=False, fontsize=9)
+    ax.set_title(title if title is not None else "Estimated muscle contractions")
+    if path is not None:
+        save_figure(fig, path, dpi=dpi)
+    return fig
