@@ -1,0 +1,220 @@
+import numpy as np
+import pytest
+
+from tests.trackers.conftest import ellipse_distance, render_ellipse
+from trackers.potentials import force_field, gaussian_potential, valley_potential
+from trackers.snakes import (
+    Contour,
+    ContourSystem,
+    SnakeParams,
+    factorization_count,
+    paper_equivalent_strength,
+    resample_polyline,
+)
+
+SIGMA = 2.0
+PARAMS = SnakeParams(p=paper_equivalent_strength(SIGMA))
+
+
+def test_defaults_are_the_papers():
+    p = SnakeParams()
+    assert p.gamma / p.dt == 0.5 and p.a == 1.0 and p.b == 0.5 and p.nu == 0.2
+    assert p.p == 0.001
+
+
+def test_matrix_is_eq9_and_solve_is_exact(rng):
+    t = np.linspace(0, 2 * np.pi, 30, endpoint=False)
+    cs = [Contour(np.c_[50 + 20 * np.cos(t), 50 + 20 * np.sin(t)], closed=True,
+                  b=rng.uniform(0.3, 1, 30)),
+          Contour(np.c_[np.arange(10.0), np.zeros(10)] + 5, fixed_ends=True),
+          Contour(np.c_[np.arange(7.0), np.ones(7)] + 5, closed=True)]
+    s = ContourSystem(cs)
+    A = s.matrix()
+    # eq. 9 on the closed contour: beta_i = b_{i+1} d_{i+1} - 2 b_i d_i + b_{i-1} d_{i-1}
+    x = rng.normal(size=(s.n_nodes, 2))
+    sl = s.contour_slice(0)
+    xc = x[sl]
+    b = s.b_n[sl]
+    d = np.roll(xc, -1, 0) - 2 * xc + np.roll(xc, 1, 0)
+    beta = (np.roll(b, -1)[:, None] * np.roll(d, -1, 0) - 2 * b[:, None] * d
+            + np.roll(b, 1)[:, None] * np.roll(d, 1, 0))
+    np.testing.assert_allclose((A @ x)[sl], 0.5 * xc + beta, atol=1e-12)
+    R = rng.normal(size=(s.n_nodes, 2))
+    np.testing.assert_allclose(A @ s.solve(R), R, atol=1e-9)
+
+
+def test_closed_contour_converges_to_ellipse(ellipse_image):
+    img, g = ellipse_image
+    t = np.linspace(0, 2 * np.pi, 160, endpoint=False)
+    init = np.c_[g["cx"] + (g["ax"] + 4) * np.cos(t), g["cy"] + (g["ay"] + 4) * np.sin(t)]
+    s = ContourSystem([Contour(init, closed=True)], PARAMS)
+    res = s.relax(force_field(gaussian_potential(img, SIGMA)), max_iter=3000)
+    assert res.converged
+    d = ellipse_distance(s.positions, g["cx"], g["cy"], g["ax"], g["ay"])
+    assert d.mean() < 0.5
+    assert d.max() < 1.5
+
+
+def test_open_contour_converges_free_and_fixed(ellipse_image):
+    img, g = ellipse_image
+    F = force_field(gaussian_potential(img, SIGMA))
+    tt = np.linspace(0.3, 2.5, 70)
+    init = np.c_[g["cx"] + (g["ax"] - 3.5) * np.cos(tt), g["cy"] + (g["ay"] - 3.5) * np.sin(tt)]
+    free = ContourSystem([Contour(init)], PARAMS)
+    assert free.relax(F, max_iter=3000).converged
+    d = ellipse_distance(free.positions, g["cx"], g["cy"], g["ax"], g["ay"])
+    assert d.mean() < 0.5
+    # fixed ends stay exactly where they were put, the interior still finds the edge
+    on_edge = np.c_[g["cx"] + g["ax"] * np.cos(tt), g["cy"] + g["ay"] * np.sin(tt)]
+    init2 = on_edge.copy()
+    init2[1:-1] = init[1:-1]
+    fixed = ContourSystem([Contour(init2, fixed_ends=True)], PARAMS)
+    fixed.relax(F, max_iter=3000)
+    pos = fixed.positions
+    np.testing.assert_allclose(pos[[0, -1]], init2[[0, -1]], atol=1e-5)
+    d = ellipse_distance(pos, g["cx"], g["cy"], g["ax"], g["ay"])
+    assert d.mean() < 0.5
+
+
+def test_open_contour_on_noisy_curve_valley(rng):
+    # a dark sine-shaped line in noise; the valley potential locks on its centre line
+    H, W = 80, 140
+    yy, xx = np.mgrid[:H, :W].astype(float)
+    centre = 40 + 8 * np.sin(xx / 18.0)
+    img = 200 - 150 * np.exp(-((yy - centre) ** 2) / (2 * 2.0**2))
+    img = np.clip(img + rng.normal(0, 8, img.shape), 0, 255).astype(np.uint8)
+    xs = np.linspace(15, 125, 60)
+    init = np.c_[xs, 40 + 8 * np.sin(xs / 18.0) + 3.0]
+    s = ContourSystem([Contour(init)], SnakeParams(p=0.02))
+    assert s.relax(force_field(valley_potential(img, 2.5)), max_iter=3000).converged
+    pos = s.positions
+    err = np.abs(pos[:, 1] - (40 + 8 * np.sin(pos[:, 0] / 18.0)))
+    assert err[5:-5].mean() < 0.5
+
+
+def test_tracks_edge_moving_two_pixels_per_frame():
+    H, W = 100, 100
+    t = np.linspace(0, 2 * np.pi, 100, endpoint=False)
+    cx0, cy, r = 35.0, 50.0, 18.0
+    init = np.c_[cx0 + r * np.cos(t), cy + r * np.sin(t)]
+    s = ContourSystem([Contour(init, closed=True)], PARAMS)
+    before = factorization_count()
+    for k in range(12):
+        cx = cx0 + 2.0 * k
+        img = render_ellipse((H, W), cx, cy, r, r)
+        s.relax(force_field(gaussian_potential(img, SIGMA)), max_iter=2000)
+        d = ellipse_distance(s.positions, cx, cy, r, r)
+        assert d.mean() < 0.5, (k, d.mean())
+    assert factorization_count() == before  # every frame reuses the one factor
+
+
+def test_breaks_decouple_contours():
+    a = np.c_[np.linspace(10, 40, 16), np.full(16, 20.0)]
+    b = np.c_[np.linspace(41, 71, 16), np.full(16, 20.0)]  # 1 px from a's end
+    s = ContourSystem([Contour(a, name="a"), Contour(b, name="b")])
+    F = np.zeros((50, 90, 2), np.float32)
+    push = np.zeros((32, 2))
+    push[:16, 1] = 0.3  # pull only contour a downwards
+    push[15, 0] = 0.5  # and its last node toward b
+    s.relax(F, user_forces=push, tol=0, max_iter=50, min_iter=50)
+    np.testing.assert_allclose(s.contour_points("b"), b, atol=1e-9)
+    assert (s.contour_points("a")[:, 1] > 25).all()
+    # the matrix has no coupling between the blocks
+    A = s.matrix()
+    assert np.abs(A[:16, 16:]).max() == 0
+    # a single contour with a_i = b_i = 0 at the break behaves the same as two contours
+    one = np.vstack([a, b])
+    av = np.ones(32)
+    bv = np.full(32, 0.5)
+    av[15] = 0  # spring between node 15 and 16
+    bv[[15, 16]] = 0  # no stencil centred on either side of the jump
+    bv[[0, 31]] = 0
+    s1 = ContourSystem([Contour(one, a=av, b=bv)])
+    s1.relax(F, user_forces=push, tol=0, max_iter=50, min_iter=50)
+    np.testing.assert_allclose(s1.positions, s.positions, atol=1e-9)
+
+
+def test_factorisation_happens_once_per_system(ellipse_image):
+    img, g = ellipse_image
+    F = force_field(gaussian_potential(img, SIGMA))
+    t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    before = factorization_count()
+    s = ContourSystem([Contour(np.c_[80 + 55 * np.cos(t), 60 + 34 * np.sin(t)], closed=True),
+                       Contour(np.c_[np.linspace(20, 60, 20), np.full(20, 100.0)])], PARAMS)
+    assert factorization_count() == before + 1
+    for _ in range(5):
+        s.relax(F, max_iter=200)
+        s.step(F, 3)
+    s.set_contour(1, np.c_[np.linspace(20, 60, 20), np.full(20, 90.0)])
+    s.relax(F, max_iter=50)
+    assert factorization_count() == before + 1
+
+
+def test_viscoelastic_rest_lengths_follow_eq8():
+    pts = np.c_[np.linspace(10, 30, 11), np.full(11, 10.0)]
+    s = ContourSystem([Contour(pts, rest_lengths=1.0, b=0.0)], SnakeParams(a=0.1))
+    F = np.zeros((30, 50, 2), np.float32)
+    l0 = s.rest_lengths(0)[:-1].copy()
+    e0 = 2.0 - l0
+    s.step(F, 1)
+    np.testing.assert_allclose(s.rest_lengths(0)[:-1], l0 + 0.2 * 1.0 * e0)
+    # with nu = 0 the rest lengths never change and the chain contracts toward them
+    s2 = ContourSystem([Contour(pts, rest_lengths=1.0, nu=0.0, b=0.0)], SnakeParams(a=0.1))
+    s2.step(F, 400)
+    assert np.allclose(s2.rest_lengths(0)[:-1], 1.0)
+    length = np.hypot(*np.diff(s2.positions, axis=0).T).sum()
+    assert length == pytest.approx(10.0, abs=0.05)
+
+
+def test_equilibrium_by_movement_threshold(ellipse_image):
+    img, g = ellipse_image
+    F = force_field(gaussian_potential(img, SIGMA))
+    t = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    init = np.c_[g["cx"] + (g["ax"] + 2) * np.cos(t), g["cy"] + (g["ay"] + 2) * np.sin(t)]
+    s = ContourSystem([Contour(init, closed=True)], PARAMS)
+    loose = s.relax(F, tol=1e-2, max_iter=5000)
+    s2 = ContourSystem([Contour(init, closed=True)], PARAMS)
+    tight = s2.relax(F, tol=1e-3, max_iter=5000)
+    assert loose.converged and tight.converged
+    assert loose.iterations < tight.iterations < 5000
+    assert loose.max_move < 1e-2 and tight.max_move < 1e-3
+    again = s2.relax(F, tol=2e-3)
+    assert again.iterations == 1  # already at equilibrium
+
+
+@pytest.mark.parametrize("pts, closed", [
+    (np.zeros((2, 2)) + 5, False),
+    (np.c_[np.arange(4.0), np.zeros(4)] + 5, True),
+])
+def test_too_few_nodes(pts, closed):
+    with pytest.raises(ValueError, match="rigidity stencil"):
+        ContourSystem([Contour(pts, closed=closed)])
+
+
+def test_bad_contours_and_nodes_outside():
+    with pytest.raises(ValueError, match="NaN"):
+        ContourSystem([np.array([[1.0, 2], [np.nan, 3], [4, 5]])])
+    with pytest.raises(ValueError, match="shape"):
+        ContourSystem([np.zeros((5, 3))])
+    with pytest.raises(ValueError, match="positive"):
+        SnakeParams(gamma=0)
+    with pytest.raises(ValueError, match=">= 0"):
+        SnakeParams(p=-1)
+    s = ContourSystem([Contour(np.c_[np.linspace(5, 40, 10), np.full(10, 5.0)], name="brow")])
+    F = np.zeros((20, 30, 2), np.float32)
+    with pytest.raises(ValueError, match="contour 'brow'.*outside the image"):
+        s.relax(F)
+    with pytest.raises(ValueError, match="forces must"):
+        s.relax(np.zeros((20, 30)))
+    with pytest.raises(ValueError, match="user_forces"):
+        s.relax(np.zeros((20, 50, 2)), user_forces=np.zeros((3, 2)))
+
+
+def test_resample_polyline():
+    pts = resample_polyline([[0, 0], [10, 0], [10, 10]], spacing=2.0)
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    assert np.allclose(seg, seg[0], atol=1e-9) is False or len(pts) == 11
+    assert len(pts) == 11
+    closed = resample_polyline([[0, 0], [10, 0], [10, 10], [0, 10]], 8, closed=True)
+    assert len(closed) == 8
+    np.testing.assert_allclose(closed[1], [5, 0])

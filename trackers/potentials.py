@@ -1,0 +1,416 @@
+"""Image potentials whose ravines attract deformable contours (004 section V-B, V-E).
+
+All potentials are returned in **8-bit intensity units**, whatever the input dtype
+(``uint8`` as is, ``uint16`` divided by 257, other integers scaled by their maximum,
+floating point and boolean images are taken to span [0, 1] and multiplied by 255).
+This is what lets the paper's image-force strength ``p = 0.001`` (given for
+256x256x8-bit frames) keep its meaning for other ranges.
+
+Sign convention. A potential ``P`` is low (negative) on the features to be tracked
+(its *ravines*) and contours slide downhill in it (004 V-C). The force on a node is
+therefore ``-p * grad P``; eq. 12 of 004 writes ``p * grad P`` and leaves the sign
+of ``P`` implicit. :func:`force_field` returns ``-p * grad P``.
+
+Three potentials are offered:
+
+``gaussian_potential``
+    Eq. 13, ``P = -||grad(G_sigma * I)||``: ravines on intensity *edges* (step
+    boundaries such as the hairline or the outline of a lip).
+``paper_potential``
+    The paper's own discrete filter (004 V-E): two four-neighbour averaging steps,
+    forward-difference gradient, magnitude. Its forward differences sit half a pixel
+    right/below the pixel they are stored at; a contour settles ~0.5 px up-left of the
+    true edge unless ``centred=True`` (which averages the 2x2 neighbourhood back onto
+    pixel centres).
+``valley_potential``
+    ``P = -sigma**2 * max(lambda_max(Hessian(G_sigma * I)), 0)``: ravines along the
+    centre line of *dark lines and bands* (eyebrows, furrows, lips, nostrils), whose
+    cross-section has a large positive second derivative. A uniform dark region gives
+    no response inside, so a contour is not dragged into the hair or the mouth cavity;
+    a step edge gives a ravine on its dark side, about ``sigma`` from the edge. Use it
+    where a feature's centre line is what is tracked (the face layout does so for the
+    brows, furrows, nose, lips and chin); use an edge potential for boundaries.
+
+Every potential accepts ``roi=(x0, y0, x1, y1)`` (half-open pixel bounds) and then
+computes only inside it (with an internal margin so the borders are exact) and
+returns the cropped array whose pixel ``[0, 0]`` is image pixel ``(x0, y0)``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "to_gray",
+    "gaussian_potential",
+    "paper_potential",
+    "valley_potential",
+    "force_field",
+    "sample_bilinear",
+]
+
+_MIN_SIZE = 3
+
+
+def to_gray(image, *, channel_order: str = "rgb") -> np.ndarray:
+    """Validate a frame and convert it to a float32 grey image in 8-bit units.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W) or (H, W, C) with C in {1, 3, 4}
+        Grey or colour frame of any numeric or boolean dtype. Integers are scaled
+        by their dtype's maximum (``uint16`` by 1/257), floats and booleans must
+        span [0, 1] (a float frame outside [0, 1] raises rather than silently
+        giving 255 times too strong forces).
+    channel_order : {'rgb', 'bgr'}
+        Order of colour channels (OpenCV frames are 'bgr'). Luminance weights are
+        ITU-R BT.601 (0.299 R + 0.587 G + 0.114 B); alpha is ignored.
+
+    Returns
+    -------
+    gray : ndarray of float32, shape (H, W)
+        A new array in [0, 255] units (the input is never modified).
+
+    Raises
+    ------
+    ValueError
+        For an empty image, one smaller than 3x3, a bad number of channels or
+        dimensions, a non-numeric dtype, NaN / infinite pixels, or a float image
+        outside [0, 1].
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> float(to_gray(np.ones((4, 5))).max())
+    255.0
+    """
+    if channel_order not in ("rgb", "bgr"):
+        raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
+    img = np.asarray(image)
+    if img.dtype == object or not (np.issubdtype(img.dtype, np.number) or img.dtype == bool):
+        raise ValueError(f"image must have a numeric dtype, got {img.dtype}")
+    if np.iscomplexobj(img):
+        raise ValueError("image must be real-valued, got a complex dtype")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim not in (2, 3):
+        raise ValueError(f"image must be 2-D (grey) or 3-D (colour), got shape {img.shape}")
+    if img.ndim == 3 and img.shape[2] not in (3, 4):
+        raise ValueError(f"colour image must have 1, 3 or 4 channels, got {img.shape[2]}")
+    if img.size == 0 or img.shape[0] < _MIN_SIZE or img.shape[1] < _MIN_SIZE:
+        raise ValueError(f"image must be at least {_MIN_SIZE}x{_MIN_SIZE} pixels, "
+                         f"got shape {img.shape}")
+    if img.dtype == bool:
+        scale = 255.0
+    elif np.issubdtype(img.dtype, np.integer):
+        scale = 1.0 if img.dtype == np.uint8 else 255.0 / float(np.iinfo(img.dtype).max)
+    else:
+        scale = 255.0
+        lo, hi = float(np.nanmin(img)), float(np.nanmax(img))
+        if np.isfinite(lo) and np.isfinite(hi) and (lo < -1e-3 or hi > 1.0 + 1e-3):
+            raise ValueError(f"floating-point images must lie in [0, 1] (got values in "
+                             f"[{lo:.4g}, {hi:.4g}]); divide by 255 or pass uint8")
+    if img.ndim == 3:
+        rgb = img[:, :, :3]
+        w = (0.299, 0.587, 0.114) if channel_order == "rgb" else (0.114, 0.587, 0.299)
+        if img.dtype == np.uint8:
+            gray = cv2.transform(np.ascontiguousarray(rgb), np.array([w], np.float32))
+            gray = gray.astype(np.float32, copy=False)
+        else:
+            rgb = rgb.astype(np.float32)
+            gray = rgb[:, :, 0] * w[0] + rgb[:, :, 1] * w[1] + rgb[:, :, 2] * w[2]
+    else:
+        gray = img.astype(np.float32)  # always a copy
+    if scale != 1.0:
+        gray *= np.float32(scale)
+    if not np.isfinite(gray).all():
+        bad = np.argwhere(~np.isfinite(gray))[0]
+        raise ValueError(f"image has NaN or infinite pixels (first at row {bad[0]}, "
+                         f"col {bad[1]})")
+    return gray
+
+
+def _check_roi(roi, shape):
+    if roi is None:
+        return 0, 0, shape[1], shape[0]
+    try:
+        x0, y0, x1, y1 = (int(v) for v in roi)
+    except (TypeError, ValueError):
+        raise ValueError(f"roi must be (x0, y0, x1, y1), got {roi!r}") from None
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, shape[1]), min(y1, shape[0])
+    if x1 - x0 < _MIN_SIZE or y1 - y0 < _MIN_SIZE:
+        raise ValueError(f"roi {tuple(roi)} leaves less than {_MIN_SIZE}x{_MIN_SIZE} pixels "
+                         f"inside the {shape[1]}x{shape[0]} image")
+    return x0, y0, x1, y1
+
+
+def _crop_with_margin(gray, roi, margin):
+    x0, y0, x1, y1 = roi
+    X0, Y0 = max(x0 - margin, 0), max(y0 - margin, 0)
+    X1, Y1 = min(x1 + margin, gray.shape[1]), min(y1 + margin, gray.shape[0])
+    return gray[Y0:Y1, X0:X1], (x0 - X0, y0 - Y0, x1 - x0, y1 - y0)
+
+
+def _check_sigma(sigma):
+    sigma = float(sigma)
+    if not np.isfinite(sigma) or sigma <= 0:
+        raise ValueError(f"sigma must be a positive number, got {sigma}")
+    return sigma
+
+
+def _blur(img, sigma):
+    k = 2 * int(np.ceil(3.0 * sigma)) + 1
+    return cv2.GaussianBlur(img, (k, k), sigmaX=sigma, sigmaY=sigma,
+                            borderType=cv2.BORDER_REFLECT)
+
+
+def _grad_central(f):
+    """Central-difference gradient (one-sided at the borders) of a float32 image."""
+    gx = np.empty_like(f)
+    gy = np.empty_like(f)
+    gx[:, 1:-1] = (f[:, 2:] - f[:, :-2]) * np.float32(0.5)
+    gx[:, 0] = f[:, 1] - f[:, 0]
+    gx[:, -1] = f[:, -1] - f[:, -2]
+    gy[1:-1] = (f[2:] - f[:-2]) * np.float32(0.5)
+    gy[0] = f[1] - f[0]
+    gy[-1] = f[-1] - f[-2]
+    return gx, gy
+
+
+def gaussian_potential(image, sigma: float = 2.0, *, roi=None,
+                       channel_order: str = "rgb") -> np.ndarray:
+    """Edge potential of eq. 13 of 004: ``P = -||grad(G_sigma * I)||``.
+
+    Parameters
+    ----------
+    image : array_like, (H, W) or (H, W, C)
+        Frame of any dtype (see :func:`to_gray`).
+    sigma : float
+        Standard deviation of the Gaussian in pixels; larger widens the ravines
+        (longer capture range) at the cost of detail.
+    roi : (x0, y0, x1, y1), optional
+        Compute only inside these half-open pixel bounds; the result is cropped.
+    channel_order : {'rgb', 'bgr'}
+
+    Returns
+    -------
+    P : ndarray of float32, (H, W) or the ROI's shape
+        Non-positive, in 8-bit intensity units per pixel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> img = np.zeros((32, 32)); img[:, 16:] = 1.0
+    >>> P = gaussian_potential(img, sigma=1.5)
+    >>> int(np.argmin(P[16]))  # the ravine lies on the step (between 15 and 16)
+    15
+    """
+    sigma = _check_sigma(sigma)
+    gray = to_gray(image, channel_order=channel_order)
+    roi = _check_roi(roi, gray.shape)
+    sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
+    g = _blur(sub, sigma)
+    gx, gy = _grad_central(g)
+    P = -cv2.magnitude(gx, gy)
+    return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
+
+
+def paper_potential(image, *, roi=None, centred: bool = False,
+                    channel_order: str = "rgb") -> np.ndarray:
+    """The paper's potential (004 V-E): two four-neighbour averages, forward differences.
+
+    Each averaging step replaces a pixel by the mean of itself and its four
+    neighbours (borders reflected); the gradient is ``[v(i+1, j) - v(i, j),
+    v(i, j+1) - v(i, j)]`` and ``P = -||gradient||``. The paper interpolates ``P``
+    bilinearly between pixels; :func:`sample_bilinear` does that.
+
+    Parameters
+    ----------
+    image : array_like
+        Frame of any dtype (see :func:`to_gray`).
+    roi : (x0, y0, x1, y1), optional
+        Compute only inside these bounds; the result is cropped.
+    centred : bool
+        The forward differences describe the point half a pixel right and below
+        the pixel they are stored at. ``False`` (default) keeps the paper's filter
+        exactly; ``True`` averages each 2x2 block so values sit on pixel centres.
+    channel_order : {'rgb', 'bgr'}
+
+    Returns
+    -------
+    P : ndarray of float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> img = np.zeros((16, 16), np.uint8); img[:, 8:] = 200
+    >>> P = paper_potential(img)
+    >>> int(np.argmin(P[8]))  # forward difference between pixel 7 and 8 is stored at 7
+    7
+    """
+    gray = to_gray(image, channel_order=channel_order)
+    roi = _check_roi(roi, gray.shape)
+    sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, 4)
+    kernel = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.float32) / np.float32(5.0)
+    v = cv2.filter2D(sub, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    v = cv2.filter2D(v, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    gx = np.zeros_like(v)
+    gy = np.zeros_like(v)
+    gx[:, :-1] = v[:, 1:] - v[:, :-1]
+    gy[:-1] = v[1:] - v[:-1]
+    P = -cv2.magnitude(gx, gy)
+    if centred:
+        Pc = P.copy()
+        Pc[1:, 1:] = 0.25 * (P[1:, 1:] + P[:-1, 1:] + P[1:, :-1] + P[:-1, :-1])
+        P = Pc
+    return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
+
+
+def valley_potential(image, sigma: float = 2.0, *, roi=None,
+                     channel_order: str = "rgb") -> np.ndarray:
+    """Dark-line potential: ``-sigma**2 * max(largest Hessian eigenvalue of G_sigma * I, 0)``.
+
+    Ravines run along the centre line of dark lines and bands about ``2 * sigma``
+    to ``4 * sigma`` wide (eyebrows, furrows, lips); bright lines and the inside of
+    uniform regions give no response.
+
+    Parameters
+    ----------
+    image : array_like
+        Frame of any dtype (see :func:`to_gray`).
+    sigma : float
+        Gaussian scale in pixels; match it to about half the feature's width.
+    roi : (x0, y0, x1, y1), optional
+        Compute only inside these bounds; the result is cropped.
+    channel_order : {'rgb', 'bgr'}
+
+    Returns
+    -------
+    P : ndarray of float32
+        Non-positive, in 8-bit intensity units (scale-normalised).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> img = np.full((40, 40), 200.0, np.float32) / 255; img[18:23, :] = 0.2
+    >>> P = valley_potential(img, sigma=2.5)
+    >>> int(np.argmin(P[:, 20]))  # centre of the dark band (rows 18..22)
+    20
+    """
+    sigma = _check_sigma(sigma)
+    gray = to_gray(image, channel_order=channel_order)
+    roi = _check_roi(roi, gray.shape)
+    sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
+    g = _blur(sub, sigma)
+    gxx = np.zeros_like(g)
+    gyy = np.zeros_like(g)
+    gxy = np.zeros_like(g)
+    gxx[:, 1:-1] = g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]
+    gyy[1:-1] = g[2:] - 2 * g[1:-1] + g[:-2]
+    gx, _ = _grad_central(g)
+    _, gxy = _grad_central(gx)
+    half_tr = 0.5 * (gxx + gyy)
+    disc = cv2.magnitude(0.5 * (gxx - gyy), gxy)
+    lam = half_tr + disc
+    np.maximum(lam, 0, out=lam)
+    P = lam * np.float32(-sigma * sigma)
+    return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
+
+
+def force_field(potential, p: float = 1.0) -> np.ndarray:
+    """Image force ``-p * grad P`` on the pixel grid (central differences).
+
+    Parameters
+    ----------
+    potential : array_like, (H, W)
+        A potential such as :func:`gaussian_potential` returns.
+    p : float
+        Image-force strength (eq. 12). The default 1 gives the bare gradient so
+        that per-node strengths can be applied later (the snake kernel does).
+
+    Returns
+    -------
+    F : ndarray of float32, (H, W, 2)
+        ``F[..., 0]`` is the x (column) component, ``F[..., 1]`` the y (row) one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> P = -np.exp(-((np.arange(9) - 4.0) ** 2))[None, :].repeat(5, 0)
+    >>> F = force_field(P)
+    >>> bool(F[2, 2, 0] > 0 and F[2, 6, 0] < 0)  # pushes toward the ravine at x=4
+    True
+    """
+    P = np.asarray(potential, dtype=np.float32)
+    if P.ndim != 2 or P.shape[0] < 2 or P.shape[1] < 2:
+        raise ValueError(f"potential must be a 2-D array at least 2x2, got shape {P.shape}")
+    if not np.isfinite(P).all():
+        raise ValueError("potential has NaN or infinite values")
+    p = float(p)
+    if not np.isfinite(p):
+        raise ValueError(f"p must be finite, got {p}")
+    gx, gy = _grad_central(P)
+    F = np.empty(P.shape + (2,), np.float32)
+    F[..., 0] = gx * np.float32(-p)
+    F[..., 1] = gy * np.float32(-p)
+    return F
+
+
+def sample_bilinear(field, points, *, origin=(0.0, 0.0)) -> np.ndarray:
+    """Bilinear interpolation of a scalar or vector field at sub-pixel points.
+
+    Parameters
+    ----------
+    field : array_like, (H, W) or (H, W, K)
+    points : array_like, (N, 2)
+        (x, y) positions in image pixels (x right, y down, origin at the centre of
+        the top-left pixel).
+    origin : (x, y)
+        Image position of ``field[0, 0]`` (the ``roi`` corner of a cropped field).
+
+    Returns
+    -------
+    values : ndarray of float64, (N,) or (N, K)
+
+    Raises
+    ------
+    ValueError
+        If a point is not finite or lies outside the field.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> f = np.arange(12.0).reshape(3, 4)
+    >>> sample_bilinear(f, [[1.5, 1.0], [0.0, 0.5]])
+    array([5.5, 2. ])
+    """
+    f = np.asarray(field, dtype=np.float64)
+    if f.ndim not in (2, 3) or f.shape[0] < 1 or f.shape[1] < 1:
+        raise ValueError(f"field must be (H, W) or (H, W, K), got shape {f.shape}")
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"points must have shape (N, 2), got {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError("points contain NaN or infinite coordinates")
+    x = pts[:, 0] - float(origin[0])
+    y = pts[:, 1] - float(origin[1])
+    H, W = f.shape[:2]
+    out = (x < 0) | (y < 0) | (x > W - 1) | (y > H - 1)
+    if out.any():
+        i = int(np.argmax(out))
+        raise ValueError(f"point {i} at (x={pts[i, 0]:.2f}, y={pts[i, 1]:.2f}) lies outside "
+                         f"the field (x in [{origin[0]}, {origin[0] + W - 1}], "
+                         f"y in [{origin[1]}, {origin[1] + H - 1}])")
+    x0 = np.minimum(np.floor(x).astype(np.intp), max(W - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.intp), max(H - 2, 0))
+    fx = x - x0
+    fy = y - y0
+    x1 = np.minimum(x0 + 1, W - 1)
+    y1 = np.minimum(y0 + 1, H - 1)
+    if f.ndim == 3:
+        fx = fx[:, None]
+        fy = fy[:, None]
+    return ((1 - fy) * ((1 - fx) * f[y0, x0] + fx * f[y0, x1])
+            + fy * ((1 - fx) * f[y1, x0] + fx * f[y1, x1]))
