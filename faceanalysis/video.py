@@ -22,8 +22,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
-import numpy as np
+# FFmpeg prints its own decoder complaints straight to stderr ("moov atom not found",
+# "marker does not match f_code"); this module reports the same problems through
+# logging and one-line errors instead. A user who wants them sets the variable.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")  # AV_LOG_FATAL
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
 __all__ = [
     "DEFAULT_FPS",
