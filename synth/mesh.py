@@ -496,8 +496,8 @@ _OUTLINE_Y = np.array([-12.0, -11.85, -11.4, -10.5, -9.0, -7.4, -5.5, -3.0, 0.0,
 _OUTLINE_W = np.array([0.0, 1.05, 2.5, 4.0, 5.5, 6.6, 7.4, 7.8, 8.0, 7.85, 7.4, 6.8])
 _hw = PchipInterpolator(_OUTLINE_Y, _OUTLINE_W)
 
-EYE_C = 3.15           # eye centre |X|
-EYE_A = 1.3            # half length of the palpebral fissure
+EYE_C = 3.35           # eye centre |X|
+EYE_A = 1.4            # half length of the palpebral fissure
 EYE_BU = 0.5           # upper-lid height above the centre
 EYE_BL = 0.4           # lower-lid depth below the centre
 EYE_TILT = 0.06        # outer canthus higher by this much
@@ -508,6 +508,8 @@ UL_H = 0.72            # upper vermilion height at the midline (cupid's bow dip)
 UL_PEAK = 0.84         # upper vermilion height at the bow peaks
 LL_H = 0.95            # lower vermilion depth at the midline
 Y_HAIR = 6.6           # hairline at the midline
+BROW_INNER, BROW_MID, BROW_OUTER = 1.45, 3.4, 5.45   # |X| of the eyebrow's ends and middle
+BROW_Y = 2.3           # eyebrow height at its middle
 Y_NASION = 0.6
 Y_TIP = -4.6
 Y_SUBNASALE = -5.75
@@ -524,7 +526,7 @@ def _mouth_y(ax):
 
 
 def _brow_y(ax):
-    return 2.3 - 0.14 * (np.asarray(ax) - 3.1) ** 2
+    return BROW_Y - 0.13 * (np.asarray(ax) - BROW_MID) ** 2
 
 
 def _hairline_y(ax):
@@ -555,7 +557,7 @@ def _lower_lip_y(ax):
     return -LL_H * np.sqrt(np.clip(1 - r**2.0, 0, 1)) * (1 - 0.1 * r)
 
 
-_FURROW = np.array([FURROW_TOP, (2.45, -5.6), (2.85, -6.7), (3.1, -7.8), (3.15, -8.7)])
+_FURROW = np.array([FURROW_TOP, (2.5, -5.5), (2.95, -6.6), (3.3, -7.7), (3.45, -8.6)])
 
 
 def _smoothstep(e0, e1, x):
@@ -746,9 +748,9 @@ def _layout(resolution: float) -> _Layout:
 
     # landmarks away from constraints: move the nearest free point onto them ---------------
     free_lm = {
-        "brow_inner": (1.0, float(_brow_y(1.0))),
-        "brow_mid": (3.1, float(_brow_y(3.1))),
-        "brow_outer": (5.0, float(_brow_y(5.0))),
+        "brow_inner": (BROW_INNER, float(_brow_y(BROW_INNER))),
+        "brow_mid": (BROW_MID, float(_brow_y(BROW_MID))),
+        "brow_outer": (BROW_OUTER, float(_brow_y(BROW_OUTER))),
         "furrow_top": FURROW_TOP,
         "chin": (0.0, Y_CHIN),
         "nasion": (0.0, Y_NASION),
@@ -1035,7 +1037,7 @@ def _height(P: np.ndarray, s: FaceShape) -> np.ndarray:
     h += s.cheek_fullness * 0.85 * _gauss(ax, Y, 3.7, -3.7, 1.9, 1.7)
     # nasolabial fold: a crease along the furrow, fading at both ends
     fd, fs = _seg_dist(np.stack([ax, Y], 1), _FURROW)
-    h -= 0.32 * np.exp(-((fd / 0.32) ** 2)) * np.sin(np.pi * np.clip(fs * 0.9 + 0.1, 0, 1)) ** 0.5
+    h -= 0.24 * np.exp(-((fd / 0.38) ** 2)) * np.sin(np.pi * np.clip(fs * 0.9 + 0.1, 0, 1)) ** 0.5
     # muzzle (the dental arch under the lips)
     h += 1.05 * _gauss(ax, Y, 0.0, -7.1, 3.0, 2.3)
     # philtrum
@@ -1044,10 +1046,19 @@ def _height(P: np.ndarray, s: FaceShape) -> np.ndarray:
     h -= 0.09 * np.exp(-((ax / 0.28) ** 2)) * band
     # lips
     ym = _mouth_y(ax)
-    latu = np.exp(-((ax / (MOUTH_W * 0.92)) ** 4))
-    h += s.upper_lip_thickness * 0.5 * latu * np.exp(-(((Y - ym - 0.42) / 0.38) ** 2))
-    h += s.lower_lip_thickness * 0.55 * latu * np.exp(-(((Y - ym + 0.5) / 0.45) ** 2))
-    h -= 0.12 * latu * np.exp(-(((Y - ym) / 0.12) ** 2))
+    # lip volumes follow the vermilion outlines and vanish smoothly at the corners
+    hu = np.maximum(_upper_lip_y(ax), 0.08)
+    hl = np.maximum(-_lower_lip_y(ax), 0.08)
+    r = np.clip(ax / MOUTH_W, 0.0, 1.0)
+    taper = (1 - r**2) ** 1.5 * (ax < MOUTH_W)
+    qu = (Y - ym) / hu
+    ql = (ym - Y) / hl
+    h += (s.upper_lip_thickness * 0.5 * taper * np.exp(-(((qu - 0.5) / 0.55) ** 2))
+          * _smoothstep(-0.7, 0.0, qu))
+    h += (s.lower_lip_thickness * 0.58 * taper * np.exp(-(((ql - 0.5) / 0.6) ** 2))
+          * _smoothstep(-0.7, 0.0, ql))
+    # the lips roll inward towards the seam
+    h -= 0.1 * taper * np.exp(-(((Y - ym) / 0.14) ** 2))
     # mentolabial sulcus and chin boss
     h -= 0.32 * _gauss(ax, Y, 0.0, Y_SULCUS, 1.9, 0.45)
     h += 0.7 * _gauss(ax, Y, 0.0, Y_CHIN, 1.6, 1.0)
@@ -1208,7 +1219,7 @@ def _feature_curves() -> dict[str, np.ndarray]:
     x = np.linspace(-7.0, 7.0, 57)
     xh = x[_hairline_y(np.abs(x)) > _hairline_y(7.0) - 1e-9]
     out["hairline"] = np.stack([xh, _hairline_y(np.abs(xh))], 1)
-    xb = np.linspace(1.0, 5.0, 21)
+    xb = np.linspace(BROW_INNER, BROW_OUTER, 21)
     out["brow_l"] = np.stack([xb, _brow_y(xb)], 1)
     out["furrow_l"] = _resample(_FURROW, 0.2)
     t = np.linspace(0, 2 * np.pi, 25)
@@ -1272,8 +1283,8 @@ def _generate(shape: FaceShape, resolution: float) -> FaceMesh:
     region = _regions(P, lay.lower)
     thick = _thickness(P, shape)
     jw = _jaw_weight(P, lay.lower)
-    pivot = np.array([0.0, -2.6 * shape.face_length, -8.2 * shape.face_width]) - shift * [0, 0, 1]
-    pivot[2] = -8.2 * shape.face_width
+    # temporomandibular joint: below the eye line, ~8 cm behind the eye centres
+    pivot = np.array([0.0, -2.6 * shape.face_length, -8.2 * shape.face_width])
     iv, it, im, iuv, iw, eyes, er = _inner_parts(shape, resolution, shift, v, lay.eye_margin_l)
     uv = _to_uv(P)
     return FaceMesh(
