@@ -37,9 +37,9 @@ __all__ = ["Camera", "HeadPose", "default_camera", "project", "pose_matrix",
 #: Point (cm, model space) about which the head rotates: roughly the centre of the skull,
 #: behind the eyes and a little below them.
 DEFAULT_HEAD_CENTRE = (0.0, -2.0, -8.0)
-#: Model-space point put at the image centre by default: the middle of the face
-#: (between the hairline, ~7 cm above the eyes, and the chin, ~11 cm below).
-DEFAULT_LOOK_AT = (0.0, -2.0, 0.0)
+#: Model-space point put at the image centre by default: the middle of the head surface
+#: (from the hair above the hairline, ~9 cm above the eyes, to the chin, ~12 cm below).
+DEFAULT_LOOK_AT = (0.0, -1.6, 0.0)
 #: Hairline-to-chin height (cm) used to choose a default scale.
 _FACE_HEIGHT_CM = 18.0
 _FACE_WIDTH_CM = 14.0
@@ -69,8 +69,8 @@ class Camera:
     width: int = 256
     height: int = 256
     kind: str = "orthographic"
-    scale: float = 256 * 0.8 / _FACE_HEIGHT_CM
-    focal: float = 256 * 0.8 / _FACE_HEIGHT_CM * 60.0
+    scale: float = 256 * 0.75 / _FACE_HEIGHT_CM
+    focal: float = 256 * 0.75 / _FACE_HEIGHT_CM * 60.0
     distance: float = 60.0
     look_at: tuple = DEFAULT_LOOK_AT
 
@@ -112,7 +112,7 @@ class Camera:
 
 
 def default_camera(width: int = 256, height: int = 256, *, kind: str = "orthographic",
-                   fill: float = 0.8, distance: float = 60.0) -> Camera:
+                   fill: float = 0.75, distance: float = 60.0) -> Camera:
     """A camera in which the face (hairline to chin) fills ``fill`` of the image.
 
     Parameters
@@ -135,7 +135,7 @@ def default_camera(width: int = 256, height: int = 256, *, kind: str = "orthogra
     --------
     >>> cam = default_camera(256, 256)
     >>> round(cam.scale, 2)
-    11.38
+    10.67
     """
     if not 0 < fill <= 4:
         raise ValueError(f"fill={fill} must be in (0, 4]")
@@ -228,9 +228,9 @@ def project(points: np.ndarray, camera: Camera, pose: HeadPose | None = None
     Examples
     --------
     >>> cam = default_camera(256, 256)
-    >>> xy, depth = project([[0.0, -2.0, 0.0], [1.0, -2.0, 0.0]], cam)
+    >>> xy, depth = project([[0.0, -1.6, 0.0], [1.0, -1.6, 0.0]], cam)
     >>> xy.round(3).tolist()
-    [[127.5, 127.5], [138.878, 127.5]]
+    [[127.5, 127.5], [138.167, 127.5]]
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:

@@ -50,7 +50,7 @@ def test_zbuffer_keeps_nearest_and_culls_back_faces():
 
 def test_project_conventions():
     cam = default_camera(200, 100)
-    xy, depth = project([[0, -2, 0], [1, -2, 0], [0, -1, 0], [0, -2, 1]], cam)
+    xy, depth = project([[0, -1.6, 0], [1, -1.6, 0], [0, -0.6, 0], [0, -1.6, 1]], cam)
     c = np.array([99.5, 49.5])
     np.testing.assert_allclose(xy[0], c)
     assert xy[1, 0] > c[0] and xy[2, 1] < c[1]          # +x right, +y up on screen

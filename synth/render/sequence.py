@@ -1,0 +1,536 @@
+"""Synthetic face video with exact ground truth: contractions -> model -> renderer -> files.
+
+:func:`synthesize` drives a face model with a contraction time series (an expression with
+timing, an AU script or a ``contractions.csv``), moves the head, changes the light, adds
+sensor blur and noise, and keeps everything the renderer knows. :func:`write_sequence`
+stores it in an output folder:
+
+- ``video.mp4`` (OpenCV ``mp4v``; ``video.avi``/MJPG when that codec is missing, noted in
+  ``meta.json`` and logged);
+- ``truth.csv``: one row per frame in the column names of ``contractions.csv``: ``frame,
+  timestamp, success (=1), confidence (=1), head_x, head_y, head_scale, head_roll``,
+  ``fid_<name>_x, fid_<name>_y, fid_<name>_visible`` for the 11 fiducials, one column per
+  muscle, ``jaw_rotation`` and, where :mod:`synth.facs` offers ``muscles_to_aus``, the
+  ``AUxx_r`` intensities;
+- ``flow.npz`` (compressed, byte-for-byte deterministic): ``flow`` (T-1, H, W, 2) forward
+  flow from frame t to t+1 in px, ``occluded`` (T-1, H, W) in frame t, ``disoccluded``
+  (T-1, H, W) in frame t+1, ``mask`` (T, H, W) face pixels, ``skin_mask`` (T, H, W),
+  ``depth`` (T, H, W) float32 cm from the camera plane (inf on the background);
+- ``meta.json``: camera, identity (face shape, texture parameters), seed, source of the
+  contractions, per-frame head poses and lights, degradations, versions.
+
+The head reference frame of ``truth.csv`` is defined in :mod:`synth.render.groundtruth`
+(origin at the mean of the rigid hairline landmarks, scale in px/cm, roll in radians,
+clockwise on screen). Everything is deterministic per seed: identity shape and texture, head
+motion, illumination and sensor noise.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import os
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from synth.render.camera import HeadPose, default_camera
+from synth.render.groundtruth import FIDUCIALS, flow_and_occlusion, head_frame, project_landmarks
+from synth.render.renderer import Renderer
+from synth.render.shading import Light
+from synth.render.texture import paint_skin_texture, texture_params
+from synth.render.video import VideoWriter, atomic_write_bytes, atomic_write_text
+
+__all__ = ["SyntheticSequence", "synthesize", "write_sequence", "render_sequence",
+           "contraction_timeline", "parse_au_string", "head_motion_track",
+           "illumination_track", "write_npz_deterministic"]
+
+log = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------------------- timelines
+def parse_au_string(text: str) -> dict[int, float]:
+    """Parse an AU script ``"12:0.8,6:0.5"`` into ``{12: 0.8, 6: 0.5}``.
+
+    Intensities are contraction-scale activations in [0, 1].
+
+    Examples
+    --------
+    >>> parse_au_string("12:0.8, 6:0.5")
+    {12: 0.8, 6: 0.5}
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError("AU script must be a non-empty string like '12:0.8,6:0.5'")
+    out: dict[int, float] = {}
+    for part in text.split(","):
+        m = re.fullmatch(r"\s*(?:AU)?(\d+)\s*:\s*([-+0-9.eE]+)\s*", part)
+        if not m:
+            raise ValueError(f"AU script item {part.strip()!r} is not 'AU:intensity' "
+                             "(e.g. '12:0.8')")
+        au, val = int(m.group(1)), float(m.group(2))
+        if not 0.0 <= val <= 1.0:
+            raise ValueError(f"AU{au:02d} intensity {val} must be in [0, 1]")
+        out[au] = val
+    return out
+
+
+def _read_contractions_csv(path, muscle_names) -> pd.DataFrame:
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"contractions file {p} does not exist")
+    df = pd.read_csv(p)
+    cols = [c for c in muscle_names if c in df.columns]
+    if not cols and "jaw_rotation" not in df.columns:
+        raise ValueError(f"{p}: no muscle columns (expected names like "
+                         f"{', '.join(list(muscle_names)[:3])}, ...) and no jaw_rotation")
+    out = pd.DataFrame(0.0, index=range(len(df)), columns=[*muscle_names, "jaw_rotation"])
+    for c in [*cols, "jaw_rotation"]:
+        if c in df.columns:
+            v = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{p}: column {c} holds missing or non-numeric values")
+            if c != "jaw_rotation" and (v.min() < 0 or v.max() > 1):
+                raise ValueError(f"{p}: column {c} has contractions outside [0, 1]")
+            out[c] = v
+    if len(out) < 1:
+        raise ValueError(f"{p} holds no rows")
+    return out
+
+
+def contraction_timeline(muscle_names, *, expression: str | None = None, au=None,
+                         contractions=None, frames: int | None = 60, fps: float = 30.0,
+                         intensity: float = 1.0) -> pd.DataFrame:
+    """Contraction time series (one column per muscle + ``jaw_rotation``) from one source.
+
+    Parameters
+    ----------
+    muscle_names : sequence of str
+        The model's muscles (columns of the result, in order).
+    expression : str, optional
+        Name of an expression of :data:`synth.facs.EXPRESSIONS` (onset, apex, offset timing
+        of :func:`synth.facs.expression_timeline`).
+    au : str or dict, optional
+        AU script (``"12:0.8,6:0.5"`` or ``{12: 0.8}``), timed like an expression.
+    contractions : path or DataFrame, optional
+        A table in the ``contractions.csv`` format; its rows are the frames.
+    frames : int, optional
+        Number of frames (ignored by ``contractions`` unless smaller than its rows).
+    fps : float
+    intensity : float
+        Multiplier of the expression / AU intensities.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Rows = frames.
+    """
+    sources = [s is not None for s in (expression, au, contractions)]
+    if sum(sources) > 1:
+        raise ValueError("give only one of expression, au, contractions")
+    muscle_names = list(muscle_names)
+    if frames is not None and (int(frames) != frames or frames < 1):
+        raise ValueError(f"frames={frames} must be a positive integer")
+    if contractions is not None:
+        if isinstance(contractions, pd.DataFrame):
+            df = pd.DataFrame(0.0, index=range(len(contractions)),
+                              columns=[*muscle_names, "jaw_rotation"])
+            for c in df.columns:
+                if c in contractions.columns:
+                    df[c] = contractions[c].to_numpy(float)
+        else:
+            df = _read_contractions_csv(contractions, muscle_names)
+        if frames is not None and frames < len(df):
+            df = df.iloc[:frames].reset_index(drop=True)
+        return df
+    n = 60 if frames is None else int(frames)
+    if expression is None and au is None:
+        return pd.DataFrame(0.0, index=range(n), columns=[*muscle_names, "jaw_rotation"])
+    from synth import facs
+
+    if expression is not None:
+        names = sorted(facs.EXPRESSIONS)
+        if expression not in facs.EXPRESSIONS:
+            raise ValueError(f"unknown expression {expression!r}; choose from "
+                             f"{', '.join(names)}")
+        tl = facs.expression_timeline(expression, n, emphasis=intensity)
+    else:
+        aus = parse_au_string(au) if isinstance(au, str) else {int(k): float(v)
+                                                              for k, v in dict(au).items()}
+        unknown = sorted(set(aus) - set(facs.ACTION_UNITS))
+        if unknown:
+            raise ValueError(f"unknown action unit(s) {unknown}; known: "
+                             f"{sorted(facs.ACTION_UNITS)}")
+        aus = {k: v * intensity for k, v in aus.items()}
+        tl = facs.au_timeline(aus, n)
+    df = pd.DataFrame(0.0, index=range(n), columns=[*muscle_names, "jaw_rotation"])
+    for c in df.columns:
+        if c in tl.columns:
+            df[c] = np.asarray(tl[c], dtype=float)[:n]
+    return df
+
+
+def _smooth_signal(rng, n: int, fps: float, amplitude: float) -> np.ndarray:
+    """Sum of two slow sinusoids (0.1-0.6 Hz), ramped in so that frame 0 is exactly 0."""
+    t = np.arange(n) / fps
+    out = np.zeros(n)
+    for _ in range(2):
+        f = rng.uniform(0.1, 0.6)
+        ph = rng.uniform(0, 2 * np.pi)
+        out += np.sin(2 * np.pi * f * t + ph) - np.sin(ph)
+    ramp = np.clip(t / 0.5, 0, 1)
+    ramp = ramp * ramp * (3 - 2 * ramp)
+    return amplitude * 0.5 * out * ramp
+
+
+def head_motion_track(frames: int, seed: int, *, amplitude: float = 1.0, fps: float = 30.0,
+                      out_of_plane: bool = True) -> list[HeadPose]:
+    """Smooth random head motion, frontal at frame 0 (deterministic per seed).
+
+    At ``amplitude=1``: translation up to ~0.6 cm, roll up to ~4 degrees, yaw and pitch up to
+    ~3 degrees (``out_of_plane``).
+    """
+    if amplitude < 0:
+        raise ValueError(f"head motion amplitude={amplitude} must be non-negative")
+    rng = np.random.default_rng([int(seed), 0x4EAD])
+    tx = _smooth_signal(rng, frames, fps, 0.6 * amplitude)
+    ty = _smooth_signal(rng, frames, fps, 0.4 * amplitude)
+    roll = _smooth_signal(rng, frames, fps, 4.0 * amplitude)
+    yaw = _smooth_signal(rng, frames, fps, 3.0 * amplitude if out_of_plane else 0.0)
+    pitch = _smooth_signal(rng, frames, fps, 2.0 * amplitude if out_of_plane else 0.0)
+    return [HeadPose(roll=float(roll[i]), yaw=float(yaw[i]), pitch=float(pitch[i]),
+                     translation=(float(tx[i]), float(ty[i]), 0.0)) for i in range(frames)]
+
+
+def illumination_track(frames: int, seed: int, base: Light, *, amplitude: float = 1.0,
+                       fps: float = 30.0) -> list[Light]:
+    """Slowly swinging light direction (~15 degrees) and intensity (~10 %)."""
+    rng = np.random.default_rng([int(seed), 0x11E7])
+    az = _smooth_signal(rng, frames, fps, math.radians(15.0) * amplitude)
+    gain = 1.0 + _smooth_signal(rng, frames, fps, 0.1 * amplitude)
+    d = base.unit_direction
+    out = []
+    for i in range(frames):
+        c, s = math.cos(az[i]), math.sin(az[i])
+        di = (c * d[0] + s * d[2], d[1], -s * d[0] + c * d[2])
+        out.append(Light(direction=di, colour=tuple(float(gain[i] * v) for v in base.colour),
+                         ambient=base.ambient, shininess=base.shininess,
+                         specular_scale=base.specular_scale))
+    return out
+
+
+# ---------------------------------------------------------------------------- synthesis
+@dataclass(eq=False)
+class SyntheticSequence:
+    """A rendered sequence and its ground truth (see the module docstring for the arrays)."""
+
+    images: np.ndarray                     # (T, H, W, 3) or (T, H, W) uint8, degraded
+    truth: pd.DataFrame
+    flow: np.ndarray | None                # (T-1, H, W, 2) float32
+    occluded: np.ndarray | None            # (T-1, H, W) bool
+    disoccluded: np.ndarray | None         # (T-1, H, W) bool
+    mask: np.ndarray                       # (T, H, W) bool
+    skin_mask: np.ndarray                  # (T, H, W) bool
+    depth: np.ndarray                      # (T, H, W) float32
+    meta: dict = field(default_factory=dict)
+    clean_images: np.ndarray | None = None  # before blur/noise
+
+
+def _model_for(seed: int, resolution: float, identity_spread: float):
+    try:
+        from synth.model import FaceModel
+    except ImportError as exc:  # the physics model is a sibling module of synth
+        raise ValueError("synth.model.FaceModel is not available; pass model=...") from exc
+    from synth.mesh import FaceShape
+
+    shape = FaceShape.random(int(seed), spread=identity_spread)
+    return FaceModel.build(shape, resolution=resolution), shape
+
+
+def _aus_of(df: pd.DataFrame):
+    try:
+        from synth.facs import muscles_to_aus
+    except ImportError:
+        return None
+    try:
+        aus = muscles_to_aus(df)
+    except (ValueError, KeyError, TypeError) as exc:
+        log.warning("AU intensities not written: %s", exc)
+        return None
+    return pd.DataFrame(aus)
+
+
+def synthesize(*, model=None, expression: str | None = None, au=None, contractions=None,
+               frames: int | None = 60, fps: float = 30.0, size=256, seed: int = 0,
+               head_motion: float = 0.0, out_of_plane: bool = True,
+               illumination: float = 0.0, noise: float = 0.0, blur: float = 0.0,
+               camera: str = "orthographic", supersample: int = 2, grey: bool = False,
+               flow: bool = True, intensity: float = 1.0, resolution: float = 1.0,
+               identity_spread: float = 1.0, texture_size: int = 1024,
+               progress=None) -> SyntheticSequence:
+    """Render a synthetic sequence with exact ground truth (in memory).
+
+    Parameters
+    ----------
+    model : FaceModel-like, optional
+        Needs ``mesh``, ``muscle_names``, ``set_contractions(values, jaw_rotation=)``,
+        ``equilibrate()`` (returns the skin vertices) and ``inner_vertices()``; default
+        ``FaceModel.build(FaceShape.random(seed))``.
+    expression, au, contractions : one source of contractions, or none (neutral)
+        See :func:`contraction_timeline`.
+    frames : int, optional
+    fps : float
+    size : int or (width, height)
+    seed : int
+        Identity (shape, texture), head motion, illumination and noise.
+    head_motion : float
+        Amplitude of the head motion (0 = still; 1 = ~0.6 cm, ~4 degrees roll).
+    out_of_plane : bool
+        Include yaw and pitch in the head motion.
+    illumination : float
+        Amplitude of the light change (0 = constant).
+    noise : float
+        Standard deviation of additive Gaussian sensor noise, grey levels (0-255).
+    blur : float
+        Gaussian blur sigma in px (0 = none).
+    camera : {'orthographic', 'perspective'}
+    supersample : int
+        Anti-aliasing factor.
+    grey : bool
+    flow : bool
+        Compute the flow ground truth.
+    intensity : float
+        Multiplier of expression / AU intensities.
+    resolution, identity_spread : float
+        Mesh resolution and identity variation of the default model.
+    texture_size : int
+    progress : callable(int, int), optional
+        Called after each frame with (done, total).
+
+    Returns
+    -------
+    SyntheticSequence
+    """
+    if isinstance(size, (int, np.integer)):
+        width = height = int(size)
+    else:
+        width, height = (int(v) for v in size)
+    if width < 16 or height < 16:
+        raise ValueError(f"size {width}x{height} must be at least 16x16")
+    if fps <= 0:
+        raise ValueError(f"fps={fps} must be positive")
+    for name, v in (("noise", noise), ("blur", blur), ("head_motion", head_motion),
+                    ("illumination", illumination)):
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{name}={v} must be a non-negative number")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} must be a non-negative integer")
+    shape = None
+    if model is None:
+        model, shape = _model_for(seed, resolution, identity_spread)
+    mesh = model.mesh
+    muscles = list(model.muscle_names)
+    df = contraction_timeline(muscles, expression=expression, au=au, contractions=contractions,
+                              frames=frames, fps=fps, intensity=intensity)
+    T = len(df)
+    cam = default_camera(width, height, kind=camera)
+    tparams = texture_params(int(seed))
+    tex = paint_skin_texture(mesh, int(seed), size=texture_size)
+    light0 = Light()
+    renderer = Renderer(mesh, texture=tex, camera=cam, light=light0, supersample=supersample,
+                        grey=grey)
+    poses = (head_motion_track(T, seed, amplitude=head_motion, fps=fps,
+                               out_of_plane=out_of_plane) if head_motion > 0
+             else [HeadPose()] * T)
+    lights = (illumination_track(T, seed, light0, amplitude=illumination, fps=fps)
+              if illumination > 0 else [light0] * T)
+    rng = np.random.default_rng([int(seed), 0x5E75])
+    shp = (T, height, width) if grey else (T, height, width, 3)
+    images = np.empty(shp, np.uint8)
+    clean = np.empty(shp, np.uint8)
+    mask = np.empty((T, height, width), bool)
+    skin_mask = np.empty((T, height, width), bool)
+    depth = np.empty((T, height, width), np.float32)
+    flows = np.empty((max(T - 1, 0), height, width, 2), np.float32) if flow else None
+    occ = np.empty((max(T - 1, 0), height, width), bool) if flow else None
+    dis = np.empty((max(T - 1, 0), height, width), bool) if flow else None
+    rows = []
+    rest = np.asarray(mesh.vertices)
+    prev = None
+    for t in range(T):
+        row = df.iloc[t]
+        values = {m: float(row[m]) for m in muscles}
+        model.set_contractions(values, jaw_rotation=float(row["jaw_rotation"]))
+        skin = np.asarray(model.equilibrate(), dtype=np.float64)
+        inner = np.asarray(model.inner_vertices(), dtype=np.float64)
+        res = renderer.render(skin, inner, pose=poses[t], light=lights[t])
+        img = res.image.astype(np.float32)
+        clean[t] = res.image
+        if blur > 0:
+            img = cv2.GaussianBlur(img, (0, 0), blur)
+        if noise > 0:
+            img = img + rng.normal(0.0, noise, img.shape).astype(np.float32)
+        images[t] = np.clip(img + 0.5, 0, 255).astype(np.uint8) if (blur or noise) \
+            else res.image
+        mask[t] = res.mask
+        skin_mask[t] = res.skin_mask
+        depth[t] = res.depth
+        if flow and prev is not None:
+            flows[t - 1], occ[t - 1], dis[t - 1] = flow_and_occlusion(renderer, prev, res)
+        prev = res
+        lm = _landmark_positions(model, mesh, skin)
+        fids = project_landmarks({k: lm[k] for k in FIDUCIALS if k in lm}, renderer, res)
+        hf = head_frame(rest, mesh.landmarks, cam, poses[t])
+        rec = {"frame": t, "timestamp": t / fps, "success": 1, "confidence": 1.0, **hf}
+        for name in FIDUCIALS:
+            x, y, vis = fids.get(name, (np.nan, np.nan, False))
+            rec[f"fid_{name}_x"] = x
+            rec[f"fid_{name}_y"] = y
+            rec[f"fid_{name}_visible"] = int(vis)
+        rec.update(values)
+        rec["jaw_rotation"] = float(row["jaw_rotation"])
+        rows.append(rec)
+        if progress is not None:
+            progress(t + 1, T)
+    truth = pd.DataFrame(rows)
+    aus = _aus_of(df)
+    if aus is not None and len(aus) == T:
+        for c in aus.columns:
+            truth[c] = np.asarray(aus[c], dtype=float)
+    source = ({"expression": expression, "intensity": intensity} if expression is not None
+              else {"au": au if isinstance(au, str) else {str(k): v for k, v in au.items()},
+                    "intensity": intensity} if au is not None
+              else {"contractions": str(contractions) if not isinstance(
+                  contractions, pd.DataFrame) else "DataFrame"} if contractions is not None
+              else {"neutral": True})
+    meta = {
+        "generator": "synth.render.sequence",
+        "seed": int(seed), "frames": int(T), "fps": float(fps),
+        "size": [width, height], "grey": bool(grey), "supersample": int(supersample),
+        "camera": cam.as_dict(),
+        "identity": {"shape": shape.as_dict() if shape is not None else None,
+                     "texture": tparams.as_dict(), "texture_size": int(texture_size),
+                     "mesh_vertices": int(len(rest))},
+        "source": source,
+        "head_motion": {"amplitude": float(head_motion), "out_of_plane": bool(out_of_plane),
+                        "poses": [p.as_dict() for p in poses]},
+        "illumination": {"amplitude": float(illumination),
+                         "lights": [lt.as_dict() for lt in lights]},
+        "degradation": {"noise_std": float(noise), "blur_sigma": float(blur)},
+        "muscles": muscles,
+        "head_frame": ("origin = mean of rigid hairline landmarks (px), scale = px/cm, "
+                       "roll = radians, clockwise on screen"),
+        "versions": _versions(),
+    }
+    return SyntheticSequence(images=images, truth=truth, flow=flows, occluded=occ,
+                             disoccluded=dis, mask=mask, skin_mask=skin_mask, depth=depth,
+                             meta=meta, clean_images=clean)
+
+
+def _landmark_positions(model, mesh, skin) -> dict:
+    fn = getattr(model, "landmark_positions", None)
+    if fn is not None:
+        try:
+            return {k: np.asarray(v, float) for k, v in fn().items()}
+        except TypeError:
+            pass
+    return {k: skin[i] for k, i in mesh.landmarks.items()}
+
+
+def _versions() -> dict:
+    import numba
+
+    out = {"numpy": np.__version__, "opencv": cv2.__version__, "numba": numba.__version__,
+           "pandas": pd.__version__}
+    try:
+        from importlib.metadata import version
+
+        out["faceanalysis"] = version("faceanalysis")
+    except Exception:  # noqa: BLE001 - not installed as a distribution
+        out["faceanalysis"] = None
+    return out
+
+
+# ---------------------------------------------------------------------------- files
+def write_npz_deterministic(path, arrays: dict, *, compress: bool = True) -> Path:
+    """Like ``numpy.savez_compressed`` but byte-for-byte reproducible (fixed zip dates),
+    written atomically."""
+    buf = io.BytesIO()
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(buf, "w", compression=method) as zf:
+        for name, arr in arrays.items():
+            a = io.BytesIO()
+            np.lib.format.write_array(a, np.asanyarray(arr), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, a.getvalue())
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def write_sequence(seq: SyntheticSequence, out_dir, *, overwrite: bool = False,
+                   video_name: str = "video.mp4") -> dict:
+    """Write a :class:`SyntheticSequence` to ``out_dir`` (see the module docstring).
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` is a non-empty folder (or a file) and ``overwrite`` is false.
+
+    Returns
+    -------
+    dict name -> Path of the files written (``video``, ``truth``, ``flow``, ``meta``).
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out} is not empty; pass --overwrite to replace its results")
+    out.mkdir(parents=True, exist_ok=True)
+    T = seq.images.shape[0]
+    H, W = seq.images.shape[1:3]
+    with VideoWriter(out / video_name, seq.meta.get("fps", 30.0), (W, H)) as vw:
+        for t in range(T):
+            vw.write(seq.images[t])
+    meta = dict(seq.meta)
+    meta["video"] = vw.path.name
+    meta["video_note"] = vw.note
+    csv = seq.truth.to_csv(index=False, float_format="%.6f", lineterminator="\n")
+    truth_path = atomic_write_text(out / "truth.csv", csv)
+    arrays = {"mask": seq.mask, "skin_mask": seq.skin_mask, "depth": seq.depth}
+    if seq.flow is not None:
+        arrays.update(flow=seq.flow, occluded=seq.occluded, disoccluded=seq.disoccluded)
+    flow_path = write_npz_deterministic(out / "flow.npz", arrays)
+    meta["files"] = {"video": vw.path.name, "truth": "truth.csv", "flow": "flow.npz"}
+    meta_path = atomic_write_text(out / "meta.json",
+                                  json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    # remove a stale video of the other container from an earlier run
+    for other in (".mp4", ".avi"):
+        p = (out / video_name).with_suffix(other)
+        if p != vw.path and p.exists() and overwrite:
+            os.remove(p)
+    return {"video": vw.path, "truth": truth_path, "flow": flow_path, "meta": meta_path,
+            "note": vw.note}
+
+
+def render_sequence(out_dir, *, overwrite: bool = False, **kwargs) -> dict:
+    """Synthesize a sequence and write it to ``out_dir``; see :func:`synthesize` for options.
+
+    Returns
+    -------
+    dict name -> Path (``video``, ``truth``, ``flow``, ``meta``) plus ``note`` (codec
+    fallback message or None).
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out} is not empty; pass --overwrite to replace its results")
+    seq = synthesize(**kwargs)
+    return write_sequence(seq, out, overwrite=overwrite)
