@@ -120,7 +120,7 @@ class VideoSource:
     path : Path
         The file or folder.
     kind : {'video', 'images'}
-        What ``path`` is.
+        What ``path`` is: a video file, or an image folder (or a single image).
     fps : float
         Frame rate used for timestamps that the container does not give.
     fps_origin : {'user', 'container', 'default'}
@@ -302,21 +302,26 @@ class VideoSource:
         return t if t > previous else fallback
 
 
-def _open_folder(path: Path, fps: float | None) -> dict:
-    files = sorted((p for p in path.iterdir()
-                    if p.is_file() and not p.name.startswith(".")
-                    and p.suffix.lower() in IMAGE_SUFFIXES),
-                   key=lambda p: _natural_key(p.name))
-    if not files:
-        raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})")
+def _open_images(path: Path, fps: float | None) -> dict:
+    if path.is_dir():
+        files = sorted((p for p in path.iterdir()
+                        if p.is_file() and not p.name.startswith(".")
+                        and p.suffix.lower() in IMAGE_SUFFIXES),
+                       key=lambda p: _natural_key(p.name))
+        if not files:
+            raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})")
+    else:  # a single image is a one-frame sequence
+        files = [path]
     first = None
     for name in files:
         first = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
         if first is not None:
             break
     if first is None:
+        if files == [path]:
+            raise ValueError(f"{path}: cannot decode image")
         raise ValueError(f"{path}: none of its {len(files)} images can be decoded")
-    if fps is None:
+    if fps is None and len(files) > 1:
         log.info("%s: no frame rate for an image folder; assuming %g fps (use --fps)",
                  path, DEFAULT_FPS)
     return dict(kind="images", fps=DEFAULT_FPS if fps is None else fps,
@@ -363,9 +368,10 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
     Parameters
     ----------
     path : path-like
-        A video file that OpenCV (FFmpeg) can read, or a folder of images
+        A video file that OpenCV (FFmpeg) can read, a folder of images
         (``.png``, ``.jpg``, ``.tif``, ``.bmp``; sorted naturally, so ``f2`` comes
-        before ``f10``). Images are read unchanged: grey and 16-bit stay so.
+        before ``f10``) or a single image (one frame). Images are read unchanged:
+        grey and 16-bit stay so.
     fps : float, optional
         Frame rate. Overrides the container's, and then timestamps are
         ``index / fps``. Image folders default to :data:`DEFAULT_FPS`.
@@ -386,6 +392,8 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
     ------
     FileNotFoundError
         If ``path`` does not exist.
+    PermissionError
+        If ``path`` cannot be read.
     ValueError
         If ``path`` is not a readable video or image folder, has no frames, if
         ``start``/``end``/``fps`` are invalid or out of range, or if frames are
@@ -419,13 +427,12 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
             raise ValueError(f"end ({end}) must be greater than start ({start})")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
-    if path.is_dir():
-        info = _open_folder(path, fps)
+    if not os.access(path, os.R_OK):
+        raise PermissionError(f"{path}: permission denied")
+    if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:
+        info = _open_images(path, fps)
     else:
-        try:
-            info = _open_file(path, fps)
-        except PermissionError as exc:
-            raise PermissionError(f"{path}: permission denied") from exc
+        info = _open_file(path, fps)
     first = info["first"]
     height, width = first.shape[:2]
     channels = 1 if first.ndim == 2 else first.shape[2]

@@ -380,3 +380,29 @@ def test_writer_falls_back_to_mjpg_avi(tmp_path, monkeypatch, caplog):
 def test_writer_validates(tmp_path, args, match):
     with pytest.raises(ValueError, match=match):
         VideoWriter(tmp_path / "o.mp4", **args)
+
+
+def test_single_image_is_one_frame(tmp_path):
+    path = tmp_path / "still.png"
+    cv2.imwrite(str(path), np.full((H, W), 4000, np.uint16))
+    src = open_video(path)
+    frames = list(src)
+    assert src.kind == "images" and src.n_frames == 1 and len(frames) == 1
+    assert frames[0].image.dtype == np.uint16 and frames[0].image[0, 0] == 4000
+    broken = tmp_path / "broken.jpg"
+    broken.write_bytes(b"nope")
+    with pytest.raises(ValueError, match=r"broken\.jpg: cannot decode image"):
+        open_video(broken)
+
+
+def test_unreadable_file(tmp_path, video):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root reads everything")
+    video.chmod(0)
+    try:
+        with pytest.raises(PermissionError, match=r"clip\.mp4: permission denied"):
+            open_video(video)
+    finally:
+        video.chmod(0o644)
