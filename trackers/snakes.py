@@ -294,23 +294,26 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange):
             if i + 2 < n:
                 s -= cb[0, i + 2] * R[i + 2, c]
             R[i, c] = s / cb[2, i]
-        # rank-2 corrections of closed contours
+        # low-rank (Woodbury) corrections of closed contours
         for k in range(cidx.shape[0]):
             g0 = 0.0
             g1 = 0.0
+            g2 = 0.0
             for m in range(3):
-                g0 += ccoef[m] * R[cidx[k, 0, m], c]
-                g1 += ccoef[m] * R[cidx[k, 1, m], c]
-            h0 = cM[k, 0, 0] * g0 + cM[k, 0, 1] * g1
-            h1 = cM[k, 1, 0] * g0 + cM[k, 1, 1] * g1
+                g0 += ccoef[k, 0, m] * R[cidx[k, 0, m], c]
+                g1 += ccoef[k, 1, m] * R[cidx[k, 1, m], c]
+                g2 += ccoef[k, 2, m] * R[cidx[k, 2, m], c]
+            h0 = cM[k, 0, 0] * g0 + cM[k, 0, 1] * g1 + cM[k, 0, 2] * g2
+            h1 = cM[k, 1, 0] * g0 + cM[k, 1, 1] * g1 + cM[k, 1, 2] * g2
+            h2 = cM[k, 2, 0] * g0 + cM[k, 2, 1] * g1 + cM[k, 2, 2] * g2
             for i in range(crange[k, 0], crange[k, 1]):
-                R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1
+                R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1 + zc[i, 2] * h2
 
 
 @numba.njit(cache=True, fastmath=False)
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, ox, oy, gdt, dt, tol,
-                  min_iter, max_iter, outside):
+                  min_iter, max_iter, outside, split, max_step):
     n = X.shape[0]
     H = fields.shape[1]
     W = fields.shape[2]
@@ -356,7 +359,8 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             L = np.sqrt(rx * rx + ry * ry)
             e = L - rest[i]
             if L > 1e-12:
-                s = a_s[i] * e / L
+                # explicit: a e r/|r|; split: only -a l r/|r| (a r is in the matrix)
+                s = a_s[i] * (-rest[i] if split else e) / L
                 R[i, 0] += s * rx
                 R[i, 1] += s * ry
                 R[j, 0] -= s * rx
@@ -370,6 +374,11 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             dx = R[i, 0] - X[i, 0]
             dy = R[i, 1] - X[i, 1]
             d2 = dx * dx + dy * dy
+            if max_step > 0.0 and d2 > max_step * max_step:
+                f = max_step / np.sqrt(d2)
+                R[i, 0] = X[i, 0] + f * dx
+                R[i, 1] = X[i, 1] + f * dy
+                d2 = max_step * max_step
             if d2 > move2:
                 move2 = d2
             X[i, 0] = R[i, 0]
@@ -394,6 +403,15 @@ class ContourSystem:
         The contours; plain arrays become open contours with free ends.
     params : SnakeParams, optional
         Default parameters for contours that carry none (004 V-E values).
+    tension : {'explicit', 'split'}
+        ``'explicit'`` (default, as eq. 11): the whole tension of eq. 7 is evaluated
+        at time t. ``'split'``: its linear part ``a_i r_i`` joins the constant matrix
+        (implicit) and only the bounded remainder ``-a_i l_i r_i / ||r_i||`` stays
+        explicit. Same equations and equilibria, unconditionally stable tension;
+        with zero rest lengths it is the classical membrane of Kass et al.
+    max_step : float, optional
+        Cap on any node's displacement per step in pixels (as scikit-image's
+        ``max_px_move``); off by default.
 
     Examples
     --------
@@ -411,7 +429,14 @@ class ContourSystem:
     True
     """
 
-    def __init__(self, contours: Sequence, params: SnakeParams | None = None):
+    def __init__(self, contours: Sequence, params: SnakeParams | None = None, *,
+                 tension: str = "explicit", max_step: float | None = None):
+        if tension not in ("explicit", "split"):
+            raise ValueError(f"tension must be 'explicit' or 'split', got {tension!r}")
+        self.split = tension == "split"
+        if max_step is not None and (not np.isfinite(max_step) or max_step <= 0):
+            raise ValueError(f"max_step must be a positive number or None, got {max_step}")
+        self.max_step = float(max_step) if max_step is not None else 0.0
         if params is None:
             params = SnakeParams()
         if not isinstance(params, SnakeParams):
@@ -480,7 +505,8 @@ class ContourSystem:
             nu = _per_node(c.nu, prm.nu, n, "nu", name)
             b = _per_node(c.b, prm.b, n, "b", name)
             p = _per_node(c.p, prm.p, n, "p", name)
-            self._check_stability(a, b, prm, name)
+            if not self.split:
+                self._check_stability(a, b, prm, name)
             if not c.closed:
                 a[-1] = 0.0
                 nu[-1] = 0.0
@@ -538,42 +564,51 @@ class ContourSystem:
         A = np.zeros((3, N))  # upper banded: A[2 + i - j, j] = A_ij for i <= j
         A[2] = gdt + self.kappa
         coef = np.array([1.0, -2.0, 1.0])
-        corr_idx, corr_M, corr_range = [], [], []
         wraps = []
         for k in range(len(self.contours)):
             s, e = int(self.starts[k]), int(self.starts[k + 1])
-            centres = np.arange(s, e)
-            inner = centres[1:-1]  # stencils that do not wrap around
+            inner = np.arange(s + 1, e - 1)  # stencils that do not wrap around
             bj = self.b_n[inner]
             for u in range(3):
                 for v in range(u, 3):
                     i = inner - 1 + u
                     j = inner - 1 + v
                     np.add.at(A, (2 + i - j, j), bj * coef[u] * coef[v])
+            if self.split:
+                # linear part a_i r_i of the tension: a weighted graph Laplacian
+                sp = np.arange(s, e - 1)
+                a = self.a_s[sp]
+                np.add.at(A, (2, sp), a)
+                np.add.at(A, (2, sp + 1), a)
+                np.add.at(A, (1, sp + 1), -a)
             if self.closed[k]:
-                wraps.append((k, np.array([[e - 1, s, s + 1], [e - 2, e - 1, s]]),
-                              np.array([self.b_n[s], self.b_n[e - 1]])))
+                nodes = np.array([[e - 1, s, s + 1], [e - 2, e - 1, s], [e - 1, s, s]])
+                coefs = np.array([coef, coef, [1.0, -1.0, 0.0]])
+                w = np.array([self.b_n[s], self.b_n[e - 1],
+                              self.a_s[e - 1] if self.split else 0.0])
+                wraps.append((k, nodes, coefs, w))
         self._cb = cholesky_banded(A, lower=False)
         _FACTORIZATIONS += 1
-        zc = np.zeros((N, 2))
-        for k, nodes, bw in wraps:
+        zc = np.zeros((N, 3))
+        corr_idx, corr_coef, corr_M, corr_range = [], [], [], []
+        for k, nodes, coefs, w in wraps:
             s, e = int(self.starts[k]), int(self.starts[k + 1])
-            U = np.zeros((N, 2))
-            for col in range(2):
-                np.add.at(U[:, col], nodes[col], coef)
+            U = np.zeros((N, 3))
+            for col in range(3):
+                np.add.at(U[:, col], nodes[col], coefs[col])
             Z = cho_solve_banded((self._cb, False), U)
             zc[s:e] = Z[s:e]
-            C = np.diag(bw)
-            UtZ = U.T @ Z
-            M = np.linalg.solve(np.eye(2) + C @ UtZ, C)
+            C = np.diag(w)
+            M = np.linalg.solve(np.eye(3) + C @ (U.T @ Z), C)
             corr_idx.append(nodes)
+            corr_coef.append(coefs)
             corr_M.append(M)
             corr_range.append((s, e))
         self._zc = zc
-        self._cidx = (np.asarray(corr_idx, np.int64).reshape(-1, 2, 3))
-        self._cM = np.asarray(corr_M, np.float64).reshape(-1, 2, 2)
+        self._cidx = np.asarray(corr_idx, np.int64).reshape(-1, 3, 3)
+        self._ccoef = np.asarray(corr_coef, np.float64).reshape(-1, 3, 3)
+        self._cM = np.asarray(corr_M, np.float64).reshape(-1, 3, 3)
         self._crange = np.asarray(corr_range, np.int64).reshape(-1, 2)
-        self._ccoef = coef
 
     # ------------------------------------------------------------------ state
     @property
@@ -707,7 +742,8 @@ class ContourSystem:
                                  self.fidx, user, self.kappa, self.anchor, self.node_contour,
                                  self._cb, self._zc, self._cidx, self._ccoef, self._cM,
                                  self._crange, F, ox, oy, float(self.gdt[0]),
-                                 float(self.dts[0]), tol, min_iter, max_iter, outside)
+                                 float(self.dts[0]), tol, min_iter, max_iter, outside,
+                                 self.split, self.max_step)
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
@@ -729,7 +765,8 @@ class ContourSystem:
         return R
 
     def matrix(self) -> np.ndarray:
-        """Dense matrix ``gamma/dt I + K`` (+ end anchors) of eq. 11, for inspection."""
+        """Dense matrix ``gamma/dt I + K`` of eq. 11 (+ end anchors, + the tension
+        Laplacian with ``tension='split'``), for inspection."""
         N = self.n_nodes
         A = np.diag(self.gdt[0] + self.kappa)
         for k in range(self.n_contours):
@@ -746,4 +783,12 @@ class ContourSystem:
                 d = np.zeros(N)
                 np.add.at(d, nb, [1.0, -2.0, 1.0])
                 A += self.b_n[j] * np.outer(d, d)
+            if self.split:
+                for i in range(s, e):
+                    j = int(self.nxt[i])
+                    if j >= 0:
+                        d = np.zeros(N)
+                        d[i] += 1.0
+                        d[j] -= 1.0
+                        A += self.a_s[i] * np.outer(d, d)
         return A

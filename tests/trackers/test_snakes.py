@@ -43,6 +43,29 @@ def test_matrix_is_eq9_and_solve_is_exact(rng):
     np.testing.assert_allclose(A @ s.solve(R), R, atol=1e-9)
 
 
+def test_split_tension_matrix_and_same_equilibrium(rng, ellipse_image):
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    pts = np.c_[80 + 55 * np.cos(t), 60 + 34 * np.sin(t)]
+    cs = [Contour(pts, closed=True, a=rng.uniform(0.5, 1.5, 40)),
+          Contour(np.c_[np.linspace(20, 60, 20), np.full(20, 100.0)], fixed_ends=True)]
+    s = ContourSystem(cs, PARAMS, tension="split")
+    A = s.matrix()
+    R = rng.normal(size=(s.n_nodes, 2))
+    np.testing.assert_allclose(A @ s.solve(R), R, atol=1e-9)
+    # the split scheme has the same equilibria as the explicit one
+    img, g = ellipse_image
+    F = force_field(gaussian_potential(img, SIGMA))
+    ex = ContourSystem([Contour(pts, closed=True)], PARAMS)
+    sp = ContourSystem([Contour(pts, closed=True)], PARAMS, tension="split")
+    ex.relax(F, tol=1e-4, max_iter=4000)
+    sp.relax(F, tol=1e-4, max_iter=4000)
+    for sys_ in (ex, sp):
+        d = ellipse_distance(sys_.positions, g["cx"], g["cy"], g["ax"], g["ay"])
+        assert d.mean() < 0.5
+    with pytest.raises(ValueError, match="tension"):
+        ContourSystem(cs, tension="implicit")
+
+
 def test_closed_contour_converges_to_ellipse(ellipse_image):
     img, g = ellipse_image
     t = np.linspace(0, 2 * np.pi, 160, endpoint=False)
