@@ -1,0 +1,56 @@
+"""Input options shared by the subcommands that read a video: VIDEO, --fps, --start, --end.
+
+Not a subcommand (it is not listed in ``SUBCOMMANDS``); subcommands call
+:func:`add_input_options` from ``configure`` and :func:`open_input` from ``run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from faceanalysis.video import MIN_FACE_SIZE, VideoSource, open_video
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _frame_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a frame number: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"frame numbers start at 0, got {value}")
+    return value
+
+
+def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
+    """Add ``VIDEO`` (unless ``positional`` is false), ``--fps``, ``--start`` and ``--end``."""
+    if positional:
+        parser.add_argument("video", type=Path, metavar="VIDEO",
+                            help="video file (anything OpenCV/FFmpeg reads), folder of images "
+                                 "(png, jpg, tif, bmp; natural order) or a single image")
+    group = parser.add_argument_group("input")
+    group.add_argument("--fps", type=_positive_float, metavar="FPS",
+                       help="frame rate; overrides the container's and sets timestamps to "
+                            "frame/FPS (image folders: 30 by default)")
+    group.add_argument("--start", type=_frame_number, default=0, metavar="FRAME",
+                       help="first frame to analyse, 0-based (default 0)")
+    group.add_argument("--end", type=_frame_number, metavar="FRAME",
+                       help="stop before this frame (exclusive; default: the last frame)")
+
+
+def open_input(args: argparse.Namespace, *, path: Path | None = None,
+               min_size: int | None = MIN_FACE_SIZE) -> VideoSource:
+    """Open ``args.video`` (or ``path``) with the options of :func:`add_input_options`."""
+    return open_video(path if path is not None else args.video, fps=args.fps,
+                      start=args.start, end=args.end, min_size=min_size)

@@ -1,0 +1,40 @@
+"""The shared input options of the subcommands that read a video."""
+
+from __future__ import annotations
+
+import argparse
+
+import cv2
+import numpy as np
+import pytest
+
+from faceanalysis.cli._input import add_input_options, open_input
+
+
+@pytest.fixture
+def parser():
+    p = argparse.ArgumentParser(prog="x", exit_on_error=False)
+    add_input_options(p)
+    return p
+
+
+def test_options_reach_open_video(parser, tmp_path):
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / f"f{i}.png"), np.full((80, 80), i, np.uint8))
+    args = parser.parse_args([str(tmp_path), "--fps", "12.5", "--start", "1", "--end", "4"])
+    src = open_input(args)
+    assert src.fps == 12.5 and src.fps_origin == "user"
+    assert [f.index for f in src] == [1, 2, 3]
+
+
+def test_tiny_input_refused_by_default(parser, tmp_path):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((40, 50), np.uint8))
+    with pytest.raises(ValueError, match="50x40 pixels.*at least 64"):
+        open_input(parser.parse_args([str(tmp_path / "f.png")]))
+
+
+@pytest.mark.parametrize("argv", [["v", "--fps", "0"], ["v", "--fps", "x"],
+                                  ["v", "--start", "-2"], ["v", "--end", "1.5"]])
+def test_bad_values_are_usage_errors(parser, argv):
+    with pytest.raises(argparse.ArgumentError):
+        parser.parse_args(argv)
