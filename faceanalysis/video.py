@@ -234,14 +234,16 @@ class VideoSource:
         if not capture.isOpened():
             raise ValueError(f"{self.path}: cannot be opened as a video any more")
         self._capture = capture
-        stop = self.end if self.end is not None else self.frame_count
+        # A frame count from the container can be an estimate: it decides whether failed
+        # reads are damage or the end of the file, but only ``end`` stops the reading.
+        expected = self.end if self.end is not None else self.frame_count
         use_container_time = self.fps_origin != "user"
         max_run = self._max_failed_run()
         index = 0          # index of the next frame to come out of the decoder
         failed_run = 0     # reads that failed since the last good frame
         previous: float | None = None
         try:
-            while stop is None or index + failed_run < stop:
+            while self.end is None or index + failed_run < self.end:
                 # Frames before start are decoded and dropped: seeking is not
                 # frame-accurate for every codec.
                 if index + failed_run < self.start:
@@ -251,7 +253,8 @@ class VideoSource:
                     ok = ok and image is not None
                 if not ok:
                     failed_run += 1
-                    if failed_run >= max_run:
+                    if failed_run >= max_run or (
+                            expected is not None and index + failed_run > expected):
                         break
                     continue
                 # Reads that failed before this good one are frames lost mid-stream.
@@ -280,13 +283,13 @@ class VideoSource:
         if index < self.start:
             raise ValueError(f"{self.path}: start frame {self.start} could not be reached; "
                              f"decoding stops at frame {index}")
-        if stop is not None and index < stop:
-            self.missing_tail = stop - index
+        if expected is not None and index < expected:
+            self.missing_tail = expected - index
             self.n_failed += self.missing_tail
             level = logging.WARNING if self.missing_tail > 2 else logging.INFO
             log.log(level, "%s: frames %d-%d of %d could not be decoded (truncated or "
                     "damaged file); the analysis ends at frame %d",
-                    self.path, index, stop - 1, stop, index - 1)
+                    self.path, index, expected - 1, expected, index - 1)
 
     def _timestamp(self, capture, index: int, previous: float | None, use_container: bool
                    ) -> float:

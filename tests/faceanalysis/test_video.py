@@ -406,3 +406,12 @@ def test_unreadable_file(tmp_path, video):
             open_video(video)
     finally:
         video.chmod(0o644)
+
+
+@pytest.mark.parametrize("announced", [20, None])
+def test_frames_beyond_an_estimated_count_are_still_read(video, announced):
+    src = open_video(video)
+    src.frame_count = announced  # containers that estimate their length (or give none)
+    frames = list(src)
+    assert [f.index for f in frames] == list(range(30)) and all(f.ok for f in frames)
+    assert src.missing_tail == 0 and src.n_failed == 0
