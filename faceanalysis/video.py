@@ -242,6 +242,7 @@ class VideoSource:
         index = 0          # index of the next frame to come out of the decoder
         failed_run = 0     # reads that failed since the last good frame
         previous: float | None = None
+        n_yielded = 0
         try:
             while self.end is None or index + failed_run < self.end:
                 # Frames before start are decoded and dropped: seeking is not
@@ -258,13 +259,16 @@ class VideoSource:
                         break
                     continue
                 # Reads that failed before this good one are frames lost mid-stream.
+                if failed_run and index + failed_run > self.start:
+                    first = max(index, self.start)
+                    log.warning("%s: frames %d-%d could not be decoded; marked lost",
+                                self.path, first, index + failed_run - 1)
                 for _ in range(failed_run):
                     if index >= self.start:
                         timestamp = (index / self.fps if previous is None
                                      else previous + 1.0 / self.fps)
-                        log.warning("%s: frame %d could not be decoded; marked lost",
-                                    self.path, index)
                         self.n_failed += 1
+                        n_yielded += 1
                         yield Frame(index, timestamp, None, False)
                         previous = timestamp
                     index += 1
@@ -273,6 +277,7 @@ class VideoSource:
                     index += 1
                     continue
                 timestamp = self._timestamp(capture, index, previous, use_container_time)
+                n_yielded += 1
                 yield Frame(index, timestamp, image, True)
                 previous = timestamp
                 index += 1
@@ -280,8 +285,8 @@ class VideoSource:
             capture.release()
             if self._capture is capture:
                 self._capture = None
-        if index < self.start:
-            raise ValueError(f"{self.path}: start frame {self.start} could not be reached; "
+        if n_yielded == 0:
+            raise ValueError(f"{self.path}: no frame from {self.start} on could be decoded; "
                              f"decoding stops at frame {index}")
         if expected is not None and index < expected:
             self.missing_tail = expected - index

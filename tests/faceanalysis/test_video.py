@@ -157,6 +157,9 @@ def test_truncated_avi_ends_early_and_counts_missing_frames(tmp_path):
     assert [f.index for f in frames] == list(range(len(frames)))
     assert src.missing_tail == 40 - len(frames)
     assert src.n_failed == src.missing_tail
+    # A range that lies wholly in the missing part is an error, not an empty result.
+    with pytest.raises(ValueError, match=r"cut\.avi: no frame from 38 on could be decoded"):
+        list(open_video(cut, start=38))
 
 
 def test_damaged_frames_mid_stream_are_lost_and_reading_goes_on(tmp_path):
