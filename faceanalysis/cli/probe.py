@@ -1,0 +1,48 @@
+"""``faceanalysis probe``: what the analysis will see in a video, before running it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from faceanalysis.cli._input import add_input_options, open_input
+
+HELP = "describe a video or image folder: size, frame rate, frames, decodable frames"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Describe the input as the analysis reads it: kind, size, pixel type, frame rate "
+        "and its origin, frames announced by the container. With --decode, every frame of "
+        "the range is decoded and the undecodable ones are counted (memory stays flat).")
+    parser.epilog = ("examples:\n  faceanalysis probe clip.mp4\n"
+                     "  faceanalysis probe frames/ --fps 25 --decode --json")
+    add_input_options(parser)
+    parser.add_argument("--decode", action="store_true",
+                        help="decode every frame of the range and count the lost ones")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    from faceanalysis.report import input_metadata
+
+    with open_input(args, min_size=None) as source:
+        info = input_metadata(source)
+        info["n_frames"] = source.n_frames
+        if args.decode:
+            decoded = lost = 0
+            for frame in source:
+                decoded += frame.ok
+                lost += not frame.ok
+            info.update(frames_decoded=decoded, frames_lost_mid_stream=lost,
+                        frames_undecodable=source.n_failed, missing_tail=source.missing_tail)
+        else:
+            for key in ("frames_undecodable", "missing_tail"):
+                info.pop(key, None)
+    if args.json:
+        print(json.dumps(info))
+    else:
+        width = max(map(len, info))
+        for key, value in info.items():
+            print(f"{key:<{width}}  {value if value is not None else '-'}")
+    return 0

@@ -1,0 +1,60 @@
+"""``faceanalysis probe``: input description, and bad input as one-line errors with exit 1."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+
+
+def make_clip(path, n=12):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 20, (96, 72))
+    for i in range(n):
+        writer.write(np.full((72, 96, 3), 15 * i, np.uint8))
+    writer.release()
+    return path
+
+
+def test_probe_describes_a_video(run_cli, tmp_path):
+    clip = make_clip(tmp_path / "clip.avi")
+    code, out, err = run_cli("probe", clip, "--json", "--decode", "--start", "2")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["size"] == [96, 72] and info["fps"] == 20 and info["frame_count"] == 12
+    assert info["n_frames"] == 10 and info["frames_decoded"] == 10
+    assert info["frames_lost_mid_stream"] == 0 and info["missing_tail"] == 0
+
+
+def test_probe_image_folder_with_fps(run_cli, tmp_path):
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i}.tif"), np.zeros((70, 70), np.uint16))
+    code, out, _ = run_cli("probe", tmp_path, "--fps", "50")
+    assert code == 0
+    assert "images" in out and "uint16" in out and "user" in out
+
+
+def one_line_error(run_cli, *argv):
+    code, out, err = run_cli(*argv)
+    lines = err.strip().splitlines()
+    assert code == 1 and out == ""
+    assert len(lines) == 1 and lines[0].startswith("faceanalysis: error: "), err
+    return lines[0]
+
+
+def test_bad_inputs_are_one_line_errors(run_cli, tmp_path):
+    assert "no such file" in one_line_error(run_cli, "probe", tmp_path / "missing.mp4")
+    noise = tmp_path / "noise.mp4"
+    noise.write_bytes(np.random.default_rng(0).bytes(4000))
+    assert "not a video" in one_line_error(run_cli, "probe", noise)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "no images" in one_line_error(run_cli, "probe", empty)
+    clip = make_clip(tmp_path / "clip.avi")
+    assert "start (12)" in one_line_error(run_cli, "probe", clip, "--start", "12")
+    assert "end (3)" in one_line_error(run_cli, "probe", clip, "--start", "5", "--end", "3")
+
+
+def test_bad_option_is_a_usage_error(run_cli, tmp_path):
+    code, _, err = run_cli("probe", tmp_path, "--fps", "-3")
+    assert code == 2 and "positive" in err
