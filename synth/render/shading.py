@@ -44,9 +44,9 @@ class Light:
         Multiplier of the per-material specular strengths.
     """
 
-    direction: tuple = (-0.35, 0.45, 1.0)
+    direction: tuple = (-0.25, 0.3, 1.0)
     colour: tuple = (1.0, 1.0, 1.0)
-    ambient: float = 0.45
+    ambient: float = 0.5
     shininess: float = 24.0
     specular_scale: float = 1.0
 

@@ -77,7 +77,7 @@ def texture_params(seed: int) -> TextureParams:
     return TextureParams(skin=tuple(float(v) for v in skin),
                          hair=tuple(float(v) for v in hair),
                          lip=tuple(float(v) for v in lip),
-                         brow_darkness=float(rng.uniform(0.75, 0.92)),
+                         brow_darkness=float(rng.uniform(0.88, 0.97)),
                          brow_thickness=float(rng.uniform(0.022, 0.032)),
                          furrow_darkness=float(rng.uniform(0.35, 0.5)),
                          noise_amplitude=float(rng.uniform(0.8, 1.2)),
@@ -284,7 +284,7 @@ def _paint(curves: dict, p: TextureParams, size: int) -> np.ndarray:
             c = _curve_px(curves[name], S)
             m = _tapered_band(S, c, p.brow_thickness * S)
             m = cv2.GaussianBlur(m, (0, 0), 1.5 * px)
-            hairc = hair[None, None, :] * hair_noise[..., None]
+            hairc = (0.6 * hair)[None, None, :] * hair_noise[..., None]
             a = (m * p.brow_darkness)[..., None]
             tex[:] = tex * (1 - a) + hairc * a
 

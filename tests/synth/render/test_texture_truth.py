@@ -1,0 +1,107 @@
+"""Skin texture on the real face mesh: features where the fiducials are, per-identity looks."""
+
+import numpy as np
+import pytest
+
+from synth.mesh import generate_face_mesh
+from synth.render.groundtruth import head_frame, project_landmarks
+from synth.render.renderer import Renderer
+from synth.render.shading import Light
+from synth.render.texture import paint_skin_texture, texture_params
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return generate_face_mesh()
+
+
+def _frontal(mesh, seed, **kw):
+    r = Renderer(mesh, texture=paint_skin_texture(mesh, seed), supersample=2, grey=True, **kw)
+    res = r.render(mesh.vertices)
+    return res, project_landmarks(mesh.landmark_positions(), r, res)
+
+
+def _dark_centre(profile):
+    base = np.median(np.concatenate([profile[:3], profile[-3:]]))
+    w = np.clip(base - profile, 0, None)
+    w[w < 0.3 * w.max()] = 0
+    return (w * np.arange(len(profile))).sum() / w.sum(), base
+
+
+@pytest.mark.parametrize("seed", [0, 3, 11])
+def test_brow_fiducials_lie_on_the_dark_brow_band(mesh, seed):
+    res, pts = _frontal(mesh, seed)
+    img = res.image.astype(float)
+    for name in ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
+                 "brow_outer_r"):
+        x, y, visible = pts[name]
+        assert visible
+        c, r = int(round(x)), int(round(y))
+        prof = img[r - 8:r + 9, c]
+        centre, base = _dark_centre(prof)
+        assert abs(centre - 8 - (y - r)) < 1.0, name       # band centre line at the fiducial
+        assert img[r, c] < 0.6 * base, name                   # strong contrast for snakes
+
+
+def test_mouth_corners_furrows_and_chin(mesh):
+    res, pts = _frontal(mesh, 3, light=Light(ambient=1.0, specular_scale=0.0))
+    img = res.image.astype(float)
+    for side, out in (("l", 1), ("r", -1)):
+        x, y, _ = pts[f"mouth_corner_{side}"]
+        c, r = int(round(x)), int(round(y))
+        cheek = img[r, c + out * 8]
+        assert img[r, c] < 0.75 * cheek                       # dark commissure vs cheek
+        assert img[r, c - out * 4] < 0.85 * cheek             # lips inside the corner
+        x, y, _ = pts[f"furrow_top_{side}"]
+        c, r = int(round(x)), int(round(y))
+        row = img[r + 2, c - 6:c + 7]
+        assert row.min() < 0.85 * np.median(row)              # furrow line just below its top
+    # chin boss: the painted outline is symmetric about the chin fiducial
+    x, y, _ = pts["chin"]
+    c, r = int(round(x)), int(round(y))
+    row = img[r, c - 25:c + 26]
+    left = np.argmin(row[:25])
+    right = 26 + np.argmin(row[26:])
+    assert abs((left + right) / 2 - 25 - (x - c)) <= 1.0
+    col = img[r - 15:r + 16, c]
+    assert col.min() < 0.9 * np.median(col)
+
+
+def test_hair_above_the_hairline(mesh):
+    res, pts = _frontal(mesh, 5)
+    img = res.image.astype(float)
+    for name in ("hairline_centre", "hairline_l", "hairline_r"):
+        x, y, _ = pts[name]
+        c, r = int(round(x)), int(round(y))
+        assert img[r - 5, c] < 0.6 * img[r + 5, c], name
+    hf = head_frame(mesh.vertices, mesh.landmarks, res.camera, res.pose)
+    mean = np.mean([pts[n][:2] for n in ("hairline_centre", "hairline_l", "hairline_r")], 0)
+    np.testing.assert_allclose([hf["head_x"], hf["head_y"]], mean, atol=1e-9)
+    assert hf["head_roll"] == 0.0 and hf["head_scale"] == pytest.approx(res.camera.scale)
+
+
+def test_texture_is_deterministic_and_varies_per_identity(mesh):
+    a = paint_skin_texture(mesh, 4, size=256)
+    b = paint_skin_texture(mesh, 4, size=256)
+    c = paint_skin_texture(mesh, 5, size=256)
+    assert np.array_equal(a, b)
+    assert not a.flags.writeable
+    assert np.abs(a - c).mean() > 0.01
+    assert texture_params(4) != texture_params(5)
+    with pytest.raises(ValueError, match="seed"):
+        texture_params(-1)
+    with pytest.raises(ValueError, match="size"):
+        paint_skin_texture(mesh, 1, size=10)
+
+
+def test_skin_has_fine_non_repeating_detail(mesh):
+    tex = paint_skin_texture(mesh, 2).mean(axis=2)
+    patch = tex[500:628, 400:528]                              # cheek/nose skin
+    hp = patch - np.asarray(__import__("cv2").GaussianBlur(patch, (0, 0), 4))
+    assert hp.std() > 0.01
+    # no periodicity: the autocorrelation has no secondary peak near the main one
+    f = np.fft.fft2(hp - hp.mean())
+    ac = np.real(np.fft.ifft2(f * np.conj(f)))
+    ac /= ac[0, 0]
+    ac[:3, :3] = ac[-3:, -3:] = ac[:3, -3:] = ac[-3:, :3] = 0
+    assert ac.max() < 0.3
