@@ -90,14 +90,16 @@ AU_NUMBERS: tuple[int, ...] = (1, 2, 4, 6, 9, 10, 12, 14, 15, 16, 17, 20, 23, 25
 #: ``AU01_r`` ... intensities in [0, 5].
 AU_COLUMNS: tuple[str, ...] = tuple(f"AU{n:02d}_r" for n in AU_NUMBERS)
 
-_FORMATS: dict[str, str] = {
-    "timestamp": "%.6f", "confidence": "%.4f",
-    **{c: "%.3f" for c in ("head_x", "head_y", "head_scale")},
-    "head_roll": "%.6f",
-    **{c: "%.3f" for c in FIDUCIAL_COLUMNS},
-    **{c: "%.6f" for c in MUSCLES},
-    JAW: "%.6f",
-    **{c: "%.4f" for c in AU_COLUMNS},
+# Decimals written per column: pixels to 1/1000, seconds to the microsecond,
+# contractions and radians to 1e-6, AU intensities and confidence to 1e-4.
+_DECIMALS: dict[str, int] = {
+    "timestamp": 6, "confidence": 4,
+    **{c: 3 for c in ("head_x", "head_y", "head_scale")},
+    "head_roll": 6,
+    **{c: 3 for c in FIDUCIAL_COLUMNS},
+    **{c: 6 for c in MUSCLES},
+    JAW: 6,
+    **{c: 4 for c in AU_COLUMNS},
 }
 _INTEGER_COLUMNS = ("frame", "success")
 _RANGES: dict[str, tuple[float, float]] = {
@@ -245,13 +247,6 @@ def _bounded_lsq_batch(A: np.ndarray, C: np.ndarray, *, upper: float,
     return x
 
 
-def _format_column(values: pd.Series, fmt: str) -> pd.Series:
-    arr = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
-    text = np.char.mod(fmt, arr).astype(object)
-    text[~np.isfinite(arr)] = ""
-    return pd.Series(text, index=values.index)
-
-
 def _check_frame(df: pd.DataFrame, path) -> None:
     missing = [c for c in contraction_columns() if c not in df.columns]
     if missing:
@@ -283,9 +278,10 @@ def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
 
     Notes
     -----
-    Floats are written with fixed precision per column (pixels 3 decimals,
-    contractions and radians 6, seconds 6, AU intensities 4, confidence 4); NaN
-    is an empty cell. The file appears only when complete.
+    Floats are rounded per column (pixels to 3 decimals, contractions, radians
+    and seconds to 6, AU intensities and confidence to 4) and written as the
+    shortest decimal that reads back as that value; NaN is an empty cell. The file
+    appears only when complete.
 
     Examples
     --------
@@ -302,18 +298,20 @@ def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     _validate(df, path)
     columns = contraction_columns()
     extra = [c for c in df.columns if c not in set(columns)]
-    out = pd.DataFrame(index=df.index)
+    out = {}
     for column in columns + extra:
         if column in _INTEGER_COLUMNS:
             out[column] = pd.to_numeric(df[column]).astype(np.int64)
-        elif column in _FORMATS:
-            out[column] = _format_column(df[column], _FORMATS[column])
-        elif pd.api.types.is_float_dtype(df[column]):
-            out[column] = _format_column(df[column], "%.6g")
+        elif column in _DECIMALS:
+            values = pd.to_numeric(df[column]).astype(float)
+            # Rounded doubles print as their shortest decimal, so this fixes the precision
+            # and keeps pandas' fast float writer; 0.0 instead of -0.0.
+            out[column] = values.round(_DECIMALS[column]) + 0.0
         else:
             out[column] = df[column]
     with atomic_path(path) as tmp:
-        out.to_csv(tmp, index=False, lineterminator="\n")
+        pd.DataFrame(out, index=df.index).to_csv(tmp, index=False, lineterminator="\n",
+                                                 na_rep="")
     return path
 
 
@@ -403,7 +401,9 @@ def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
     if path.is_dir():
         raise ValueError(f"{path}: is a folder, expected a contractions.csv file")
     try:
-        raw = pd.read_csv(path, dtype=str, keep_default_na=False, na_values=[""])
+        # Numeric columns parse in C; a column holding any non-number stays text and
+        # is checked cell by cell in _validate, which names the offending cell.
+        raw = pd.read_csv(path, keep_default_na=False, na_values=[""], low_memory=False)
     except pd.errors.EmptyDataError:
         raise ValueError(f"{path}: file is empty") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
