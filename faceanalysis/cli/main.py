@@ -20,6 +20,7 @@ from faceanalysis.errors import FaceAnalysisError
 SUBCOMMANDS: dict[str, str] = {
     "info": "info",
     "probe": "probe",
+    "synth": "synth",
 }
 
 

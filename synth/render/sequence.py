@@ -167,8 +167,7 @@ def contraction_timeline(muscle_names, *, expression: str | None = None, au=None
         if unknown:
             raise ValueError(f"unknown action unit(s) {unknown}; known: "
                              f"{sorted(facs.ACTION_UNITS)}")
-        aus = {k: v * intensity for k, v in aus.items()}
-        tl = facs.au_timeline(aus, n)
+        tl = facs.au_timeline(aus, n, emphasis=intensity)
     df = pd.DataFrame(0.0, index=range(n), columns=[*muscle_names, "jaw_rotation"])
     for c in df.columns:
         if c in tl.columns:
@@ -254,16 +253,18 @@ def _model_for(seed: int, resolution: float, identity_spread: float):
 
 
 def _aus_of(df: pd.DataFrame):
+    """AUxx_r columns (FACS 0..5 scale) estimated from the contractions by synth.facs."""
     try:
-        from synth.facs import muscles_to_aus
+        from synth.facs import muscles_to_aus, to_facs_scale
     except ImportError:
         return None
     try:
-        aus = muscles_to_aus(df)
+        aus = muscles_to_aus(df.reset_index(drop=True))
     except (ValueError, KeyError, TypeError) as exc:
         log.warning("AU intensities not written: %s", exc)
         return None
-    return pd.DataFrame(aus)
+    return pd.DataFrame({f"{c}_r": np.asarray(to_facs_scale(aus[c].to_numpy(float)), float)
+                         for c in aus.columns})
 
 
 def synthesize(*, model=None, expression: str | None = None, au=None, contractions=None,
