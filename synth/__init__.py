@@ -2,3 +2,16 @@
 
 ``synth`` knows nothing about trackers or the analysis pipeline.
 """
+
+from synth.render import (  # noqa: E402,F401  (renderer exports)
+    Camera,
+    HeadPose,
+    Light,
+    Renderer,
+    RenderResult,
+    default_camera,
+    paint_skin_texture,
+    project,
+    render_sequence,
+    synthesize,
+)
