@@ -1,0 +1,769 @@
+"""Analyse many videos on a Dask cluster: resumable, fault-isolated, with a summary table.
+
+The work runs on :mod:`dask.distributed`, an existing distributed engine: by default a
+local cluster of worker *processes* (one thread each) is started for the run; given the
+address of a running scheduler (``tcp://host:8786``) the same code runs on that cluster.
+Every video is one task; the result of each video is one folder under the output root
+holding the same files as ``faceanalysis analyze`` plus a finished marker.
+
+How a run stays safe to interrupt and repeat:
+
+- A task writes into a hidden temporary sibling folder ``OUT/.<name>.partial-<id>``; the
+  marker ``_finished.json`` is written last (atomically) and only then is the folder
+  renamed to ``OUT/<name>``. A worker that dies mid-video therefore leaves nothing that
+  looks finished; the scheduler reruns the task on another worker (up to dask's
+  ``distributed.scheduler.allowed-failures`` worker deaths, default 3, after which the
+  video is recorded as failed).
+- The marker holds the input's size and modification time and the options used;
+  :func:`is_complete` checks them and the presence and sizes of the output files, so a
+  rerun skips exactly the videos whose results are still valid.
+- An exception raised by the analysis of one video (a corrupt file, no face...) is caught
+  inside its task and becomes a ``failed`` row of ``OUT/summary.csv``; it is not retried
+  and never stops the other videos.
+
+Inputs must be readable at the same paths from every worker (a shared filesystem when
+the cluster spans several machines), and the output root must be writable from them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import hashlib
+import json
+import logging
+import math
+import os
+import shutil
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis._version import __version__
+from faceanalysis.outputs import atomic_path, write_text_atomic
+
+__all__ = [
+    "VIDEO_EXTENSIONS",
+    "MARKER",
+    "SUMMARY",
+    "discover_inputs",
+    "output_names",
+    "expected_outputs",
+    "completion_problem",
+    "is_complete",
+    "run_batch",
+]
+
+logger = logging.getLogger(__name__)
+
+#: File name suffixes taken as videos when a folder or a glob pattern is expanded.
+VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv",
+                    ".flv")
+#: The finished marker, written last into each video's output folder.
+MARKER = "_finished.json"
+#: The summary table written into the output root.
+SUMMARY = "summary.csv"
+_MARKER_FORMAT = 1
+_PARTIAL = ".partial-"
+_GLOB_CHARS = set("*?[")
+# Columns of contractions.csv that are not contractions (see DESIGN.md).
+_NOT_CONTRACTION = {"frame", "timestamp", "success", "confidence"}
+_NOT_CONTRACTION_PREFIXES = ("head_", "fid_")
+_SUMMARY_COLUMNS = ["video", "output", "status", "resumed", "frames", "frames_lost",
+                    "duration_s", "processing_s", "error"]
+
+
+# --------------------------------------------------------------------------- inputs
+
+def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *,
+                    extensions: Sequence[str] = VIDEO_EXTENSIONS) -> list[Path]:
+    """Expand files, folders and glob patterns into a list of video files.
+
+    Parameters
+    ----------
+    patterns : path-like or iterable of path-like
+        Each item is a file (taken as given, whatever its suffix), a folder (the files
+        directly inside it whose suffix is in ``extensions``; use ``"DIR/**/*.mp4"`` for
+        subfolders) or a glob pattern (``*``, ``?``, ``[...]``; ``**`` spans folders),
+        whose matches are filtered by ``extensions``.
+    extensions : sequence of str, keyword-only
+        Suffixes, with the dot, that count as videos when expanding folders and patterns
+        (compared case-insensitively).
+
+    Returns
+    -------
+    list of Path
+        Absolute paths, without duplicates, in the order of ``patterns`` (sorted within
+        a folder or pattern).
+
+    Raises
+    ------
+    FileNotFoundError
+        If an item names nothing that exists, or a folder or pattern yields no video.
+    ValueError
+        If ``patterns`` is empty.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> for name in ("b.mp4", "a.avi", "notes.txt"):
+    ...     _ = (d / name).write_bytes(b"")
+    >>> [p.name for p in discover_inputs([d])]
+    ['a.avi', 'b.mp4']
+    >>> [p.name for p in discover_inputs([str(d / "*.mp4"), d / "notes.txt"])]
+    ['b.mp4', 'notes.txt']
+    """
+    if isinstance(patterns, (str, os.PathLike)):
+        patterns = [patterns]
+    patterns = list(patterns)
+    if not patterns:
+        raise ValueError("no inputs given: name video files, folders or glob patterns")
+    suffixes = tuple(s.lower() for s in extensions)
+
+    def is_video(p: Path) -> bool:
+        return p.is_file() and p.suffix.lower() in suffixes
+
+    found: list[Path] = []
+    seen: set[Path] = set()
+    for item in patterns:
+        text = os.fspath(item)
+        path = Path(text).expanduser()
+        if path.is_file():
+            matches = [path]
+        elif path.is_dir():
+            matches = sorted(p for p in path.iterdir() if is_video(p))
+            if not matches:
+                raise FileNotFoundError(
+                    f"{text}: folder holds no video file ({', '.join(suffixes)}); "
+                    f"use '{Path(text) / '**' / '*.mp4'}' to search its subfolders")
+        elif _GLOB_CHARS & set(text):
+            hits = sorted(Path(p) for p in glob.glob(os.path.expanduser(text), recursive=True))
+            matches = [p for p in hits if is_video(p)]
+            if not matches:
+                what = (f"matches {len(hits)} path(s) but no video file ({', '.join(suffixes)})"
+                        if hits else "matches no file")
+                raise FileNotFoundError(f"pattern {text!r} {what}")
+        else:
+            raise FileNotFoundError(f"{text}: no such file or folder")
+        for p in matches:
+            p = p.resolve()
+            if p not in seen:
+                seen.add(p)
+                found.append(p)
+    return found
+
+
+def _short_hash(path: Path) -> str:
+    return hashlib.sha1(os.fsencode(path)).hexdigest()[:8]
+
+
+def output_names(inputs: Sequence[str | os.PathLike]) -> list[str]:
+    """Name of each input's output folder: its stem, made unique where stems clash.
+
+    A stem shared by several inputs (compared case-insensitively, as some filesystems
+    do) gets ``-`` and 8 hex digits of a hash of the absolute input path appended, so
+    that names never collide and stay the same from run to run for the same inputs.
+    The stem ``summary`` and stems starting with ``.`` or ``_`` are reserved for the
+    runner's own files: they are hashed too, with the leading dots and underscores
+    removed, so that no output folder is hidden.
+
+    Parameters
+    ----------
+    inputs : sequence of path-like
+        The videos, e.g. from :func:`discover_inputs`.
+
+    Returns
+    -------
+    list of str
+        One folder name per input, in order.
+
+    Examples
+    --------
+    >>> output_names(["/data/a/clip.mp4", "/data/b/clip.mp4", "/data/b/other.avi"])[2]
+    'other'
+    >>> [n[:5] for n in output_names(["/data/a/clip.mp4", "/data/b/clip.mp4"])]
+    ['clip-', 'clip-']
+    """
+    paths = [Path(os.path.abspath(os.fspath(p))) for p in inputs]
+    counts: dict[str, int] = {}
+    for p in paths:
+        counts[p.stem.lower()] = counts.get(p.stem.lower(), 0) + 1
+    names = []
+    for p in paths:
+        stem = p.stem
+        reserved = stem.startswith((".", "_")) or stem.lower() == Path(SUMMARY).stem
+        if counts[stem.lower()] > 1 or reserved:
+            stem = f"{stem.lstrip('._') or 'video'}-{_short_hash(p)}"
+        names.append(stem)
+    return names
+
+
+# --------------------------------------------------------------------------- markers
+
+def expected_outputs(options: Mapping | None = None) -> tuple[str, ...]:
+    """Files that a finished video's folder must hold, for the given analysis options.
+
+    Examples
+    --------
+    >>> expected_outputs()
+    ('contractions.csv', 'analysis.json', 'contractions.png')
+    >>> expected_outputs({"overlay": True})[-1]
+    'overlay.mp4'
+    """
+    files = ("contractions.csv", "analysis.json", "contractions.png")
+    if options and options.get("overlay"):
+        files += ("overlay.mp4",)
+    return files
+
+
+def _canonical_options(options: Mapping | None) -> dict:
+    """Options as plain JSON values (paths and other objects as strings), keys sorted."""
+    return json.loads(json.dumps(dict(options or {}), sort_keys=True, default=str))
+
+
+def _input_signature(path: Path) -> dict:
+    st = path.stat()
+    return {"size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+
+
+def completion_problem(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
+                       options: Mapping | None = None) -> str | None:
+    """Why ``out_dir`` is not a finished result for ``input_path``, or None if it is.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        A video's output folder.
+    input_path : path-like
+        The video it should hold the results of.
+    options : mapping, optional, keyword-only
+        The analysis options of the current run; when given they must equal the ones
+        recorded in the marker.
+
+    Returns
+    -------
+    str or None
+        A one-line reason (missing marker, input changed, options differ, an output
+        file missing or of another size), or None when the folder is complete.
+    """
+    out_dir = Path(out_dir)
+    marker_path = out_dir / MARKER
+    if not marker_path.is_file():
+        return f"{marker_path} is missing"
+    try:
+        marker = json.loads(marker_path.read_text())
+        signature = {"size": int(marker["input"]["size"]),
+                     "mtime_ns": int(marker["input"]["mtime_ns"])}
+        recorded_options = marker["options"]
+        outputs = dict(marker["outputs"])
+        record = marker["record"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return f"{marker_path} is unreadable ({type(exc).__name__}: {exc})"
+    if marker.get("format") != _MARKER_FORMAT:
+        return f"{marker_path} has format {marker.get('format')!r}, not {_MARKER_FORMAT}"
+    if not isinstance(record, dict) or record.get("status") != "ok":
+        return f"{marker_path} does not record a successful analysis"
+    try:
+        current = _input_signature(Path(input_path))
+    except OSError as exc:
+        return f"{input_path}: cannot read ({exc.strerror or exc})"
+    if current != signature:
+        return (f"{input_path} changed since {out_dir} was written "
+                f"(size/modification time differ)")
+    if options is not None and _canonical_options(options) != recorded_options:
+        return f"{out_dir} was made with other options ({json.dumps(recorded_options)})"
+    for name in expected_outputs(recorded_options):
+        if name not in outputs:
+            return f"{marker_path} lists no {name}"
+    for name, size in outputs.items():
+        f = out_dir / name
+        if not f.is_file():
+            return f"{f} is missing"
+        if f.stat().st_size != size:
+            return f"{f} has {f.stat().st_size} bytes, the marker says {size}"
+    return None
+
+
+def is_complete(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
+                options: Mapping | None = None) -> bool:
+    """True when ``out_dir`` holds the finished results of ``input_path``.
+
+    The finished marker must exist, match the input's current size and modification
+    time (and ``options`` when given), and every output file it lists must be present
+    with the recorded size. See :func:`completion_problem` for the reason when not.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> video = d / "clip.mp4"
+    >>> _ = video.write_bytes(b"not really a video")
+    >>> is_complete(d / "clip", video)
+    False
+    """
+    return completion_problem(out_dir, input_path, options=options) is None
+
+
+# --------------------------------------------------------------------------- one video
+
+def _default_task(path: Path, output: Path, **options):
+    """The single-video analysis, imported in the worker when first needed."""
+    from faceanalysis.analysis import analyze_to_folder
+
+    return analyze_to_folder(path, output, quiet=True, **options)
+
+
+def _is_contraction_column(name: str) -> bool:
+    if name in _NOT_CONTRACTION or name.startswith(_NOT_CONTRACTION_PREFIXES):
+        return False
+    return not (name.startswith("AU") and name.endswith("_r"))
+
+
+def _finite_or_nan(value) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return math.nan
+    return value if math.isfinite(value) else math.nan
+
+
+def _summarise(folder: Path) -> dict:
+    """Frames, losses, duration and mean contractions of one finished output folder."""
+    table = pd.read_csv(folder / "contractions.csv")
+    metadata = json.loads((folder / "analysis.json").read_text())
+    quality = metadata.get("quality", {}) if isinstance(metadata, dict) else {}
+    if "success" in table:
+        success = table["success"].astype(str).str.lower().isin(["true", "1", "1.0"]).to_numpy()
+    else:
+        success = np.ones(len(table), dtype=bool)
+    frames = int(quality.get("frames_total", len(table)))
+    frames_lost = int(quality.get("frames_lost", int((~success).sum())))
+    duration = math.nan
+    info = metadata.get("input", {}) if isinstance(metadata, dict) else {}
+    if isinstance(info, dict):
+        for key in ("duration_s", "duration"):
+            if key in info:
+                duration = _finite_or_nan(info[key])
+                break
+        if math.isnan(duration) and info.get("fps"):
+            duration = frames / _finite_or_nan(info["fps"])
+    if math.isnan(duration) and "timestamp" in table and len(table) >= 2:
+        t = table["timestamp"].to_numpy(dtype=float)
+        duration = float((t[-1] - t[0]) * len(t) / (len(t) - 1))
+    record = {"frames": frames, "frames_lost": frames_lost, "duration_s": duration}
+    for column in table.columns:
+        if _is_contraction_column(column) and pd.api.types.is_numeric_dtype(table[column]):
+            values = table[column].to_numpy(dtype=float)[success]
+            finite = values[np.isfinite(values)]
+            record[f"mean_{column}"] = float(finite.mean()) if finite.size else math.nan
+    return record
+
+
+def _error_text(exc: BaseException) -> str:
+    message = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {message[0]}" if message else type(exc).__name__
+
+
+def _limit_threads_once() -> None:
+    """Give OpenCV the thread budget the runner chose for this worker process."""
+    budget = os.environ.get("FACEANALYSIS_WORKER_THREADS")
+    if budget and not getattr(_limit_threads_once, "done", False):
+        import cv2
+
+        cv2.setNumThreads(int(budget))
+        _limit_threads_once.done = True
+
+
+def _process_video(input_path: str, out_root: str, name: str, options: dict,
+                   task: Callable | None, overwrite: bool) -> dict:
+    """Run on a worker: analyse one video into ``out_root/name``; return its summary row.
+
+    Exceptions from ``task`` (bad input) become a failed row. Exceptions from the
+    runner's own bookkeeping (the output filesystem) propagate, so that dask retries.
+    """
+    _limit_threads_once()
+    started = time.perf_counter()
+    path = Path(input_path)
+    root = Path(out_root)
+    final = root / name
+    tmp = root / f".{name}{_PARTIAL}{uuid.uuid4().hex[:12]}"
+    row = {"video": str(path), "output": name, "status": "failed", "resumed": False}
+    if not overwrite:
+        # a task is run again when the worker holding its result dies before the result
+        # reached the client: the folder it finished is then reused, not redone.
+        earlier = _finished_record(final, path, options)
+        if earlier is not None:
+            return {**earlier, **row, "status": "ok", "error": ""}
+    tmp.mkdir(parents=True)
+    try:
+        try:
+            signature = _input_signature(path)
+            (task or _default_task)(path, tmp, **options)
+            missing = [f for f in expected_outputs(options) if not (tmp / f).is_file()]
+            if missing:
+                raise RuntimeError(f"the analysis wrote no {', '.join(missing)}")
+            row.update(_summarise(tmp))
+        except Exception as exc:  # one bad video must never stop the batch
+            logger.debug("analysis of %s failed", path, exc_info=True)
+            row["error"] = _error_text(exc)
+            row["processing_s"] = time.perf_counter() - started
+            return row
+        row["status"] = "ok"
+        row["error"] = ""
+        row["processing_s"] = time.perf_counter() - started
+        outputs = {f.name: f.stat().st_size for f in sorted(tmp.iterdir()) if f.is_file()}
+        marker = {
+            "format": _MARKER_FORMAT,
+            "input": {"path": str(path), **signature},
+            "options": _canonical_options(options),
+            "outputs": outputs,
+            "record": {k: v for k, v in row.items() if k != "resumed"},
+            "faceanalysis": __version__,
+            "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        }
+        write_text_atomic(tmp / MARKER, json.dumps(marker, indent=1, default=_json_default))
+        if final.exists():
+            if not overwrite:
+                raise FileExistsError(f"{final} appeared while {path} was being analysed")
+            old = root / f".{name}.old-{uuid.uuid4().hex[:12]}"
+            os.replace(final, old)
+            os.replace(tmp, final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+        return row
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _finished_record(folder: Path, video: Path, options: Mapping) -> dict | None:
+    """The summary row kept in ``folder``'s marker if it is a finished result of this very
+    input (same path, size, modification time and options), else None."""
+    if completion_problem(folder, video, options=options) is not None:
+        return None
+    try:
+        marker = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    if marker["input"].get("path") != str(video):
+        return None
+    return dict(marker["record"])
+
+
+def _json_default(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+# --------------------------------------------------------------------------- the run
+
+def _default_workers() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _remove_partials(root: Path, names: Iterable[str]) -> None:
+    """Remove temporary folders left by workers that died (ours, by their exact prefix)."""
+    for name in names:
+        for leftover in root.glob(f".{glob.escape(name)}{_PARTIAL}*"):
+            shutil.rmtree(leftover, ignore_errors=True)
+
+
+def _write_summary(root: Path, rows: list[dict]) -> Path:
+    frame = _summary_frame(rows)
+    target = root / SUMMARY
+    with atomic_path(target) as tmp:
+        frame.to_csv(tmp, index=False)
+    return target
+
+
+def _summary_frame(rows: list[dict]) -> pd.DataFrame:
+    columns = list(_SUMMARY_COLUMNS)
+    for row in rows:
+        for key in row:
+            if key not in columns:
+                columns.append(key)
+    frame = pd.DataFrame(rows, columns=columns)
+    frame["resumed"] = frame["resumed"].fillna(False).astype(bool)
+    for column in ("frames", "frames_lost"):
+        frame[column] = pd.to_numeric(frame[column]).astype("Int64")
+    frame["error"] = frame["error"].fillna("")
+    return frame
+
+
+def _failed_row(path: Path, name: str, error: str) -> dict:
+    return {"video": str(path), "output": name, "status": "failed", "resumed": False,
+            "error": error}
+
+
+def _start_client(workers: int | None, scheduler, silence_logs):
+    """(client, cluster or None, owns_client) for a local cluster or an existing one."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        if isinstance(scheduler, Client):
+            return scheduler, None, False
+        return Client(scheduler, set_as_default=False), None, True
+    n = workers or _default_workers()
+    budget = str(max(1, _default_workers() // n))
+    env = {"OMP_NUM_THREADS": budget, "OPENBLAS_NUM_THREADS": budget, "MKL_NUM_THREADS": budget,
+           "NUMBA_NUM_THREADS": budget, "FACEANALYSIS_WORKER_THREADS": budget}
+    # worker-saturation 1.0: a worker holds only the video it is analysing, so that when
+    # it dies no queued video is blamed (and counted towards allowed-failures) with it.
+    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+        # no dashboard, and the scheduler's small HTTP server on a free local port: a
+        # batch never fights another program (or another batch) for port 8787.
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=silence_logs, env=env,
+                               scheduler_kwargs={"dashboard": False,
+                                                 "dashboard_address": "127.0.0.1:0"})
+    try:
+        client = Client(cluster, set_as_default=False)
+    except BaseException:
+        cluster.close()
+        raise
+    return client, cluster, True
+
+
+def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
+              out: str | os.PathLike, *,
+              workers: int | None = None,
+              scheduler=None,
+              options: Mapping | None = None,
+              task: Callable | None = None,
+              overwrite: bool = False,
+              progress: bool = False,
+              silence_logs: int | bool = logging.ERROR) -> pd.DataFrame:
+    """Analyse many videos on a Dask cluster, one output folder per video.
+
+    Parameters
+    ----------
+    inputs : path-like or iterable of path-like
+        Video files, folders and glob patterns, expanded by :func:`discover_inputs`.
+        Inputs that lie inside ``out`` (e.g. overlays of an earlier run) are left out.
+    out : path-like
+        Output root: ``out/<name>/`` per video (see :func:`output_names`) and
+        ``out/summary.csv``.
+    workers : int, optional, keyword-only
+        Worker processes of the local cluster (one thread each); default: one per
+        available core. Cannot be combined with ``scheduler``.
+    scheduler : str or distributed.Client, optional, keyword-only
+        Address of a running Dask scheduler (``"tcp://host:8786"``) or a connected
+        client; the run then uses that cluster's workers instead of starting one.
+    options : mapping, optional, keyword-only
+        Analysis options passed to ``task`` for every video (e.g. ``overlay=True``); they
+        are recorded in each finished marker and a result made with other options is
+        not reused.
+    task : callable, optional, keyword-only
+        ``task(path, output_folder, **options)`` analyses one video into an existing,
+        empty folder, writing at least ``contractions.csv``, ``analysis.json`` and
+        ``contractions.png``; exceptions it raises mark the video as failed. Default:
+        :func:`faceanalysis.analysis.analyze_to_folder` (imported on the workers). It
+        must be importable or picklable by the workers.
+    overwrite : bool, keyword-only
+        Re-analyse every video, replacing finished results. Without it finished
+        results are skipped, and a folder ``out/<name>`` that exists but is not a
+        finished result for the current input and options is reported as failed.
+    progress : bool, keyword-only
+        Show a progress bar on stderr: videos done / failed / remaining and the
+        overall frames per second.
+    silence_logs : int or bool, keyword-only
+        Level below which the local cluster's own log messages are dropped (False:
+        keep them all).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per video, in input order, as written to ``out/summary.csv``:
+        ``video, output, status`` ("ok" or "failed"), ``resumed`` (finished by an
+        earlier run and skipped), ``frames, frames_lost, duration_s, processing_s,
+        error`` and ``mean_<column>`` for every contraction column (over the frames
+        tracked successfully).
+
+    Raises
+    ------
+    FileNotFoundError
+        If an input names nothing (see :func:`discover_inputs`).
+    ValueError
+        If ``workers`` is not a positive integer, both ``workers`` and ``scheduler``
+        are given, or no input is left to analyse.
+    FileExistsError
+        If ``out`` exists and is not a folder.
+
+    Notes
+    -----
+    Reruns are cheap: videos whose folders pass :func:`is_complete` are not sent to the
+    cluster at all (no cluster is started when nothing is left to do). Temporary
+    folders left by workers that died are removed at the start and end of a run; do not
+    run two batches into the same ``out`` at the same time.
+    """
+    if workers is not None:
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) \
+                or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        if scheduler is not None:
+            raise ValueError("workers and scheduler are exclusive: the size of an existing "
+                             "cluster is set where it is started")
+    if task is not None and not callable(task):
+        raise ValueError(f"task must be callable, got {type(task).__name__}")
+    options = dict(options or {})
+    _canonical_options(options)  # fails early on values that cannot be recorded
+    root = Path(out)
+    if root.exists() and not root.is_dir():
+        raise FileExistsError(f"{root} exists and is not a folder")
+    root_abs = root.resolve()
+    videos = []
+    for video in discover_inputs(inputs):
+        if video.is_relative_to(root_abs):
+            logger.warning("leaving out %s: it lies inside the output folder %s", video, root)
+        else:
+            videos.append(video)
+    if not videos:
+        raise ValueError(f"no input left to analyse: every input lies inside {root}")
+    names = output_names(videos)
+    root.mkdir(parents=True, exist_ok=True)
+    _remove_partials(root, names)
+
+    rows: list[dict | None] = [None] * len(videos)
+    todo: list[int] = []
+    taken = {n.lower() for n in names}
+    for i, (video, name) in enumerate(zip(videos, names)):
+        if not overwrite and not (root / name).exists():
+            earlier = _finished_elsewhere(root, video, name, options, taken)
+            if earlier is not None:
+                names[i] = name = earlier
+        folder = root / name
+        if not overwrite and folder.exists():
+            problem = completion_problem(folder, video, options=options)
+            if problem is None:
+                marker = json.loads((folder / MARKER).read_text())
+                rows[i] = {**marker["record"], "video": str(video), "output": name,
+                           "resumed": True}
+            else:
+                rows[i] = _failed_row(video, name, f"{folder} exists but is not a finished "
+                                      f"result: {problem}; pass --overwrite to replace it")
+            continue
+        todo.append(i)
+    skipped = sum(1 for r in rows if r is not None and r["resumed"])
+    blocked = len(videos) - skipped - len(todo)
+    logger.info("%d video(s): %d finished before (skipped), %d to analyse%s", len(videos),
+                skipped, len(todo), f", {blocked} blocked by an unfinished folder (see "
+                f"{SUMMARY})" if blocked else "")
+
+    try:
+        if todo:
+            _run_on_cluster(videos, names, todo, rows, root, options, task, overwrite,
+                            workers, scheduler, progress, silence_logs)
+    finally:
+        final_rows = [r if r is not None else {**_failed_row(videos[i], names[i],
+                                                              "interrupted before it finished"),
+                                               "status": "pending"}
+                      for i, r in enumerate(rows)]
+        _write_summary(root, final_rows)
+        _remove_partials(root, names)
+    frame = _summary_frame(final_rows)
+    frame.attrs["skipped"] = skipped
+    frame.attrs["summary_path"] = str(root / SUMMARY)
+    return frame
+
+
+def _finished_elsewhere(root: Path, video: Path, name: str, options: Mapping,
+                        taken: set[str]) -> str | None:
+    """The other name ``video`` may have had in an earlier run, if finished there.
+
+    A stem gets a hash only while it clashes with another input's, so a run over a
+    subset or a superset of the inputs may name a video's folder differently; its
+    finished result is still found (when its marker names this very input).
+    """
+    stem = video.stem
+    other = f"{stem.lstrip('._') or 'video'}-{_short_hash(video)}" if name == stem else stem
+    if other.lower() in taken or not (root / other / MARKER).is_file():
+        return None
+    return other if _finished_record(root / other, video, options) is not None else None
+
+
+def _run_on_cluster(videos, names, todo, rows, root, options, task, overwrite, workers,
+                    scheduler, progress, silence_logs) -> None:
+    import distributed  # noqa: F401  (configures its loggers on import: do it before quieting)
+
+    with contextlib.ExitStack() as stack:
+        if silence_logs is not False:
+            stack.enter_context(_quiet_logger("distributed", silence_logs))
+        _run_futures(videos, names, todo, rows, root, options, task, overwrite, workers,
+                     scheduler, progress, silence_logs)
+
+
+@contextlib.contextmanager
+def _quiet_logger(name: str, level: int):
+    """Raise a logger's level for the duration of a block (the cluster's chatter in this
+    process: scheduler, nannies, client)."""
+    log = logging.getLogger(name)
+    previous = log.level
+    log.setLevel(max(int(level), previous))
+    try:
+        yield
+    finally:
+        log.setLevel(previous)
+
+
+def _run_futures(videos, names, todo, rows, root, options, task, overwrite, workers,
+                 scheduler, progress, silence_logs) -> None:
+    from distributed import as_completed
+    from tqdm.auto import tqdm
+
+    client, cluster, owns = _start_client(workers, scheduler, silence_logs)
+    bar = tqdm(total=len(todo), unit="video", file=sys.stderr, disable=not progress,
+               dynamic_ncols=True, desc="batch")
+    try:
+        futures = {}
+        for i in todo:
+            future = client.submit(_process_video, str(videos[i]), str(root.resolve()),
+                                   names[i], options, task, overwrite, pure=False, retries=1,
+                                   key=f"faceanalysis-{names[i]}-{uuid.uuid4().hex[:8]}")
+            futures[future] = i
+        started = time.perf_counter()
+        frames = ok = failed = 0
+        for future in as_completed(futures, loop=client.loop):
+            i = futures[future]
+            try:
+                row = future.result()
+            except Exception as exc:  # KilledWorker, lost connection, bookkeeping error
+                reason = _error_text(exc)
+                if type(exc).__name__ == "KilledWorker":
+                    reason = ("KilledWorker: every worker that analysed it died (dask's "
+                              "distributed.scheduler.allowed-failures was exceeded)")
+                row = _failed_row(videos[i], names[i], reason)
+            rows[i] = row
+            if row["status"] == "ok":
+                ok += 1
+                frames += int(row.get("frames") or 0)
+            else:
+                failed += 1
+                logger.debug("%s failed: %s", videos[i], row["error"])
+            elapsed = max(time.perf_counter() - started, 1e-9)
+            bar.set_postfix_str(f"ok={ok} failed={failed} left={len(todo) - ok - failed} "
+                                f"{frames / elapsed:.1f} frames/s", refresh=False)
+            bar.update(1)
+    finally:
+        bar.close()
+        if owns:
+            with contextlib.suppress(Exception):
+                client.close()
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close()
+

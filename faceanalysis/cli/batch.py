@@ -1,0 +1,81 @@
+"""``faceanalysis batch``: analyse many videos on a local or remote Dask cluster."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+HELP = "analyse many videos (files, folders, glob patterns) on a Dask cluster"
+
+_SHOWN_FAILURES = 20
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Analyse every video named by INPUTS into OUT/<name>/ (the files of 'analyze') and "
+        "write OUT/summary.csv, one row per video. The work runs on dask.distributed: a "
+        "local cluster of worker processes by default, or the cluster of --scheduler.\n\n"
+        "Re-running the same command skips the videos whose results are finished and still "
+        "match their input (size and modification time) and options. A video that cannot be "
+        "analysed (corrupt, no face...) is recorded as failed and the others go on. Exit "
+        "status: 0 when at least one video has results (failures are listed on stderr and in "
+        "summary.csv), 1 when every video failed or the inputs are wrong.")
+    parser.epilog = (
+        "examples:\n"
+        "  faceanalysis batch clips/ -o results\n"
+        "  faceanalysis batch 'corpus/**/*.mp4' extra.avi -o results --workers 4\n"
+        "  faceanalysis batch 'corpus/**/*.mp4' -o results --scheduler tcp://head:8786")
+    parser.add_argument("inputs", nargs="+", metavar="INPUT",
+                        help="video file, folder (its videos) or quoted glob pattern "
+                             "('**' spans subfolders)")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="output root: one folder per video plus summary.csv")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="re-analyse every video, replacing finished results")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="worker processes of the local cluster (default: all cores)")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="run on an existing Dask cluster; inputs and OUT must be "
+                            "reachable at the same paths from its workers")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bar, warnings and errors only")
+    analysis = parser.add_argument_group("analysis options (as for 'analyze')")
+    analysis.add_argument("--overlay", action="store_true",
+                          help="also write overlay.mp4 for every video")
+
+
+def analysis_options(args: argparse.Namespace) -> dict:
+    """The analysis options of ``args`` as keyword arguments of the analysis."""
+    options = {}
+    if args.overlay:
+        options["overlay"] = True
+    return options
+
+
+def run(args: argparse.Namespace) -> int:
+    from faceanalysis import batch
+
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    verbose = getattr(args, "verbose", 0) > 0
+    summary = batch.run_batch(args.inputs, args.output, workers=args.workers,
+                              scheduler=args.scheduler, options=analysis_options(args),
+                              overwrite=args.overwrite, progress=not args.quiet,
+                              silence_logs=False if verbose else logging.ERROR)
+    failed = summary[summary["status"] != "ok"]
+    for video, error in list(zip(failed["video"], failed["error"]))[:_SHOWN_FAILURES]:
+        print(f"failed: {video}: {error}", file=sys.stderr)
+    if len(failed) > _SHOWN_FAILURES:
+        print(f"... and {len(failed) - _SHOWN_FAILURES} more failures", file=sys.stderr)
+    ok = len(summary) - len(failed)
+    skipped = int(summary["resumed"].sum())
+    print(f"faceanalysis batch: {len(summary)} video(s): {ok} ok, {len(failed)} failed; "
+          f"skipped {skipped} finished before", file=sys.stderr)
+    print(summary.attrs["summary_path"])
+    if ok == 0:
+        print(f"faceanalysis: error: every video failed; see {summary.attrs['summary_path']}",
+              file=sys.stderr)
+        return 1
+    return 0
