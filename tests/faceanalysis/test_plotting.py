@@ -91,3 +91,31 @@ def test_interrupted_save_leaves_previous_png(table, tmp_path, monkeypatch):
         plot_contractions(table, path)
     assert path.read_bytes() == b"old plot"
     assert list(tmp_path.iterdir()) == [path]
+
+
+def test_many_muscles_are_stacked_one_panel_per_pair(table):
+    for m in ("corrugator_l", "corrugator_r", "risorius_l", "mentalis_r",
+              "frontalis_inner_l", "levator_labii_l"):
+        table[m] = np.linspace(0, 0.5, len(table))
+    fig = plot_contractions(table)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    # zygomaticus major, orbicularis oris + 5 more pairs, then the jaw panel
+    assert len(fig.axes) == 8 and labels[-1] == "jaw (deg)"
+    zyg = fig.axes[labels.index("zygomaticus major")]
+    assert [line.get_label() for line in zyg.lines] == ["zygomaticus_major_l",
+                                                         "zygomaticus_major_r"]
+    assert all(len(ax.collections) == 1 for ax in fig.axes)  # lost frames on every panel
+    single = plot_contractions(table, layout="single")
+    assert len(single.axes) == 2  # one axis + the jaw's secondary axis
+    with pytest.raises(ValueError, match="layout"):
+        plot_contractions(table, layout="grid")
+
+
+def test_isolated_lost_frames_are_visible(table):
+    table["success"] = 1
+    table.loc[[10, 50], "success"] = 0
+    fig = plot_contractions(table)
+    (bars,) = fig.axes[0].collections
+    assert len(bars.get_paths()) == 2
+    widths = [np.ptp(p.vertices[:, 0]) for p in bars.get_paths()]
+    np.testing.assert_allclose(widths, 1 / 30, rtol=1e-6)  # one frame wide
