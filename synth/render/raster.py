@@ -203,7 +203,7 @@ def vertex_normals_fast(vertices, triangles):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _sample_bilinear(tex, x, y, out):
     """Bilinear sample of tex (H, W, C) at pixel coordinates (x, y) (clamped) into out."""
     H = tex.shape[0]
@@ -228,7 +228,7 @@ def _sample_bilinear(tex, x, y, out):
         out[ch] = a * (1.0 - fy) + b * fy
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _shade_kernel(tri_id, bary, tris, material, uv, normals, wpos, tex, eye_tex, flat_colours,
                   light_dir, light_rgb, ambient, specular, shininess, view_persp, eye_pos,
                   image):
