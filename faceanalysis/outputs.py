@@ -46,6 +46,8 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
     The temporary file keeps ``target``'s suffix so that writers that choose a
     format from the file name (OpenCV, matplotlib, pandas) still work. On any
     exception the temporary file is removed and ``target`` is left untouched.
+    A ``target`` that exists but is not a regular file (a folder, a device such
+    as ``/dev/null``, a FIFO) is refused rather than replaced.
 
     Examples
     --------
@@ -57,6 +59,11 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
     'a,b\\n1,2\\n'
     """
     target = Path(target)
+    if target.is_dir():
+        raise IsADirectoryError(f"{target} is a folder, not a file")
+    if target.exists() and not target.is_file():
+        # Renaming over a device, FIFO or socket would replace it with a plain file.
+        raise ValueError(f"{target} exists and is not a regular file; refusing to replace it")
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".partial{target.suffix}",
                                     dir=target.parent)

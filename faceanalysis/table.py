@@ -16,7 +16,7 @@ one column per muscle of :data:`MUSCLES`
     radians, positive opens the mouth;
 ``AU01_r`` ... ``AU27_r``
     FACS action-unit intensities in [0, 5] (OpenFace-style names), derived from
-    the muscles by :func:`au_intensities`.
+    the muscles by :func:`au_intensities` (through :func:`synth.facs.muscles_to_aus`).
 
 Values that are unknown (a lost frame, an action unit without a muscle mapping)
 are empty cells, read back as NaN.
@@ -25,7 +25,7 @@ are empty cells, read back as NaN.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,7 @@ __all__ = [
     "contraction_columns",
     "empty_table",
     "read_contractions",
+    "with_au_columns",
     "write_contractions",
 ]
 
@@ -161,90 +162,59 @@ def empty_table(n: int, *, frames: Sequence[int] | None = None,
     return pd.DataFrame(data, columns=contraction_columns())
 
 
-def au_intensities(contractions: pd.DataFrame,
-                   action_units: Mapping[int, Mapping[str, float]]) -> pd.DataFrame:
-    """Action-unit intensities (0..5) that best explain each frame's contractions.
+def au_intensities(contractions: pd.DataFrame) -> pd.DataFrame:
+    """FACS action-unit intensities (0..5) for every frame of a contractions table.
 
-    Each action unit ``k`` at full intensity (5) activates muscles by the
-    amounts ``action_units[k]`` (a FACS table such as ``synth.facs.ACTION_UNITS``;
-    ``jaw_rotation`` may appear, in radians). Per frame, the intensities ``I`` solve
-    the bounded least-squares problem ``min ||A I / 5 - c||^2`` with
-    ``0 <= I <= 5``, where ``c`` are the frame's muscle and jaw values; this
-    shares a muscle between action units that use it instead of counting it twice.
+    An adapter to :func:`synth.facs.muscles_to_aus` (the model's own inverse of
+    its action-unit-to-muscle table): jaw action units (25, 26, 27) come from
+    ``jaw_rotation``, the others from a bounded least-squares fit of the muscle
+    contractions; intensities are then put on the 0..5 scale of ``AUxx_r``.
 
     Parameters
     ----------
     contractions : DataFrame
-        Columns named like :data:`MUSCLES` (and optionally ``jaw_rotation``);
-        missing muscles count as 0.
-    action_units : mapping
-        AU number -> {muscle or ``jaw_rotation``: activation at full intensity}.
+        Columns named like :data:`MUSCLES` and ``jaw_rotation``; missing columns
+        count as 0, other columns are ignored. Not modified.
 
     Returns
     -------
     DataFrame
-        One column per :data:`AU_COLUMNS` entry, same index as ``contractions``.
-        Action units absent from ``action_units`` and frames with any NaN among
-        the used muscles are NaN.
+        The :data:`AU_COLUMNS`, same index as ``contractions``; NaN for frames with
+        a NaN muscle or jaw value (lost frames).
+
+    Raises
+    ------
+    ValueError
+        If a muscle or jaw value is infinite.
 
     Examples
     --------
     >>> import pandas as pd
-    >>> table = pd.DataFrame({"zygomaticus_major_l": [0.0, 0.4], "zygomaticus_major_r": [0.0, 0.4]})
-    >>> aus = au_intensities(table, {12: {"zygomaticus_major_l": 0.8, "zygomaticus_major_r": 0.8}})
-    >>> aus["AU12_r"].round(3).tolist()
-    [0.0, 2.5]
+    >>> table = pd.DataFrame({"zygomaticus_major_l": [0.0, 0.4, float("nan")],
+    ...                       "zygomaticus_major_r": [0.0, 0.4, float("nan")]})
+    >>> au_intensities(table)["AU12_r"].round(3).tolist()
+    [0.0, 2.0, nan]
     """
-    known = set(MUSCLES) | {JAW}
-    used_aus = [n for n in AU_NUMBERS if n in action_units]
-    names = sorted({m for n in used_aus for m in action_units[n]})
-    unknown = [m for m in names if m not in known]
-    if unknown:
-        raise ValueError(f"action_units names unknown muscles: {', '.join(unknown)}")
+    from synth.facs import muscles_to_aus
+
+    columns = [c for c in (*MUSCLES, JAW) if c in contractions.columns]
+    values = contractions[columns].apply(pd.to_numeric, errors="coerce").astype(float)
+    if np.isinf(values.to_numpy()).any():
+        raise ValueError("contractions hold infinite values; cannot derive action units")
+    valid = values.notna().all(axis=1).to_numpy()
     out = pd.DataFrame(np.nan, index=contractions.index, columns=list(AU_COLUMNS))
-    if not used_aus or not names:
-        return out
-    A = np.array([[float(action_units[n].get(m, 0.0)) for n in used_aus] for m in names])
-    c = np.column_stack([
-        pd.to_numeric(contractions[m], errors="coerce").to_numpy(float)
-        if m in contractions else np.zeros(len(contractions)) for m in names])
-    valid = np.isfinite(c).all(axis=1)
-    x = _bounded_lsq_batch(A, c[valid], upper=1.0)
-    values = np.full((len(contractions), len(used_aus)), np.nan)
-    values[valid] = 5.0 * x + 0.0  # no negative zeros
-    for k, n in enumerate(used_aus):
-        out[f"AU{n:02d}_r"] = values[:, k]
+    if valid.any():
+        est = muscles_to_aus(values.loc[valid], aus=AU_NUMBERS)
+        for n in AU_NUMBERS:
+            out.loc[valid, f"AU{n:02d}_r"] = 5.0 * est[f"AU{n:02d}"].to_numpy() + 0.0
     return out
 
 
-def _bounded_lsq_batch(A: np.ndarray, C: np.ndarray, *, upper: float,
-                       tol: float = 1e-10, max_iter: int = 20000) -> np.ndarray:
-    """Solve ``min ||A x - c||`` with ``0 <= x <= upper`` for every row ``c`` of ``C``.
-
-    Accelerated projected gradient (FISTA with restart), vectorised over rows.
-    """
-    n_rows, n_vars = C.shape[0], A.shape[1]
-    if n_rows == 0:
-        return np.zeros((0, n_vars))
-    G = A.T @ A
-    B = C @ A  # (rows, vars) = A^T c per row
-    L = float(np.linalg.eigvalsh(G).max())
-    if L <= 0:
-        return np.zeros((n_rows, n_vars))
-    x = np.clip(np.linalg.lstsq(A, C.T, rcond=None)[0].T, 0.0, upper)
-    y, t = x.copy(), 1.0
-    for _ in range(max_iter):
-        x_new = np.clip(y - (y @ G - B) / L, 0.0, upper)
-        step = np.abs(x_new - x).max()
-        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        y = x_new + ((t - 1.0) / t_new) * (x_new - x)
-        # Adaptive restart keeps the momentum from overshooting.
-        restart = ((y - x_new) * (x_new - x)).sum(axis=1) < 0
-        y[restart] = x_new[restart]
-        x, t = x_new, t_new
-        if step < tol:
-            break
-    return x
+def with_au_columns(table: pd.DataFrame) -> pd.DataFrame:
+    """A copy of ``table`` with its ``AUxx_r`` columns computed by :func:`au_intensities`."""
+    out = table.copy()
+    out[list(AU_COLUMNS)] = au_intensities(table)
+    return out
 
 
 def _check_frame(df: pd.DataFrame, path) -> None:

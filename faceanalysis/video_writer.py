@@ -93,6 +93,10 @@ class VideoWriter:
         else:
             raise ValueError(f"{path}: unsupported video suffix {path.suffix!r}; use "
                              f"{', '.join(sorted(_CODEC_FOR_SUFFIX))}")
+        for _, target in candidates:
+            if target.exists() and not target.is_file():
+                raise ValueError(f"{target} exists and is not a regular file; refusing to "
+                                 "replace it")
         path.parent.mkdir(parents=True, exist_ok=True)
         for fourcc, target in candidates:
             tmp = self._temp_name(target)

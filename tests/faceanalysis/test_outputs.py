@@ -41,3 +41,18 @@ def test_atomic_write_keeps_suffix_and_replaces(tmp_path):
     assert target.read_bytes() == b"png"
     write_text_atomic(target, "new")
     assert target.read_text() == "new"
+
+
+def test_atomic_write_refuses_to_replace_special_files(tmp_path):
+    import os
+
+    import pytest
+
+    (tmp_path / "folder.csv").mkdir()
+    with pytest.raises(IsADirectoryError), atomic_path(tmp_path / "folder.csv"):
+        pass
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="not a regular file"), atomic_path(fifo):
+        pass
+    assert not fifo.is_file() and fifo.exists()

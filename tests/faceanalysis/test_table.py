@@ -5,9 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from scipy.optimize import lsq_linear
 
-from faceanalysis import table as table_mod
 from faceanalysis.table import (
     AU_COLUMNS,
     FIDUCIALS,
@@ -18,6 +16,7 @@ from faceanalysis.table import (
     contraction_columns,
     empty_table,
     read_contractions,
+    with_au_columns,
     write_contractions,
 )
 
@@ -177,58 +176,38 @@ def test_empty_table_validates():
 
 # -- action units --------------------------------------------------------------------------
 
-FACS = {
-    1: {"frontalis_inner_l": 0.8, "frontalis_inner_r": 0.8},
-    2: {"frontalis_outer_l": 0.7, "frontalis_outer_r": 0.7},
-    4: {"corrugator_l": 0.9, "corrugator_r": 0.9, "frontalis_inner_l": 0.1,
-        "frontalis_inner_r": 0.1},
-    12: {"zygomaticus_major_l": 0.9, "zygomaticus_major_r": 0.9},
-    26: {JAW: 0.25, "depressor_labii_l": 0.2, "depressor_labii_r": 0.2},
-}
+def test_names_agree_with_the_face_model():
+    facs = pytest.importorskip("synth.facs")
+    assert tuple(facs.MUSCLE_NAMES) == MUSCLES
+    assert JAW == facs.JAW
+    assert tuple(facs.au_column(n) for n in facs.CORE_AUS) == AU_COLUMNS
 
 
-def test_au_intensities_recover_known_mixtures(rng):
-    truth = rng.uniform(0, 5, (40, len(FACS)))
-    aus = list(FACS)
-    t = empty_table(40)
+def test_au_intensities_recover_the_model_action_units(tmp_path):
+    facs = pytest.importorskip("synth.facs")
+    truth = [{12: 0.6, 4: 0.3, 26: 1.0}, {1: 0.5, 2: 0.5, 15: 0.8}, {}]
+    t = empty_table(4)
     t[list(MUSCLES)] = 0.0
     t[JAW] = 0.0
-    for k, au in enumerate(aus):
-        for muscle, weight in FACS[au].items():
-            t[muscle] += truth[:, k] / 5 * weight
-    t.loc[7, "corrugator_l"] = np.nan
-    out = au_intensities(t, FACS)
-    assert list(out.columns) == list(AU_COLUMNS)
-    for k, au in enumerate(aus):
-        got = out[f"AU{au:02d}_r"].to_numpy()
-        np.testing.assert_allclose(np.delete(got, 7), np.delete(truth[:, k], 7), atol=1e-4)
-    assert out.loc[7, ["AU01_r", "AU04_r"]].isna().all()
-    assert out["AU06_r"].isna().all()  # no mapping given: unknown, not zero
+    for row, aus in enumerate(truth):
+        for name, value in facs.aus_to_contractions(aus).items():
+            t.loc[row, name] = value
+    t.loc[3, "corrugator_l"] = np.nan  # a lost frame
+    original = t.copy()
+    out = with_au_columns(t)
+    pd.testing.assert_frame_equal(t, original)
+    for row, aus in enumerate(truth):
+        for n in (1, 2, 4, 12, 15, 26):
+            assert out.loc[row, f"AU{n:02d}_r"] == pytest.approx(5 * aus.get(n, 0.0), abs=1e-3)
+    assert out.loc[3, list(AU_COLUMNS)].isna().all()
+    values = out.loc[:2, list(AU_COLUMNS)].to_numpy()
+    assert values.min() >= 0 and values.max() <= 5
+    write_contractions(out.assign(timestamp=0.0), tmp_path / "c.csv")  # a valid table
 
 
-def test_au_intensities_match_a_reference_bounded_solver(rng):
-    c = rng.uniform(0, 1, (25, len(MUSCLES)))
-    t = pd.DataFrame(c, columns=list(MUSCLES))
-    t[JAW] = rng.uniform(0, 0.3, 25)
-    out = au_intensities(t, FACS)
-    names = sorted({m for au in FACS for m in FACS[au]})
-    A = np.array([[FACS[au].get(m, 0.0) for au in FACS] for m in names])
-    def cost(x, b):
-        return np.sum((A @ (x / 5) - b) ** 2)
-
-    for i in range(25):
-        b = t.loc[i, names].to_numpy(float)
-        ref = lsq_linear(A, b, bounds=(0, 1)).x * 5
-        got = out.loc[i, [f"AU{au:02d}_r" for au in FACS]].to_numpy(float)
-        assert cost(got, b) <= cost(ref, b) + 1e-8
-        assert got.min() >= 0 and got.max() <= 5
-
-
-def test_au_intensities_reject_unknown_muscles():
-    with pytest.raises(ValueError, match="unknown muscles: smile_muscle"):
-        au_intensities(empty_table(1), {12: {"smile_muscle": 1.0}})
-
-
-def test_bounded_solver_handles_degenerate_mapping():
-    x = table_mod._bounded_lsq_batch(np.zeros((3, 2)), np.ones((4, 3)), upper=1.0)
-    assert x.shape == (4, 2) and not x.any()
+def test_au_intensities_reject_infinite_values():
+    t = empty_table(2)
+    t[list(MUSCLES)] = 0.0
+    t.loc[1, "risorius_r"] = np.inf
+    with pytest.raises(ValueError, match="infinite"):
+        au_intensities(t)

@@ -418,3 +418,9 @@ def test_frames_beyond_an_estimated_count_are_still_read(video, announced):
     frames = list(src)
     assert [f.index for f in frames] == list(range(30)) and all(f.ok for f in frames)
     assert src.missing_tail == 0 and src.n_failed == 0
+
+
+def test_writer_refuses_to_replace_a_folder(tmp_path):
+    (tmp_path / "overlay.mp4").mkdir()
+    with pytest.raises(ValueError, match="not a regular file"):
+        VideoWriter(tmp_path / "overlay.mp4", 25, (W, H))
