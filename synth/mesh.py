@@ -935,11 +935,13 @@ def _jaw_weight(P: np.ndarray, lower: np.ndarray) -> np.ndarray:
     yj = np.where(ax <= MOUTH_W, _mouth_y(ax),
                   _mouth_y(MOUTH_W) + 2.2 * _smoothstep(MOUTH_W, 7.5, ax))
     w = _smoothstep(-0.9, 0.9, yj - Y)
-    inner = np.clip((MOUTH_W - ax) / 0.7, 0.0, 1.0)
+    # lips: the lower lip rides on the mandible, the upper lip on the maxilla; both halves
+    # meet at 0.5 in the corners (the shared commissure vertices)
+    ramp = 0.5 + 0.5 * np.clip((MOUTH_W - ax) / 0.6, 0.0, 1.0)
     on_or_below = lower | (_mouth_y(ax) - 1e-9 > Y)
-    w = np.where(on_or_below & (ax <= MOUTH_W), np.maximum(w, inner), w)
+    w = np.where(on_or_below & (ax <= MOUTH_W), np.maximum(w, ramp), w)
     above = ~lower & (_mouth_y(ax) - 1e-9 <= Y) & (ax <= MOUTH_W)
-    w = np.where(above, np.minimum(w, 1.0 - inner), w)
+    w = np.where(above, np.minimum(w, 1.0 - ramp), w)
     return np.clip(w, 0.0, 1.0)
 
 
@@ -1015,7 +1017,7 @@ def _height(P: np.ndarray, s: FaceShape) -> np.ndarray:
     h -= 0.12 * _gauss(ax, Y, EYE_C, 0.95, 1.3, 0.18)
     # brow ridge and glabella
     win = _smoothstep(0.3, 1.4, ax) * (1 - _smoothstep(4.8, 6.4, ax))
-    h += s.brow_prominence * 0.55 * np.exp(-(((Y - _brow_y(ax) + 0.15) / 0.85) ** 2)) * win
+    h += s.brow_prominence * 0.8 * np.exp(-(((Y - _brow_y(ax) + 0.15) / 0.85) ** 2)) * win
     h += s.brow_prominence * 0.3 * _gauss(ax, Y, 0.0, 1.45, 1.2, 0.9)
     # frontal bosses, temples, forehead recession
     h += 0.2 * _gauss(ax, Y, 2.4, 4.6, 1.8, 1.8)
@@ -1086,8 +1088,42 @@ def _embed(P: np.ndarray, s: FaceShape) -> np.ndarray:
     return np.stack([x, Ys, z], axis=1)
 
 
-def _eye_centre_z(s: FaceShape) -> float:
-    return float(_embed(np.array([[EYE_C, 0.0]]), s)[0, 2])
+EYE_APEX_LIFT = 0.8    # lids over the cornea in front of the socket surface (cm)
+EYE_LID = 0.08         # lid skin in front of the eyeball (cm)
+EYE_CAP = 0.92         # lid margins lie within this fraction of the eyeball radius
+EYE_BLEND = 0.18       # softness of the lid crease where the lids leave the eyeball (cm)
+
+
+def _smooth_max(a, b, k):
+    """Polynomial smooth maximum: equals max(a, b) where |a - b| >= k."""
+    h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+    return a * (1 - h) + b * h + k * h * (1 - h) * 0.5
+
+
+def _fit_eyes(v: np.ndarray, P: np.ndarray, margin_l: np.ndarray,
+              s: FaceShape) -> tuple[np.ndarray, float]:
+    """Push the left eye's lids out over an eyeball (in place); returns (centre, radius).
+
+    The eyeball is a sphere whose front pole (the pupil) looks along +z from the middle of
+    the palpebral fissure, ``EYE_APEX_LIFT`` in front of the socket surface, with a radius such
+    that the lid margins lie within ``EYE_CAP`` of it.  The skin is the smooth maximum of the
+    socket surface and the sphere pushed out by ``EYE_LID``: lids hug the globe near the
+    opening and the upper-lid crease forms where they leave it.  Every margin vertex is
+    therefore at least ``EYE_LID`` in front of the eyeball.
+    """
+    centre = _embed(np.array([[EYE_C, 0.0]]), s)[0]
+    m = v[margin_l]
+    cx = 0.5 * (m[:, 0].min() + m[:, 0].max())
+    cy = centre[1]
+    z_apex = centre[2] + EYE_APEX_LIFT
+    R = float(np.hypot(m[:, 0] - cx, m[:, 1] - cy).max() / EYE_CAP)
+    cz = z_apex - R
+    left = P[:, 0] > 0
+    rho2 = (v[:, 0] - cx) ** 2 + (v[:, 1] - cy) ** 2
+    inside = left & (rho2 < R * R)
+    zs = cz + np.sqrt(R * R - rho2[inside])
+    v[inside, 2] = _smooth_max(v[inside, 2], zs, EYE_BLEND)
+    return np.array([cx, cy, cz - EYE_LID]), R
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1145,8 +1181,8 @@ def _grid_surface(fn, nu, nv):
     return v, tris, uv, T.ravel()
 
 
-def _inner_parts(s: FaceShape, resolution: float, shift: np.ndarray, skin: np.ndarray,
-                 margin_l: np.ndarray):
+def _inner_parts(s: FaceShape, resolution: float, shift: np.ndarray, centre_l: np.ndarray,
+                 r: float):
     parts_v, parts_t, parts_m, parts_uv, parts_w = [], [], [], [], []
 
     def push(v, t, material, uv, w):
@@ -1157,15 +1193,6 @@ def _inner_parts(s: FaceShape, resolution: float, shift: np.ndarray, skin: np.nd
         parts_uv.append(uv)
         parts_w.append(w)
 
-    # eyeballs: as far forward as the lid margins allow
-    r = 1.35 * s.eye_size
-    c2 = _embed(np.array([[EYE_C, 0.0]]), s)[0] - shift
-    m = skin[margin_l]
-    rho2 = (m[:, 0] - c2[0]) ** 2 + (m[:, 1] - c2[1]) ** 2
-    ok = rho2 < (0.95 * r) ** 2
-    cz = np.min(m[ok, 2] - 0.06 - np.sqrt(r**2 - rho2[ok]))
-    cz = min(cz, c2[2] + 0.15 - r)
-    centre_l = np.array([c2[0], c2[1], cz])
     centre_r = centre_l * [-1, 1, 1]
     n_lat = int(max(10, round(14 * math.sqrt(resolution))))
     n_lon = int(max(16, round(24 * math.sqrt(resolution))))
@@ -1270,8 +1297,11 @@ def _generate(shape: FaceShape, resolution: float) -> FaceMesh:
     lay = _layout(resolution)
     P = lay.P
     v = _embed(P, shape)
-    shift = np.array([0.0, 0.0, _eye_centre_z(shape)])
+    eye_c, eye_r = _fit_eyes(v, P, lay.eye_margin_l, shape)
+    # origin: midpoint between the pupils (front poles of the eyeballs)
+    shift = np.array([0.0, eye_c[1], eye_c[2] + eye_r])
     v -= shift
+    eye_c = eye_c - shift
     # exact mirror symmetry (floating-point safety): right side copies the left side
     m = lay.mirror
     left = P[:, 0] > 0
@@ -1285,7 +1315,7 @@ def _generate(shape: FaceShape, resolution: float) -> FaceMesh:
     jw = _jaw_weight(P, lay.lower)
     # temporomandibular joint: below the eye line, ~8 cm behind the eye centres
     pivot = np.array([0.0, -2.6 * shape.face_length, -8.2 * shape.face_width])
-    iv, it, im, iuv, iw, eyes, er = _inner_parts(shape, resolution, shift, v, lay.eye_margin_l)
+    iv, it, im, iuv, iw, eyes, er = _inner_parts(shape, resolution, shift, eye_c, eye_r)
     uv = _to_uv(P)
     return FaceMesh(
         vertices=_readonly(v),
