@@ -86,6 +86,7 @@ def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
     Returns
     -------
     dict
+        ``first_frame`` and ``last_frame`` (the rows' frame numbers),
         ``frames_total`` (rows + ``frames_missing``), ``frames_tracked``,
         ``frames_lost`` (including ``frames_missing``), ``lost_fraction``,
         ``lost_ranges`` (inclusive ``[first, last]`` frame numbers of lost rows, at
@@ -122,7 +123,10 @@ def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
         if conf.size:
             mean_conf, min_conf = float(conf.mean()), float(conf.min())
     denominator = n_total + int(frames_missing)
+    finite = frames[np.isfinite(frames)]
     return {
+        "first_frame": int(finite.min()) if finite.size else None,
+        "last_frame": int(finite.max()) if finite.size else None,
         "frames_total": denominator,
         "frames_tracked": n_tracked,
         "frames_lost": n_lost,

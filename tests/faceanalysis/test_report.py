@@ -38,6 +38,7 @@ def test_quality_summary_counts_and_ranges():
     assert q["mean_confidence"] == pytest.approx(np.mean([0.9, 0.8, 0.7, 0.6, 0.5, 1.0, 0.5]))
     assert q["min_confidence"] == pytest.approx(0.5)
     assert q["lost_ranges_truncated"] is False
+    assert (q["first_frame"], q["last_frame"]) == (100, 109)
 
 
 def test_quality_summary_adds_frames_missing_at_the_end():
