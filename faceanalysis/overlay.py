@@ -83,9 +83,11 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
         Name -> ``(x, y)``; names ending in ``_l`` (subject's left) are drawn in
         green, ``_r`` in magenta, others in cyan. NaN points are skipped.
     head : sequence of 4 floats, optional
-        Head frame ``(x, y, scale, roll)``: origin in pixels, pixels per model
-        centimetre, roll in radians (counter-clockwise in the image). Drawn as
-        2 cm axes: model x (subject's left) and model y (up).
+        Head frame ``(x, y, scale, roll)`` as in ``contractions.csv`` (and
+        ``trackers.fiducials.HeadFrame``): origin in pixels, reference length in
+        pixels, roll in radians. Drawn as its two axes, each half the reference
+        length long: x (subject's left) along ``(cos roll, sin roll)`` and y (down
+        the face) along ``(-sin roll, cos roll)``, in image coordinates.
     lost : bool, optional
         Mark the frame as lost (red border and "lost" label).
     label : str, optional
@@ -136,8 +138,9 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
         hx, hy, scale, roll = (float(v) for v in head)
         if all(math.isfinite(v) for v in (hx, hy, scale, roll)) and scale > 0:
             origin = np.array([hx, hy])
-            x_axis = origin + 2 * scale * np.array([math.cos(roll), -math.sin(roll)])
-            y_axis = origin + 2 * scale * np.array([-math.sin(roll), -math.cos(roll)])
+            c, s = math.cos(roll), math.sin(roll)
+            x_axis = origin + 0.5 * scale * np.array([c, s])
+            y_axis = origin + 0.5 * scale * np.array([-s, c])
             for end in (x_axis, y_axis):
                 cv2.line(canvas, tuple(_fixed(origin)), tuple(_fixed(end)), _HEAD, thick,
                          cv2.LINE_AA, _SHIFT)

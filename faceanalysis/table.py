@@ -6,8 +6,10 @@ One row per frame, columns in this fixed order (see DESIGN.md):
     frame number (0-based, in the input), seconds, 1 if the face was tracked
     in this frame else 0, tracking confidence in [0, 1];
 ``head_x, head_y, head_scale, head_roll``
-    head reference frame in the image: origin (pixels, x right, y down), scale
-    (pixels per model centimetre) and roll (radians, counter-clockwise in the image);
+    head reference frame in the image, as the trackers measure it
+    (``trackers.fiducials.HeadFrame``): origin (pixels, x right, y down), reference
+    length (pixels) and roll (radians; the head's x axis, toward the subject's left,
+    points along ``(cos roll, sin roll)`` in image coordinates);
 ``fid_<name>_x, fid_<name>_y``
     the 11 fiducial points of :data:`FIDUCIALS` in image pixels;
 one column per muscle of :data:`MUSCLES`

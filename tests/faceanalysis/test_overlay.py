@@ -34,9 +34,12 @@ def test_nan_points_are_skipped():
 
 
 def test_head_frame_axes_follow_roll():
-    out = draw_overlay(np.zeros((100, 100), np.uint8), head=(50.0, 50.0, 15.0, 0.0))
-    assert out[50, 70:78].any() and out[22:28, 50].any()   # x right, y up (2 cm = 30 px)
-    assert not out[50, 22:28].any()
+    out = draw_overlay(np.zeros((100, 100), np.uint8), head=(50.0, 50.0, 40.0, 0.0))
+    assert out[50, 62:68].any() and out[62:68, 50].any()   # x right, y down, 20 px long
+    assert not out[50, 32:38].any() and not out[32:38, 50].any()
+    turned = draw_overlay(np.zeros((100, 100), np.uint8), head=(50.0, 50.0, 40.0, np.pi / 2))
+    assert turned[62:68, 50].any() and turned[50, 32:38].any()  # x now down, y to the left
+    assert not turned[50, 62:68].any()
 
 
 def test_lost_and_label():
