@@ -1,4 +1,54 @@
 """Deformable contours (snakes), image potentials, face layout and fiducial points.
 
 ``trackers`` works on any image sequence and knows nothing about the face model.
+
+- :mod:`trackers.potentials`: image potentials (eq. 13 of 004, the paper's own filter,
+  a dark-line "valley" potential), force fields, bilinear sampling;
+- :mod:`trackers.snakes`: deformable contours (eqs. 7-12) integrated by semi-implicit
+  Euler with one factorisation per contour system;
+- :mod:`trackers.layout`: the nine facial contours, placed from OpenCV's face and eye
+  detectors or loaded from JSON;
+- :mod:`trackers.tracking`: frame-to-frame tracking with quality and lost flags;
+- :mod:`trackers.fiducials`: head reference frame and the 11 fiducial points;
+- :mod:`trackers.draw`: overlays.
 """
+
+from trackers.draw import draw_contours, draw_fiducials, draw_head_frame
+from trackers.fiducials import FIDUCIAL_NAMES, HeadFrame, fiducials, head_frame
+from trackers.layout import (
+    CONTOUR_NAMES,
+    FaceLayout,
+    LayoutContour,
+    detect_layout,
+    layout_from_eyes,
+    refine_layout,
+)
+from trackers.potentials import (
+    force_field,
+    gaussian_potential,
+    paper_potential,
+    potential_from_gray,
+    sample_bilinear,
+    to_gray,
+    valley_potential,
+)
+from trackers.snakes import (
+    Contour,
+    ContourSystem,
+    RelaxResult,
+    SnakeParams,
+    factorization_count,
+    paper_equivalent_strength,
+    resample_polyline,
+)
+from trackers.tracking import ContourQuality, Tracker, TrackResult
+
+__all__ = [
+    "CONTOUR_NAMES", "FIDUCIAL_NAMES", "Contour", "ContourQuality", "ContourSystem",
+    "FaceLayout", "HeadFrame", "LayoutContour", "RelaxResult", "SnakeParams", "TrackResult",
+    "Tracker", "detect_layout", "draw_contours", "draw_fiducials", "draw_head_frame",
+    "factorization_count", "fiducials", "force_field", "gaussian_potential", "head_frame",
+    "layout_from_eyes", "paper_equivalent_strength", "paper_potential",
+    "potential_from_gray", "refine_layout", "resample_polyline", "sample_bilinear",
+    "to_gray", "valley_potential",
+]

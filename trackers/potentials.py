@@ -46,6 +46,7 @@ __all__ = [
     "gaussian_potential",
     "paper_potential",
     "valley_potential",
+    "potential_from_gray",
     "force_field",
     "sample_bilinear",
 ]
@@ -208,8 +209,11 @@ def gaussian_potential(image, sigma: float = 2.0, *, roi=None,
     15
     """
     sigma = _check_sigma(sigma)
-    gray = to_gray(image, channel_order=channel_order)
-    roi = _check_roi(roi, gray.shape)
+    return potential_from_gray(to_gray(image, channel_order=channel_order), "edge", sigma,
+                               roi=roi)
+
+
+def _edge_from_gray(gray, sigma, roi):
     sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
     g = _blur(sub, sigma)
     gx, gy = _grad_central(g)
@@ -250,8 +254,11 @@ def paper_potential(image, *, roi=None, centred: bool = False,
     >>> int(np.argmin(P[8]))  # forward difference between pixel 7 and 8 is stored at 7
     7
     """
-    gray = to_gray(image, channel_order=channel_order)
-    roi = _check_roi(roi, gray.shape)
+    return potential_from_gray(to_gray(image, channel_order=channel_order),
+                               "paper_centred" if centred else "paper", roi=roi)
+
+
+def _paper_from_gray(gray, centred, roi):
     sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, 4)
     kernel = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.float32) / np.float32(5.0)
     v = cv2.filter2D(sub, -1, kernel, borderType=cv2.BORDER_REFLECT)
@@ -300,8 +307,11 @@ def valley_potential(image, sigma: float = 2.0, *, roi=None,
     20
     """
     sigma = _check_sigma(sigma)
-    gray = to_gray(image, channel_order=channel_order)
-    roi = _check_roi(roi, gray.shape)
+    return potential_from_gray(to_gray(image, channel_order=channel_order), "valley", sigma,
+                               roi=roi)
+
+
+def _valley_from_gray(gray, sigma, roi):
     sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
     g = _blur(sub, sigma)
     gxx = np.zeros_like(g)
@@ -317,6 +327,47 @@ def valley_potential(image, sigma: float = 2.0, *, roi=None,
     np.maximum(lam, 0, out=lam)
     P = lam * np.float32(-sigma * sigma)
     return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
+
+
+KINDS = ("edge", "valley", "paper", "paper_centred")
+
+
+def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.ndarray:
+    """Potential of an image already converted by :func:`to_gray` (no re-validation).
+
+    Parameters
+    ----------
+    gray : ndarray of float32, (H, W)
+        Grey image in 8-bit units, as :func:`to_gray` returns.
+    kind : {'edge', 'valley', 'paper', 'paper_centred'}
+        :func:`gaussian_potential`, :func:`valley_potential` or :func:`paper_potential`
+        (``centred=False`` / ``True``); ``sigma`` is ignored by the paper's filter.
+    sigma : float
+    roi : (x0, y0, x1, y1), optional
+
+    Returns
+    -------
+    P : ndarray of float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = to_gray(np.eye(8))
+    >>> potential_from_gray(g, "valley", 1.0, roi=(0, 0, 4, 4)).shape
+    (4, 4)
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    gray = np.asarray(gray)
+    if gray.ndim != 2 or gray.dtype != np.float32:
+        raise ValueError(f"gray must be a 2-D float32 array from to_gray, got {gray.dtype} "
+                         f"{gray.shape}")
+    roi = _check_roi(roi, gray.shape)
+    if kind == "edge":
+        return _edge_from_gray(gray, _check_sigma(sigma), roi)
+    if kind == "valley":
+        return _valley_from_gray(gray, _check_sigma(sigma), roi)
+    return _paper_from_gray(gray, kind == "paper_centred", roi)
 
 
 def force_field(potential, p: float = 1.0) -> np.ndarray:

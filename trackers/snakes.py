@@ -172,6 +172,11 @@ class Contour:
         that acts on this contour, so that e.g. brows follow a valley potential and
         the hairline an edge potential within one system.
     name : str
+    normal_forces : bool
+        Keep only the image-force component normal to the contour (the tangent is
+        taken from the two neighbours). Eq. 12 applies the whole force (False, the
+        default); along an uneven ravine its tangential part slides the nodes toward
+        the deepest spot and, with viscoelastic rest lengths, shrinks the contour.
     """
 
     points: np.ndarray
@@ -185,6 +190,7 @@ class Contour:
     rest_lengths: object = None
     field: int = 0
     name: str = ""
+    normal_forces: bool = False
 
 
 @dataclass
@@ -313,7 +319,7 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange):
 @numba.njit(cache=True, fastmath=False)
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, ox, oy, gdt, dt, tol,
-                  min_iter, max_iter, outside, split, max_step):
+                  min_iter, max_iter, outside, split, max_step, prv, normal_only):
     n = X.shape[0]
     H = fields.shape[1]
     W = fields.shape[2]
@@ -347,6 +353,17 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
                       + w10 * fields[k, y0 + 1, x0, 1] + w11 * fields[k, y0 + 1, x0 + 1, 1])
             else:
                 outside[node_contour[i]] = True
+            if normal_only[i]:
+                # drop the component along the contour (tangent from the neighbours)
+                ia = prv[i] if prv[i] >= 0 else i
+                ib = nxt[i] if nxt[i] >= 0 else i
+                tx = X[ib, 0] - X[ia, 0]
+                ty = X[ib, 1] - X[ia, 1]
+                tl = tx * tx + ty * ty
+                if tl > 1e-18:
+                    d = (fx * tx + fy * ty) / tl
+                    fx -= d * tx
+                    fy -= d * ty
             R[i, 0] = gdt * X[i, 0] + p_n[i] * fx + user[i, 0] + kappa[i] * anchor[i, 0]
             R[i, 1] = gdt * X[i, 1] + p_n[i] * fy + user[i, 1] + kappa[i] * anchor[i, 1]
         # explicit tension (eq. 7) and viscoelastic rest lengths (eq. 8)
@@ -476,6 +493,8 @@ class ContourSystem:
         self.n_nodes = N
         self.X = np.vstack(pts_list)
         self.nxt = np.full(N, -1, np.int64)
+        self.prv = np.full(N, -1, np.int64)
+        self.normal_only = np.zeros(N, np.bool_)
         self.a_s = np.zeros(N)
         self.nu_s = np.zeros(N)
         self.b_n = np.zeros(N)
@@ -501,6 +520,10 @@ class ContourSystem:
             else:
                 nx[-1] = -1
             self.nxt[s:e] = nx
+            pv = idx - 1
+            pv[0] = e - 1 if c.closed else -1
+            self.prv[s:e] = pv
+            self.normal_only[s:e] = bool(c.normal_forces)
             a = _per_node(c.a, prm.a, n, "a", name)
             nu = _per_node(c.nu, prm.nu, n, "nu", name)
             b = _per_node(c.b, prm.b, n, "b", name)
@@ -671,6 +694,19 @@ class ContourSystem:
                 Contour(pts, closed=c.closed, rest_lengths=c.rest_lengths), pts, self.names[k])
             self._rest0[k] = self.rest[sl].copy()
 
+    def set_strength(self, k, p) -> None:
+        """Change the image-force strength ``p`` of contour ``k`` (scalar or per node).
+
+        ``p`` is not part of the factored matrix, so this never refactors.
+        """
+        k = self._index(k)
+        sl = self.contour_slice(k)
+        self.p_n[sl] = _per_node(p, 0.0, sl.stop - sl.start, "p", self.names[k])
+
+    def strength(self, k) -> np.ndarray:
+        """Copy of the per-node image-force strengths of contour ``k``."""
+        return self.p_n[self.contour_slice(k)].copy()
+
     # ------------------------------------------------------------------ dynamics
     def relax(self, forces, *, origin=(0.0, 0.0), user_forces=None, tol: float = 1e-3,
               max_iter: int = 1000, min_iter: int = 1) -> RelaxResult:
@@ -743,7 +779,7 @@ class ContourSystem:
                                  self._cb, self._zc, self._cidx, self._ccoef, self._cM,
                                  self._crange, F, ox, oy, float(self.gdt[0]),
                                  float(self.dts[0]), tol, min_iter, max_iter, outside,
-                                 self.split, self.max_step)
+                                 self.split, self.max_step, self.prv, self.normal_only)
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")

@@ -1,0 +1,228 @@
+"""Head reference frame and the 11 fiducial points of 004 (V-D), from the contours.
+
+All points are image pixels (x right, y down, origin at the top-left pixel's
+centre); ``_l`` is the subject's left, which is on the image's right in an unmirrored
+frontal view.
+
+Head frame (004: "a head reference frame from the average position of the hairline
+contour"):
+
+* origin: the arc-length centroid of the hairline contour;
+* roll: the direction of the hairline's principal axis, oriented toward the
+  subject's left (image right when upright), as ``atan2(dy, dx)`` in image
+  coordinates (0 for an upright face, positive when the subject's left side
+  is lower in the image);
+* scale: the distance in pixels from the origin to the centroid of the nose-tip
+  contour (hairline and nose barely move with expressions). It is a length in
+  pixels, not a physical unit; divide positions by it to factor out zoom.
+
+Fiducials:
+
+* ``brow_inner_*`` / ``brow_outer_*``: the ends of each eyebrow contour nearer to /
+  farther from the facial midline (measured along the head frame's x axis);
+  ``brow_mid_*``: the point half-way along the eyebrow contour by arc length;
+* ``mouth_corner_*``: the two ends of the upper-lip contour;
+* ``furrow_top_*``: the upper end (in the head frame) of each nasolabial furrow contour;
+* ``chin``: the centroid of the chin-boss contour (area centroid when closed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FIDUCIAL_NAMES", "HeadFrame", "head_frame", "fiducials", "arc_point",
+           "centroid"]
+
+FIDUCIAL_NAMES = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
+                  "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
+                  "furrow_top_r", "chin")
+
+
+@dataclass(frozen=True)
+class HeadFrame:
+    """Head reference frame in the image.
+
+    Attributes
+    ----------
+    x, y : float
+        Origin, pixels.
+    scale : float
+        Reference length, pixels (hairline-to-nose distance).
+    roll : float
+        In-plane rotation, radians (0 upright).
+    """
+
+    x: float
+    y: float
+    scale: float
+    roll: float
+
+    @property
+    def axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit vectors (image coordinates) of the head's x (subject's left) and y (down)."""
+        c, s = math.cos(self.roll), math.sin(self.roll)
+        return np.array([c, s]), np.array([-s, c])
+
+    def to_head(self, points) -> np.ndarray:
+        """Image points (N, 2) -> head coordinates in units of ``scale``."""
+        p = np.asarray(points, float) - [self.x, self.y]
+        ex, ey = self.axes
+        return np.stack([p @ ex, p @ ey], axis=-1) / self.scale
+
+    def to_image(self, points) -> np.ndarray:
+        """Head coordinates (N, 2) in units of ``scale`` -> image points."""
+        q = np.asarray(points, float) * self.scale
+        ex, ey = self.axes
+        return q[..., :1] * ex + q[..., 1:2] * ey + [self.x, self.y]
+
+    def as_dict(self) -> dict:
+        """``head_x, head_y, head_scale, head_roll`` as in contractions.csv."""
+        return {"head_x": self.x, "head_y": self.y, "head_scale": self.scale,
+                "head_roll": self.roll}
+
+
+def _points(contours, name):
+    if name not in contours:
+        raise ValueError(f"contours lack {name!r} (have {sorted(contours)})")
+    p = np.asarray(contours[name], float)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
+        raise ValueError(f"contour {name!r} must have shape (n >= 2, 2), got {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError(f"contour {name!r} has NaN or infinite coordinates")
+    return p
+
+
+def centroid(points, *, closed: bool = False) -> np.ndarray:
+    """Arc-length centroid of a polyline, or area centroid of a closed polygon.
+
+    Examples
+    --------
+    >>> centroid([[0, 0], [2, 0], [2, 2], [0, 2]], closed=True)
+    array([1., 1.])
+    >>> centroid([[0, 0], [1, 0], [4, 0]])
+    array([2., 0.])
+    """
+    p = np.asarray(points, float)
+    if closed:
+        q = np.roll(p, -1, axis=0)
+        cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
+        area = cross.sum() / 2
+        if abs(area) > 1e-9:
+            return np.array([((p[:, 0] + q[:, 0]) * cross).sum(),
+                             ((p[:, 1] + q[:, 1]) * cross).sum()]) / (6 * area)
+        p = np.vstack([p, p[:1]])
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    if seg.sum() <= 0:
+        return p.mean(axis=0)
+    mid = 0.5 * (p[1:] + p[:-1])
+    return (mid * seg[:, None]).sum(axis=0) / seg.sum()
+
+
+def arc_point(points, fraction: float) -> np.ndarray:
+    """Point at ``fraction`` (0..1) of a polyline's arc length.
+
+    Examples
+    --------
+    >>> arc_point([[0, 0], [1, 0], [4, 0]], 0.5)
+    array([2., 0.])
+    """
+    p = np.asarray(points, float)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    t = float(fraction) * s[-1]
+    return np.array([np.interp(t, s, p[:, 0]), np.interp(t, s, p[:, 1])])
+
+
+def head_frame(contours) -> HeadFrame:
+    """Head reference frame from the hairline and nose-tip contours.
+
+    Parameters
+    ----------
+    contours : mapping name -> (n, 2) array
+        Needs ``hairline`` and ``nose_tip``.
+
+    Returns
+    -------
+    HeadFrame
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.linspace(-40, 40, 21)
+    >>> hf = head_frame({"hairline": np.c_[100 + x, 50 + 0.01 * x**2],
+    ...                  "nose_tip": np.c_[np.linspace(90, 110, 5), np.full(5, 150.0)]})
+    >>> round(hf.roll, 6), round(hf.scale) > 90
+    (0.0, True)
+    """
+    hair = _points(contours, "hairline")
+    nose = _points(contours, "nose_tip")
+    origin = centroid(hair)
+    # principal axis of the hairline nodes, weighted by arc length
+    seg = np.hypot(*np.diff(hair, axis=0).T)
+    mid = 0.5 * (hair[1:] + hair[:-1]) - origin
+    w = seg / max(seg.sum(), 1e-12)
+    cov = (mid * w[:, None]).T @ mid
+    evals, evecs = np.linalg.eigh(cov)
+    axis = evecs[:, np.argmax(evals)]
+    nose_c = centroid(nose)
+    down = nose_c - origin
+    # orient the x axis so that the nose is below (+y) in the head frame
+    if axis[0] * down[1] - axis[1] * down[0] < 0:
+        axis = -axis
+    roll = math.atan2(axis[1], axis[0])
+    scale = float(np.hypot(*down))
+    if scale <= 1e-6:
+        raise ValueError("nose_tip contour coincides with the hairline origin")
+    return HeadFrame(float(origin[0]), float(origin[1]), scale, float(roll))
+
+
+def fiducials(contours, head: HeadFrame | None = None) -> dict[str, tuple[float, float]]:
+    """The 11 fiducial points of 004 from the contours.
+
+    Parameters
+    ----------
+    contours : mapping name -> (n, 2) array
+        Needs the nine contours of :data:`trackers.layout.CONTOUR_NAMES` that the
+        fiducials use (brows, furrows, upper_lip, chin_boss; hairline and nose_tip
+        when ``head`` is not given).
+    head : HeadFrame, optional
+        Frame that decides left/right and up; computed from the contours if absent.
+
+    Returns
+    -------
+    dict name -> (x, y)
+        In :data:`FIDUCIAL_NAMES` order, image pixels.
+    """
+    if head is None:
+        head = head_frame(contours)
+    ex, ey = head.axes
+    o = np.array([head.x, head.y])
+
+    def hx(p):
+        return float((np.asarray(p) - o) @ ex)
+
+    def hy(p):
+        return float((np.asarray(p) - o) @ ey)
+
+    out: dict[str, tuple[float, float]] = {}
+    for side in ("l", "r"):
+        b = _points(contours, f"brow_{side}")
+        ends = (b[0], b[-1])
+        inner, outer = sorted(ends, key=lambda p: abs(hx(p)))
+        out[f"brow_inner_{side}"] = (float(inner[0]), float(inner[1]))
+        m = arc_point(b, 0.5)
+        out[f"brow_mid_{side}"] = (float(m[0]), float(m[1]))
+        out[f"brow_outer_{side}"] = (float(outer[0]), float(outer[1]))
+    lip = _points(contours, "upper_lip")
+    right, left = sorted((lip[0], lip[-1]), key=hx)
+    out["mouth_corner_l"] = (float(left[0]), float(left[1]))
+    out["mouth_corner_r"] = (float(right[0]), float(right[1]))
+    for side in ("l", "r"):
+        f = _points(contours, f"furrow_{side}")
+        top = min((f[0], f[-1]), key=hy)
+        out[f"furrow_top_{side}"] = (float(top[0]), float(top[1]))
+    c = centroid(_points(contours, "chin_boss"), closed=True)
+    out["chin"] = (float(c[0]), float(c[1]))
+    return {n: out[n] for n in FIDUCIAL_NAMES}

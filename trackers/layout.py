@@ -1,0 +1,472 @@
+"""The nine facial contours of 004 (V-D) and where to put them on a first frame.
+
+Contours, in this order (``_l`` is the subject's left, on the image's right):
+
+============  =======  ========  ====================================================
+name          shape    potential what it follows
+============  =======  ========  ====================================================
+hairline      open     edge      boundary between forehead skin and hair
+brow_l/_r     open     valley    centre line of the eyebrow band (its fiducials are
+                                 the inner end, the arc-length middle, the outer end)
+furrow_l/_r   open     valley    centre line of the nasolabial furrow (top end = fiducial)
+nose_tip      open     valley    the dark nostrils under the nose tip
+upper_lip     open     valley    the mouth line, where the upper lip meets the lower
+                                 lip; its two ends are the mouth corners (commissures)
+lower_lip     open     edge      the lower border of the lower lip
+chin_boss     closed   valley    outline of the chin boss; its centroid is the chin
+============  =======  ========  ====================================================
+
+Dark lines and bands are tracked on their centre line with the valley potential
+(:func:`trackers.potentials.valley_potential`); boundaries with the edge potential of
+eq. 13. Both choices are stored per contour (``kind``, ``sigma``) and can be edited.
+
+Placement. :func:`detect_layout` finds the face with OpenCV's bundled Haar cascade
+(``haarcascade_frontalface_default``) and the eyes with ``haarcascade_eye``; a
+template of the nine curves, written in a frame attached to the eyes (origin midway
+between the eye centres, unit = inter-eye distance, x toward the image's right,
+y down), is mapped onto the image by the similarity that carries the template eyes
+onto the detected ones (or onto the eyes the template expects inside the face box
+when the eyes are not found). Each contour is then moved rigidly, within a small
+window, to where its mean potential is lowest (:func:`refine_layout`). The layout
+can be saved to JSON, corrected by hand and loaded back (the paper placed its
+contours with the mouse).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from trackers.potentials import potential_from_gray, sample_bilinear, to_gray
+from trackers.snakes import resample_polyline
+
+__all__ = [
+    "CONTOUR_NAMES",
+    "LayoutContour",
+    "FaceLayout",
+    "TEMPLATE",
+    "layout_from_eyes",
+    "detect_layout",
+    "refine_layout",
+]
+
+CONTOUR_NAMES = ("hairline", "brow_l", "brow_r", "furrow_l", "furrow_r", "nose_tip",
+                 "upper_lip", "lower_lip", "chin_boss")
+KINDS = ("edge", "valley")
+
+
+def _parabola(x0, x1, pts, n=25):
+    """Quadratic through three (x, y) points, sampled on [x0, x1]."""
+    pts = np.asarray(pts, float)
+    c = np.polyfit(pts[:, 0], pts[:, 1], 2)
+    x = np.linspace(x0, x1, n)
+    return np.c_[x, np.polyval(c, x)]
+
+
+def _mirror(curve):
+    return np.asarray(curve, float)[::-1] * [-1.0, 1.0]
+
+
+def _build_template():
+    brow_l = _parabola(0.26, 0.85, [(0.26, -0.22), (0.59, -0.30), (0.85, -0.21)])
+    furrow_l = np.array([(0.358, 0.835), (0.436, 1.02), (0.515, 1.225), (0.576, 1.428),
+                         (0.602, 1.595)])
+    xm = np.linspace(-0.434, 0.434, 25)
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    xl = np.linspace(-0.30, 0.30, 19)
+    return {
+        "hairline": _parabola(-0.76, 0.76, [(-0.76, -0.808), (0.0, -1.024), (0.76, -0.808)],
+                              41),
+        "brow_l": brow_l,
+        "brow_r": _mirror(brow_l)[::-1],  # inner end first for both brows
+        "furrow_l": furrow_l,
+        "furrow_r": _mirror(furrow_l)[::-1],  # top end first for both furrows
+        "nose_tip": _parabola(-0.17, 0.17, [(-0.17, 1.0), (0.0, 1.03), (0.17, 1.0)], 11),
+        "upper_lip": np.c_[xm, 1.36 - 0.022 * (xm / 0.434) ** 2],
+        "lower_lip": np.c_[xl, 1.36 + 0.176 * np.sqrt(1 - (xl / 0.434) ** 2)],
+        "chin_boss": np.c_[0.262 * np.cos(t), 1.829 + 0.148 * np.sin(t)],
+    }
+
+
+#: Template curves in the eye frame (origin between the eye centres, unit = inter-eye
+#: distance, x toward the image's right, y down). Brows and furrows start at their
+#: inner / top end.
+TEMPLATE: dict[str, np.ndarray] = _build_template()
+
+#: Per-contour defaults: (closed, kind, sigma in inter-eye units, search window (x, y)
+#: in inter-eye units, refine ends).
+CONTOUR_DEFAULTS = {
+    "hairline": (False, "edge", 0.03, (0.0, 0.30), False),
+    "brow_l": (False, "valley", 0.035, (0.06, 0.12), True),
+    "brow_r": (False, "valley", 0.035, (0.06, 0.12), True),
+    "furrow_l": (False, "valley", 0.022, (0.08, 0.10), True),
+    "furrow_r": (False, "valley", 0.022, (0.08, 0.10), True),
+    "nose_tip": (False, "valley", 0.035, (0.05, 0.12), False),
+    "upper_lip": (False, "valley", 0.022, (0.05, 0.12), True),
+    "lower_lip": (False, "edge", 0.025, (0.0, 0.12), False),
+    "chin_boss": (True, "valley", 0.022, (0.05, 0.15), False),
+}
+
+#: Where the eye centres lie inside a Haar ``frontalface_default`` box, as fractions of
+#: its width / height (x from the box's left, y from its top).
+FACE_BOX_EYES = ((0.30, 0.395), (0.685, 0.395))
+
+
+@dataclass
+class LayoutContour:
+    """One contour of a :class:`FaceLayout`.
+
+    Attributes
+    ----------
+    points : ndarray (n, 2)
+        Node positions (x, y) in image pixels.
+    closed : bool
+    kind : {'edge', 'valley'}
+        Potential the contour follows.
+    sigma : float
+        Width of that potential, pixels.
+    refine_ends : bool
+        Whether the tracker relocates the two ends on the feature's ends each frame.
+    """
+
+    points: np.ndarray
+    closed: bool = False
+    kind: str = "valley"
+    sigma: float = 2.0
+    refine_ends: bool = False
+
+    def __post_init__(self):
+        self.points = np.asarray(self.points, dtype=np.float64)
+        if self.points.ndim != 2 or self.points.shape[1] != 2 or len(self.points) < 3:
+            raise ValueError(f"contour points must have shape (n >= 3, 2), got "
+                             f"{self.points.shape}")
+        if not np.isfinite(self.points).all():
+            raise ValueError("contour points contain NaN or infinite coordinates")
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+        if not np.isfinite(self.sigma) or self.sigma <= 0:
+            raise ValueError(f"sigma must be positive, got {self.sigma}")
+        self.closed = bool(self.closed)
+        self.refine_ends = bool(self.refine_ends) and not self.closed
+
+
+@dataclass
+class FaceLayout:
+    """Nine named contours placed on a frame, plus what they were placed from.
+
+    Attributes
+    ----------
+    contours : dict name -> LayoutContour
+        Keys are :data:`CONTOUR_NAMES` (all nine).
+    image_size : (width, height)
+    eyes : ndarray (2, 2) or None
+        Eye centres used for the placement: row 0 the subject's right eye (image
+        left), row 1 the subject's left eye.
+    face_box : (x, y, w, h) or None
+    source : str
+        'detected', 'eyes', 'file' or a user note.
+    """
+
+    contours: dict
+    image_size: tuple
+    eyes: np.ndarray | None = None
+    face_box: tuple | None = None
+    source: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        missing = [n for n in CONTOUR_NAMES if n not in self.contours]
+        if missing:
+            raise ValueError(f"layout lacks contours {missing}")
+        extra = [n for n in self.contours if n not in CONTOUR_NAMES]
+        if extra:
+            raise ValueError(f"unknown contours {extra}; choose from {CONTOUR_NAMES}")
+        self.contours = {n: self.contours[n] for n in CONTOUR_NAMES}
+        w, h = (int(v) for v in self.image_size)
+        if w < 3 or h < 3:
+            raise ValueError(f"image_size must be (width, height) >= 3, got {self.image_size}")
+        self.image_size = (w, h)
+        for name, c in self.contours.items():
+            if not isinstance(c, LayoutContour):
+                raise ValueError(f"contour {name!r} must be a LayoutContour")
+            p = c.points
+            if (p[:, 0] < 0).any() or (p[:, 1] < 0).any() or (p[:, 0] > w - 1).any() \
+                    or (p[:, 1] > h - 1).any():
+                raise ValueError(f"contour {name!r} has nodes outside the {w}x{h} image")
+        if self.eyes is not None:
+            self.eyes = np.asarray(self.eyes, float).reshape(2, 2)
+
+    @property
+    def inter_eye(self) -> float:
+        """Inter-eye distance in pixels (from the eyes, else from the brows)."""
+        if self.eyes is not None:
+            return float(np.hypot(*(self.eyes[1] - self.eyes[0])))
+        bl = self.contours["brow_l"].points.mean(0)
+        br = self.contours["brow_r"].points.mean(0)
+        return float(np.hypot(*(bl - br)) / 1.12)
+
+    # -------------------------------------------------------------- JSON
+    def to_dict(self) -> dict:
+        return {
+            "format": "trackers.FaceLayout/1",
+            "image_size": list(self.image_size),
+            "eyes": None if self.eyes is None else self.eyes.round(3).tolist(),
+            "face_box": None if self.face_box is None else [int(v) for v in self.face_box],
+            "source": self.source,
+            "contours": {
+                n: {"closed": c.closed, "kind": c.kind, "sigma": round(float(c.sigma), 4),
+                    "refine_ends": c.refine_ends, "points": c.points.round(3).tolist()}
+                for n, c in self.contours.items()},
+        }
+
+    def to_json(self, path=None) -> str:
+        """Serialise (and write to ``path`` when given). Coordinates are (x, y) pixels."""
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    @classmethod
+    def from_json(cls, source) -> FaceLayout:
+        """Load a layout from a JSON string or a file path.
+
+        Raises
+        ------
+        FileNotFoundError
+            When a path is given that does not exist.
+        ValueError
+            When the content is not a valid layout (the message names the problem).
+        """
+        text = None
+        if isinstance(source, Path) or (isinstance(source, str)
+                                        and not source.lstrip().startswith("{")):
+            p = Path(source)
+            if not p.is_file():
+                raise FileNotFoundError(f"layout file not found: {p}")
+            text = p.read_text()
+            where = str(p)
+        else:
+            text = source
+            where = "layout JSON"
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{where}: not valid JSON ({exc})") from None
+        if not isinstance(d, dict) or "contours" not in d or "image_size" not in d:
+            raise ValueError(f"{where}: expected an object with 'image_size' and 'contours'")
+        try:
+            contours = {}
+            for name, c in d["contours"].items():
+                dflt = CONTOUR_DEFAULTS.get(name, (False, "valley", 0.03, None, False))
+                contours[name] = LayoutContour(
+                    np.asarray(c["points"], float), bool(c.get("closed", dflt[0])),
+                    c.get("kind", dflt[1]), float(c.get("sigma", 2.0)),
+                    bool(c.get("refine_ends", dflt[4])))
+            return cls(contours, tuple(d["image_size"]), d.get("eyes"),
+                       tuple(d["face_box"]) if d.get("face_box") else None,
+                       d.get("source", "file") or "file")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+
+    def transformed(self, matrix) -> FaceLayout:
+        """A copy with every point mapped by a 2x3 affine matrix (sigmas scaled too)."""
+        M = np.asarray(matrix, float).reshape(2, 3)
+        s = float(np.sqrt(abs(np.linalg.det(M[:, :2]))))
+        out = {}
+        for n, c in self.contours.items():
+            out[n] = LayoutContour(c.points @ M[:, :2].T + M[:, 2], c.closed, c.kind,
+                                   c.sigma * s, c.refine_ends)
+        eyes = None if self.eyes is None else self.eyes @ M[:, :2].T + M[:, 2]
+        return FaceLayout(out, self.image_size, eyes, None, self.source, dict(self.meta))
+
+
+def _eye_similarity(eye_r, eye_l):
+    """2x3 matrix taking eye-frame coordinates to image pixels."""
+    eye_r = np.asarray(eye_r, float)
+    eye_l = np.asarray(eye_l, float)
+    d = eye_l - eye_r
+    iod = float(np.hypot(*d))
+    if not np.isfinite(iod) or iod < 2:
+        raise ValueError(f"eye centres {eye_r.tolist()} and {eye_l.tolist()} are too close")
+    c, s = d / iod
+    R = iod * np.array([[c, -s], [s, c]])
+    return np.c_[R, 0.5 * (eye_r + eye_l)]
+
+
+def layout_from_eyes(eye_r, eye_l, image_size, *, spacing: float | None = None,
+                     source: str = "eyes") -> FaceLayout:
+    """Place the template by the two eye centres.
+
+    Parameters
+    ----------
+    eye_r, eye_l : (x, y)
+        Centres of the subject's right eye (image left) and left eye (image right).
+    image_size : (width, height)
+    spacing : float, optional
+        Node spacing in pixels (default 3 % of the inter-eye distance, at least 1).
+
+    Returns
+    -------
+    FaceLayout
+        Contours clipped to the image.
+
+    Examples
+    --------
+    >>> lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    >>> [round(v) for v in lay.contours["upper_lip"].points[0]]
+    [100, 191]
+    """
+    M = _eye_similarity(eye_r, eye_l)
+    iod = float(np.hypot(*M[:, 0]))
+    w, h = (int(v) for v in image_size)
+    if spacing is None:
+        spacing = max(1.0, 0.03 * iod)
+    contours = {}
+    for name in CONTOUR_NAMES:
+        closed, kind, sig, _, ends = CONTOUR_DEFAULTS[name]
+        pts = TEMPLATE[name] @ M[:, :2].T + M[:, 2]
+        pts = resample_polyline(pts, spacing=spacing, closed=closed)
+        pts = np.clip(pts, 0, [w - 1, h - 1])
+        contours[name] = LayoutContour(pts, closed, kind, max(0.8, sig * iod), ends)
+    return FaceLayout(contours, (w, h), np.array([eye_r, eye_l], float), None, source)
+
+
+def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
+                  step: float = 1.0) -> FaceLayout:
+    """Move each contour rigidly to the lowest mean potential within its search window.
+
+    Parameters
+    ----------
+    frame : array_like
+        The frame the layout was placed on.
+    layout : FaceLayout
+    channel_order : {'rgb', 'bgr'}
+    step : float
+        Grid step of the search, pixels.
+
+    Returns
+    -------
+    FaceLayout
+        A new layout (the input is not modified).
+    """
+    gray = to_gray(frame, channel_order=channel_order)
+    H, W = gray.shape
+    if tuple(layout.image_size) != (W, H):
+        raise ValueError(f"frame is {W}x{H} but the layout was made for "
+                         f"{layout.image_size[0]}x{layout.image_size[1]}")
+    iod = layout.inter_eye
+    out = {}
+    cache = {}
+    for name, c in layout.contours.items():
+        win = CONTOUR_DEFAULTS.get(name, (0, 0, 0, (0.05, 0.05), 0))[3]
+        rx, ry = win[0] * iod, win[1] * iod
+        key = (c.kind, round(c.sigma, 3))
+        if key not in cache:
+            cache[key] = potential_from_gray(gray, c.kind, c.sigma)
+        P = cache[key]
+        dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
+        dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)
+        best, best_d = np.inf, (0.0, 0.0)
+        for dy in dys:
+            for dx in dxs:
+                q = c.points + [dx, dy]
+                if (q < 0).any() or (q[:, 0] > W - 1).any() or (q[:, 1] > H - 1).any():
+                    continue
+                v = float(sample_bilinear(P, q).mean())
+                # prefer the smallest move among equally good ones
+                v += 1e-6 * (dx * dx + dy * dy)
+                if v < best:
+                    best, best_d = v, (dx, dy)
+        out[name] = LayoutContour(c.points + best_d, c.closed, c.kind, c.sigma, c.refine_ends)
+    return FaceLayout(out, layout.image_size, layout.eyes, layout.face_box,
+                      layout.source, dict(layout.meta))
+
+
+def _detect_eyes(gray_u8, box):
+    x, y, w, h = box
+    cascade = cv2.CascadeClassifier(cv2.data.haarcascades + "haarcascade_eye.xml")
+    upper = gray_u8[y:y + int(0.6 * h), x:x + w]
+    found = cascade.detectMultiScale(upper, scaleFactor=1.1, minNeighbors=3,
+                                     minSize=(max(4, w // 12), max(4, w // 12)),
+                                     maxSize=(w // 2, w // 2))
+    if len(found) < 2:
+        return None
+    centres = np.array([(x + ex + ew / 2, y + ey + eh / 2) for ex, ey, ew, eh in found], float)
+    exp = np.array([(x + fx * w, y + fy * h) for fx, fy in FACE_BOX_EYES])
+    best, pair = np.inf, None
+    for i in range(len(centres)):
+        for j in range(len(centres)):
+            if i == j or centres[i, 0] >= centres[j, 0]:
+                continue
+            d = centres[j] - centres[i]
+            dist = np.hypot(*d)
+            if not 0.25 * w < dist < 0.6 * w or abs(d[1]) > 0.25 * dist:
+                continue
+            cost = np.hypot(*(centres[i] - exp[0])) + np.hypot(*(centres[j] - exp[1]))
+            if cost < best:
+                best, pair = cost, (centres[i], centres[j])
+    if pair is None or best > 0.35 * w:
+        return None
+    return pair
+
+
+def detect_layout(frame, *, frame_index: int = 0, channel_order: str = "rgb",
+                  refine: bool = True, spacing: float | None = None,
+                  min_face: int = 40) -> FaceLayout:
+    """Place the nine contours automatically on a frame.
+
+    Parameters
+    ----------
+    frame : array_like
+        Grey or colour frame of any dtype (see :func:`trackers.potentials.to_gray`).
+    frame_index : int
+        Index of the frame, used in error messages.
+    channel_order : {'rgb', 'bgr'}
+    refine : bool
+        Run :func:`refine_layout` after placing the template.
+    spacing : float, optional
+        Node spacing in pixels (default 3 % of the inter-eye distance).
+    min_face : int
+        Smallest face side searched, pixels.
+
+    Returns
+    -------
+    FaceLayout
+
+    Raises
+    ------
+    ValueError
+        ``no face found in frame N`` when the detector finds none (the largest face
+        is used when there are several).
+    """
+    gray = to_gray(frame, channel_order=channel_order)
+    g8 = np.clip(gray + 0.5, 0, 255).astype(np.uint8)
+    g8 = cv2.equalizeHist(g8)
+    cascade = cv2.CascadeClassifier(cv2.data.haarcascades
+                                    + "haarcascade_frontalface_default.xml")
+    faces = cascade.detectMultiScale(g8, scaleFactor=1.1, minNeighbors=4,
+                                     minSize=(min_face, min_face))
+    if len(faces) == 0:
+        raise ValueError(f"no face found in frame {frame_index}")
+    box = tuple(int(v) for v in max(faces, key=lambda f: f[2] * f[3]))
+    x, y, w, h = box
+    pair = _detect_eyes(g8, box)
+    if pair is None:
+        eye_r = (x + FACE_BOX_EYES[0][0] * w, y + FACE_BOX_EYES[0][1] * h)
+        eye_l = (x + FACE_BOX_EYES[1][0] * w, y + FACE_BOX_EYES[1][1] * h)
+        how = "face box"
+    else:
+        eye_r, eye_l = pair
+        how = "face box + eyes"
+    H, W = gray.shape
+    layout = layout_from_eyes(eye_r, eye_l, (W, H), spacing=spacing, source="detected")
+    layout.face_box = box
+    layout.meta["placement"] = how
+    layout.meta["frame_index"] = int(frame_index)
+    if refine:
+        layout = refine_layout(frame, layout, channel_order=channel_order)
+    return layout
