@@ -58,6 +58,7 @@ __all__ = [
     "completion_problem",
     "is_complete",
     "run_batch",
+    "start_local_cluster",
 ]
 
 logger = logging.getLogger(__name__)
@@ -509,28 +510,69 @@ def _failed_row(path: Path, name: str, error: str) -> dict:
             "error": error}
 
 
+def start_local_cluster(workers: int | None = None, *, threads: int | None = None,
+                        silence_logs: int | bool = logging.ERROR):
+    """Start the local Dask cluster that :func:`run_batch` uses by default.
+
+    Worker processes that run one video at a time; each process's numerical libraries
+    (OpenMP, BLAS, Numba, OpenCV) get ``threads`` threads, by default ``cores // workers``
+    so that workers do not oversubscribe the cores; a worker holds only the video it is
+    analysing (dask's ``worker-saturation`` 1.0), so that when it dies no queued video is
+    blamed with it; no dashboard, and the scheduler's HTTP server on a free local port.
+    Reuse one cluster for several runs with
+    ``run_batch(..., scheduler=distributed.Client(cluster))``.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Number of worker processes; default: one per available core.
+    threads : int, optional, keyword-only
+        Threads of the numerical libraries in each worker process; default
+        ``max(1, cores // workers)``.
+    silence_logs : int or bool, keyword-only
+        Level below which the workers' log messages are dropped (False: keep them).
+
+    Returns
+    -------
+    distributed.LocalCluster
+        A running cluster; close it with ``cluster.close()`` (or use it in a ``with``).
+    """
+    import dask
+    from distributed import LocalCluster
+
+    if workers is not None and (isinstance(workers, bool)
+                                or not isinstance(workers, (int, np.integer)) or workers < 1):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if threads is not None and (isinstance(threads, bool)
+                                or not isinstance(threads, (int, np.integer)) or threads < 1):
+        raise ValueError(f"threads must be a positive integer, got {threads!r}")
+    n = int(workers or _default_workers())
+    budget = str(int(threads) if threads else max(1, _default_workers() // n))
+    env = {"OMP_NUM_THREADS": budget, "OPENBLAS_NUM_THREADS": budget, "MKL_NUM_THREADS": budget,
+           "NUMBA_NUM_THREADS": budget, "FACEANALYSIS_WORKER_THREADS": budget}
+    # Dask sets MALLOC_TRIM_THRESHOLD_ in new worker processes (to give memory back to the
+    # OS), which also freezes glibc's mmap threshold at 128 KiB: every frame-sized array
+    # is then mmap'ed and page-faulted afresh, which made image filtering ~3x slower in
+    # workers than in a plain process. A 32 MiB mmap threshold keeps frames on the heap.
+    pre_spawn = {**dask.config.get("distributed.nanny.pre-spawn-environ"), **env,
+                 "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
+    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.nanny.pre-spawn-environ": pre_spawn}):
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                            dashboard_address=None, silence_logs=silence_logs, env=env,
+                            scheduler_kwargs={"dashboard": False,
+                                              "dashboard_address": "127.0.0.1:0"})
+
+
 def _start_client(workers: int | None, scheduler, silence_logs):
     """(client, cluster or None, owns_client) for a local cluster or an existing one."""
-    import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler is not None:
         if isinstance(scheduler, Client):
             return scheduler, None, False
         return Client(scheduler, set_as_default=False), None, True
-    n = workers or _default_workers()
-    budget = str(max(1, _default_workers() // n))
-    env = {"OMP_NUM_THREADS": budget, "OPENBLAS_NUM_THREADS": budget, "MKL_NUM_THREADS": budget,
-           "NUMBA_NUM_THREADS": budget, "FACEANALYSIS_WORKER_THREADS": budget}
-    # worker-saturation 1.0: a worker holds only the video it is analysing, so that when
-    # it dies no queued video is blamed (and counted towards allowed-failures) with it.
-    with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
-        # no dashboard, and the scheduler's small HTTP server on a free local port: a
-        # batch never fights another program (or another batch) for port 8787.
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=silence_logs, env=env,
-                               scheduler_kwargs={"dashboard": False,
-                                                 "dashboard_address": "127.0.0.1:0"})
+    cluster = start_local_cluster(workers, silence_logs=silence_logs)
     try:
         client = Client(cluster, set_as_default=False)
     except BaseException:

@@ -335,6 +335,7 @@ def test_cli_batch(corpus, tmp_path, monkeypatch, run_cli):
     assert str(out / SUMMARY) in stdout
     assert "4 video(s): 2 ok, 2 failed; skipped 0 finished before" in stderr
     assert "corrupt.avi" in stderr and "noface.avi" in stderr
+    assert "ok=2 failed=2 left=0" in stderr and "frames/s" in stderr  # the progress bar
     # the finished ones again: skipped (and said so before any work), no cluster needed
     code, stdout, stderr = run_cli("batch", *corpus["good"][:2], "-o", out, "-q",
                                    "--scheduler", "tcp://127.0.0.1:9")
