@@ -25,7 +25,7 @@ from pathlib import Path
 # FFmpeg prints its own decoder complaints straight to stderr ("moov atom not found",
 # "marker does not match f_code"); this module reports the same problems through
 # logging and one-line errors instead. A user who wants them sets the variable.
-os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")  # AV_LOG_FATAL
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -48,6 +48,9 @@ DEFAULT_FPS = 30.0
 
 #: File name suffixes read from an image folder (compared case-insensitively).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+# Reads tried when opening a video before deciding it has no decodable frame.
+_FIRST_FRAME_ATTEMPTS = 250
 
 #: Smallest frame side (pixels) on which the face trackers can work; see ``min_size``.
 MIN_FACE_SIZE = 64
@@ -114,6 +117,12 @@ class VideoSource:
     :class:`Frame` objects for the frames ``start <= index < end``; each
     iteration starts again from ``start``. The source is also a context
     manager: leaving the ``with`` block releases any decoder still open.
+
+    Frames before ``start`` are decoded and dropped rather than seeked over,
+    because seeking is not frame-accurate for every codec; a large ``start``
+    therefore costs decoding time. Timestamps are the container's presentation
+    times when they increase, else the previous one plus ``1 / fps``; with a
+    user-given ``fps`` they are ``index / fps``.
 
     Attributes
     ----------
@@ -349,10 +358,16 @@ def _open_file(path: Path, fps: float | None) -> dict:
             raise ValueError(f"{path}: not a video that OpenCV can read")
         count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         container_fps = capture.get(cv2.CAP_PROP_FPS)
-        ok, first = capture.read()
+        frame_count = int(round(count)) if math.isfinite(count) and 0 < count < 2**40 else None
+        # The first decodable frame gives the size; damage may hide the first few.
+        attempts = min(frame_count or 1, _FIRST_FRAME_ATTEMPTS)
+        ok, first = False, None
+        for _ in range(attempts):
+            ok, first = capture.read()
+            if ok and first is not None:
+                break
     finally:
         capture.release()
-    frame_count = int(round(count)) if math.isfinite(count) and 0 < count < 2**40 else None
     if not ok or first is None:
         if frame_count is None and count == 0:
             raise ValueError(f"{path}: video has zero frames")

@@ -424,3 +424,17 @@ def test_writer_refuses_to_replace_a_folder(tmp_path):
     (tmp_path / "overlay.mp4").mkdir()
     with pytest.raises(ValueError, match="not a regular file"):
         VideoWriter(tmp_path / "overlay.mp4", 25, (W, H))
+
+
+def test_damaged_first_frame_is_lost_not_fatal(tmp_path):
+    path = make_video(tmp_path / "first.avi", 10, fourcc="MJPG", noise=True)
+    data = bytearray(path.read_bytes())
+    first = data.find(b"\xff\xd8")               # JPEG start of the first frame
+    second = data.find(b"\xff\xd8", first + 2)   # ... and of the second
+    data[first:second - 8] = bytes(second - 8 - first)
+    path.write_bytes(bytes(data))
+    src = open_video(path)
+    assert src.size == (W, H)
+    frames = list(src)
+    assert [f.ok for f in frames] == [False] + [True] * 9
+    assert src.n_failed == 1
