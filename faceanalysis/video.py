@@ -269,9 +269,9 @@ class VideoSource:
                     continue
                 # Reads that failed before this good one are frames lost mid-stream.
                 if failed_run and index + failed_run > self.start:
-                    first = max(index, self.start)
-                    log.warning("%s: frames %d-%d could not be decoded; marked lost",
-                                self.path, first, index + failed_run - 1)
+                    first, last = max(index, self.start), index + failed_run - 1
+                    which = f"frame {first}" if first == last else f"frames {first}-{last}"
+                    log.warning("%s: %s could not be decoded; marked lost", self.path, which)
                 for _ in range(failed_run):
                     if index >= self.start:
                         timestamp = (index / self.fps if previous is None
