@@ -18,6 +18,7 @@ from faceanalysis.errors import FaceAnalysisError
 
 # Subcommand name -> module under faceanalysis.cli. Order is the order of --help.
 SUBCOMMANDS: dict[str, str] = {
+    "analyze": "analyze",
     "info": "info",
     "batch": "batch",
     "probe": "probe",

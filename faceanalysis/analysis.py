@@ -1,0 +1,318 @@
+"""Video in, muscle contractions out: the analysis pipeline (004, section V).
+
+For every frame the nine snakes of :mod:`trackers` relax from the previous
+frame's equilibrium; the 11 fiducial points and the head reference frame come out.
+After the pass, the neutral frame calibrates the face model into the head frame
+(:mod:`faceanalysis.calibration`), the fiducial motion is taken back into model
+units, and an estimator (:mod:`faceanalysis.estimators`) inverts the model's
+fiducial response (:mod:`faceanalysis.response`) into contractions.
+
+Frames are streamed: memory holds the per-frame measurements (a few hundred
+bytes a frame), never the frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.calibration import Calibration, calibrate
+from faceanalysis.errors import FaceAnalysisError
+from faceanalysis.estimators import ESTIMATORS, estimate
+from faceanalysis.response import FiducialResponse
+from faceanalysis.table import (
+    FIDUCIALS,
+    HEAD_COLUMNS,
+    JAW,
+    MUSCLES,
+    empty_table,
+    with_au_columns,
+)
+from faceanalysis.video import MIN_FACE_SIZE, open_video
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Analysis", "analyze", "analyze_to_folder", "ESTIMATORS"]
+
+
+@dataclass
+class Analysis:
+    """The result of :func:`analyze`.
+
+    Attributes
+    ----------
+    table : DataFrame
+        One row per frame, the columns of ``contractions.csv`` (see
+        :func:`faceanalysis.table.contraction_columns`).
+    contours : list of dict or None
+        Per frame, contour name -> (n, 2) node positions in pixels (None for frames
+        that could not be decoded).
+    metadata : dict
+        The content of ``analysis.json``.
+    calibration : Calibration
+        The neutral-frame calibration.
+    response : FiducialResponse
+        The model response the estimate inverted.
+    """
+
+    table: pd.DataFrame
+    contours: list
+    metadata: dict
+    calibration: Calibration | None = None
+    response: FiducialResponse | None = None
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def fiducials(self) -> np.ndarray:
+        """Tracked fiducials, shape (T, 11, 2), pixels; NaN for lost frames."""
+        cols = [c for name in FIDUCIALS for c in (f"fid_{name}_x", f"fid_{name}_y")]
+        return self.table[cols].to_numpy(float).reshape(len(self.table), len(FIDUCIALS), 2)
+
+    @property
+    def contractions(self) -> pd.DataFrame:
+        """Muscle columns and ``jaw_rotation``, indexed by frame."""
+        return self.table.set_index("frame")[[*MUSCLES, JAW]]
+
+    def plot(self, path: str | os.PathLike | None = None, **kwargs):
+        """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given."""
+        from faceanalysis.plotting import plot_contractions
+
+        return plot_contractions(self.table, path, **kwargs)
+
+    def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write ``contractions.csv``, ``analysis.json`` and ``contractions.png`` to ``output``."""
+        from faceanalysis.results import OutputFolder
+
+        folder = OutputFolder(output, overwrite=overwrite)
+        return folder.write(self.table, self.metadata, title=self.metadata.get("input", {})
+                            .get("name"))
+
+
+def _load_layout(layout, frame_size):
+    from trackers import FaceLayout
+
+    if layout is None or isinstance(layout, FaceLayout):
+        return layout
+    path = Path(layout)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such layout file")
+    lay = FaceLayout.from_json(path)
+    if tuple(lay.image_size) != tuple(frame_size):
+        raise ValueError(f"{path}: layout is for {lay.image_size[0]}x{lay.image_size[1]} frames, "
+                         f"the video has {frame_size[0]}x{frame_size[1]}")
+    return lay
+
+
+def _progress(total, enabled: bool, desc: str):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, leave=False,
+                dynamic_ncols=True)
+
+
+def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | None = None,
+            start: int = 0, end: int | None = None, neutral: int | None = None,
+            layout=None, response: FiducialResponse | None = None,
+            overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
+    """Analyse a face video into muscle contractions.
+
+    Parameters
+    ----------
+    video : path-like
+        Video file, folder of images, or a single image.
+    estimator : {'joint', 'tw93'}, keyword-only
+        ``joint`` (default): bounded least squares of all contractions through the
+        model's fiducial response; ``tw93``: the paper's per-muscle inversion.
+    fps : float, optional
+        Frame rate, overriding the container's.
+    start, end : int, optional
+        Frame range ``[start, end)``.
+    neutral : int, optional
+        Frame (absolute index) showing the neutral face, used for calibration;
+        default: the first frame tracked successfully.
+    layout : FaceLayout or path-like, optional
+        Initial contours (e.g. corrected by hand and saved with
+        ``FaceLayout.to_json``); by default they are placed by OpenCV's face and
+        eye detectors on the first frame.
+    response : FiducialResponse, optional
+        Model response to invert (default: the generic face model's, cached).
+    overlay : path-like, optional
+        Write the frames with contours and fiducials drawn to this video file.
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    Analysis
+
+    Raises
+    ------
+    FileNotFoundError
+        If the video (or layout file) does not exist.
+    ValueError
+        Unreadable video, no face in the first frame, a neutral frame outside the
+        range or not tracked, bad parameters.
+    """
+    from faceanalysis.overlay import draw_overlay
+    from faceanalysis.video_writer import VideoWriter
+    from trackers import Tracker, detect_layout
+
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    t_start = time.perf_counter()
+    if response is None:
+        from faceanalysis.model_response import model_response
+
+        response = model_response()
+
+    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE)
+    frames: list[int] = []
+    stamps: list[float] = []
+    ok: list[bool] = []
+    conf: list[float] = []
+    fid_rows: list[np.ndarray] = []
+    head_rows: list[np.ndarray] = []
+    contours: list = []
+    nan_fid = np.full((len(FIDUCIALS), 2), np.nan)
+    nan_head = np.full(4, np.nan)
+    tracker = None
+    writer = None
+    t_track = 0.0
+    bar = _progress(source.n_frames, progress, "analyze")
+    try:
+        with source:
+            for frame in source:
+                frames.append(frame.index)
+                stamps.append(frame.timestamp)
+                if not frame.ok:
+                    ok.append(False)
+                    conf.append(0.0)
+                    fid_rows.append(nan_fid)
+                    head_rows.append(nan_head)
+                    contours.append(None)
+                else:
+                    t0 = time.perf_counter()
+                    if tracker is None:
+                        lay = _load_layout(layout, source.size)
+                        if lay is None:
+                            lay = detect_layout(frame.image, frame_index=frame.index,
+                                                channel_order="bgr")
+                        tracker = Tracker(lay, channel_order="bgr")
+                    res = tracker.track(frame.image)
+                    t_track += time.perf_counter() - t0
+                    good = bool(res.success)
+                    ok.append(good)
+                    conf.append(float(res.confidence))
+                    fid_rows.append(np.array([res.fiducials[n] for n in FIDUCIALS], float)
+                                    if good else nan_fid)
+                    head = res.head
+                    head_rows.append(np.array([head.x, head.y, head.scale, head.roll])
+                                     if good else nan_head)
+                    contours.append(res.contours)
+                if overlay is not None and frame.ok:
+                    if writer is None:
+                        writer = VideoWriter(overlay, source.fps, source.size)
+                    i = len(frames) - 1
+                    writer.write(draw_overlay(
+                        frame.image, contours=contours[i],
+                        fiducials=dict(zip(FIDUCIALS, fid_rows[i].tolist())),
+                        head=head_rows[i] if ok[i] else None, lost=not ok[i],
+                        label=f"frame {frame.index}  {frame.timestamp:.2f} s"))
+                if bar is not None:
+                    bar.update(1)
+        if writer is not None:
+            writer.close()
+            writer = None
+    finally:
+        if bar is not None:
+            bar.close()
+        if writer is not None:
+            writer.abort()
+
+    n = len(frames)
+    if n == 0:
+        raise ValueError(f"{video}: no frames in the requested range")
+    fid = np.stack(fid_rows)
+    heads = np.stack(head_rows)
+    success = np.array(ok)
+    if not success.any():
+        raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
+
+    frame_arr = np.array(frames)
+    if neutral is None:
+        k = int(np.argmax(success))
+    else:
+        hits = np.flatnonzero(frame_arr == neutral)
+        if hits.size == 0:
+            raise ValueError(f"neutral frame {neutral} is outside the analysed range "
+                             f"{frames[0]}..{frames[-1]}")
+        k = int(hits[0])
+        if not success[k]:
+            raise ValueError(f"neutral frame {neutral} was not tracked (face lost); "
+                             "choose another with --neutral")
+    cal = calibrate(fid[k], heads[k], response.rest)
+    t0 = time.perf_counter()
+    disp = cal.model_displacements(fid, heads)
+    values = estimate(disp, response, estimator=estimator)
+    t_estimate = time.perf_counter() - t0
+
+    table = empty_table(n, frames=frames, timestamps=stamps)
+    table["success"] = success.astype(np.int64)
+    table["confidence"] = np.where(success, conf, 0.0)
+    table[list(HEAD_COLUMNS)] = heads
+    for j, name in enumerate(FIDUCIALS):
+        table[f"fid_{name}_x"] = fid[:, j, 0]
+        table[f"fid_{name}_y"] = fid[:, j, 1]
+    # muscles the fiducials do not observe are reported at rest (listed in analysis.json)
+    estimated = [m for j, m in enumerate(response.muscles) if np.isfinite(values[:, j]).any()]
+    for col in (*MUSCLES, JAW):
+        table[col] = np.where(success, 0.0, np.nan)
+    for j, name in enumerate(response.muscles):
+        if name in estimated:
+            table[name] = np.where(success, values[:, j], np.nan)
+    table = with_au_columns(table)
+
+    from faceanalysis.report import analysis_metadata
+
+    elapsed = time.perf_counter() - t_start
+    parameters = {
+        "estimator": estimator, "fps": fps, "start": start, "end": end,
+        "neutral_frame": int(frame_arr[k]), "layout": None if layout is None else str(layout),
+        "estimated_controls": estimated,
+        "controls_at_rest": [m for m in (*MUSCLES, JAW) if m not in estimated],
+    }
+    calib = {"neutral_frame": int(frame_arr[k]), "residual": cal.residual,
+             "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist()}
+    metadata = analysis_metadata(source, table, parameters=parameters, elapsed_s=elapsed,
+                                 extra={"calibration": calib})
+    timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}
+    return Analysis(table=table, contours=contours, metadata=metadata, calibration=cal,
+                    response=response, timings=timings)
+
+
+def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,
+                      overwrite: bool = False, overlay: bool = False, quiet: bool = True,
+                      **options) -> Analysis:
+    """Run :func:`analyze` and write its results into the folder ``output``.
+
+    The folder is checked before any work (a non-empty folder needs
+    ``overwrite=True``); each file is written atomically. Writes
+    ``contractions.csv``, ``analysis.json``, ``contractions.png`` and, with
+    ``overlay=True``, ``overlay.mp4``. Other keyword arguments go to :func:`analyze`.
+    """
+    from faceanalysis.results import OutputFolder
+
+    folder = OutputFolder(output, overwrite=overwrite)
+    result = analyze(video, overlay=folder.overlay_mp4 if overlay else None,
+                     progress=not quiet, **options)
+    folder.write(result.table, result.metadata, title=Path(video).name)
+    return result
