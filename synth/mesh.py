@@ -493,7 +493,7 @@ Y_TOP = 8.8            # v = (Y_TOP - Y) / (Y_TOP - Y_BOT)
 Y_BOT = -12.0
 
 _OUTLINE_Y = np.array([-12.0, -11.85, -11.4, -10.5, -9.0, -7.4, -5.5, -3.0, 0.0, 3.0, 6.0, 8.8])
-_OUTLINE_W = np.array([0.0, 1.05, 2.5, 4.0, 5.5, 6.6, 7.4, 7.8, 8.0, 7.85, 7.4, 6.8])
+_OUTLINE_W = np.array([0.0, 1.05, 2.5, 4.0, 5.5, 6.6, 7.4, 7.8, 8.0, 8.0, 7.75, 7.3])
 _hw = PchipInterpolator(_OUTLINE_Y, _OUTLINE_W)
 
 EYE_C = 3.35           # eye centre |X|
@@ -1032,7 +1032,7 @@ def _height(P: np.ndarray, s: FaceShape) -> np.ndarray:
     wid = np.interp(Y, ny, nw)
     h += s.nose_protrusion * prof * np.exp(-((ax / wid) ** 2))
     # alar wings and nostril hint
-    h += s.nose_protrusion * 0.75 * _gauss(ax, Y, ALAR[0] - 0.25, ALAR[1], 0.55, 0.45)
+    h += s.nose_protrusion * 0.85 * _gauss(ax, Y, ALAR[0] - 0.2, ALAR[1], 0.55, 0.5)
     h -= 0.25 * _gauss(ax, Y, 0.62, -5.5, 0.25, 0.15)
     # cheekbones and cheeks
     h += 0.55 * _gauss(ax, Y, 4.6, -1.8, 1.4, 0.95)
@@ -1091,7 +1091,7 @@ def _embed(P: np.ndarray, s: FaceShape) -> np.ndarray:
 EYE_APEX_LIFT = 0.8    # lids over the cornea in front of the socket surface (cm)
 EYE_LID = 0.08         # lid skin in front of the eyeball (cm)
 EYE_CAP = 0.92         # lid margins lie within this fraction of the eyeball radius
-EYE_BLEND = 0.18       # softness of the lid crease where the lids leave the eyeball (cm)
+EYE_BLEND = 0.6        # softness of the lid crease where the lids leave the eyeball (cm)
 
 
 def _smooth_max(a, b, k):
@@ -1119,10 +1119,11 @@ def _fit_eyes(v: np.ndarray, P: np.ndarray, margin_l: np.ndarray,
     R = float(np.hypot(m[:, 0] - cx, m[:, 1] - cy).max() / EYE_CAP)
     cz = z_apex - R
     left = P[:, 0] > 0
-    rho2 = (v[:, 0] - cx) ** 2 + (v[:, 1] - cy) ** 2
-    inside = left & (rho2 < R * R)
-    zs = cz + np.sqrt(R * R - rho2[inside])
-    v[inside, 2] = _smooth_max(v[inside, 2], zs, EYE_BLEND)
+    rho2 = (v[left, 0] - cx) ** 2 + (v[left, 1] - cy) ** 2
+    # the osculating paraboloid of the sphere: never behind it, and without the sphere's
+    # vertical rim, so the lids leave the globe in a smooth crease
+    zs = z_apex - rho2 / (2.0 * R)
+    v[left, 2] = _smooth_max(v[left, 2], zs, EYE_BLEND)
     return np.array([cx, cy, cz - EYE_LID]), R
 
 
