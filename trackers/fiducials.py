@@ -8,10 +8,12 @@ Head frame (004: "a head reference frame from the average position of the hairli
 contour"):
 
 * origin: the arc-length centroid of the hairline contour;
-* roll: the direction of the hairline's principal axis, oriented toward the
-  subject's left (image right when upright), as ``atan2(dy, dx)`` in image
-  coordinates (0 for an upright face, positive when the subject's left side
-  is lower in the image);
+* roll: the mean direction of the hairline's principal axis and of the line from
+  the right to the left eyebrow's centroid (both pointing to the subject's left,
+  image right when upright), as ``atan2(dy, dx)`` in image coordinates (0 for an
+  upright face, positive when the subject's left side is lower in the image). The
+  hairline's axis alone depends on where its free ends settle; the brows alone on
+  asymmetric brow motion; their mean halves both errors;
 * scale: the distance in pixels from the origin to the centroid of the nose-tip
   contour (hairline and nose barely move with expressions). It is a length in
   pixels, not a physical unit; divide positions by it to factor out zoom.
@@ -20,7 +22,13 @@ Fiducials:
 
 * ``brow_inner_*`` / ``brow_outer_*``: the ends of each eyebrow contour nearer to /
   farther from the facial midline (measured along the head frame's x axis);
-  ``brow_mid_*``: the point half-way along the eyebrow contour by arc length;
+* ``brow_mid_*``: the eyebrow's centre point, taken as the apex of its arch (the top
+  of a parabola fitted to the contour in the head frame) on the reference (neutral)
+  frame, and then as the point at the same fraction of the contour's arc length on
+  later frames, so that it follows the same piece of brow when the arch changes
+  shape (pass ``brow_mid_fraction``; :class:`~trackers.tracking.Tracker` does).
+  Without a fraction the apex of the current frame is used; a brow without an arch
+  falls back to its arc-length middle;
 * ``mouth_corner_*``: the two ends of the upper-lip contour;
 * ``furrow_top_*``: the upper end (in the head frame) of each nasolabial furrow contour;
 * ``chin``: the centroid of the chin-boss contour (area centroid when closed).
@@ -34,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["FIDUCIAL_NAMES", "HeadFrame", "head_frame", "fiducials", "arc_point",
-           "centroid"]
+           "centroid", "apex_fraction", "brow_axis_frame"]
 
 FIDUCIAL_NAMES = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
                   "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
@@ -135,13 +143,73 @@ def arc_point(points, fraction: float) -> np.ndarray:
     return np.array([np.interp(t, s, p[:, 0]), np.interp(t, s, p[:, 1])])
 
 
+def apex_fraction(points, head: HeadFrame) -> float:
+    """Arc-length fraction (0..1) of the top of a contour's arch in the head frame.
+
+    A parabola ``v = a u**2 + b u + c`` is fitted to the nodes in head coordinates
+    (u along the head's x axis, v down) and refitted twice on the nodes nearer to its
+    apex ``u = -b / 2a``, which is then located on the contour. Returns 0.5 when the
+    contour does not arch upward.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.linspace(0, 30, 31)
+    >>> round(apex_fraction(np.c_[x, 0.02 * (x - 10) ** 2], HeadFrame(0, 0, 1, 0)), 2)
+    0.33
+    """
+    p = np.asarray(points, float)
+    q = head.to_head(p)
+    u, v = q[:, 0], q[:, 1]
+    if len(p) < 3 or np.ptp(u) <= 0:
+        return 0.5
+    ustar = None
+    sel = np.ones(len(u), bool)
+    half_range = 0.5 * np.ptp(u)
+    for _ in range(3):
+        # refit around the current apex: a projected arch is not a symmetric parabola
+        if sel.sum() < 5:
+            break
+        um = u[sel].mean()
+        a, b, _ = np.polyfit(u[sel] - um, v[sel], 2)
+        if a <= 1e-12:
+            break
+        cand = -b / (2 * a) + um
+        if not u.min() < cand < u.max():
+            break
+        ustar = cand
+        half_range *= 0.7
+        sel = np.abs(u - ustar) <= half_range
+    if ustar is None:
+        return 0.5
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    # first crossing of u = ustar along the contour
+    d = u - ustar
+    for i in range(len(d) - 1):
+        if d[i] == 0 or d[i] * d[i + 1] < 0:
+            t = 0.0 if d[i] == 0 else d[i] / (d[i] - d[i + 1])
+            return float((s[i] + t * (s[i + 1] - s[i])) / s[-1])
+    return 0.5
+
+
+def brow_axis_frame(contours, head: HeadFrame) -> HeadFrame:
+    """``head`` turned so that its x axis runs from the right to the left brow centroid.
+
+    The apex of an eyebrow's arch is measured in this frame: it is symmetric for a
+    symmetric face whatever the free ends of the hairline did.
+    """
+    d = centroid(_points(contours, "brow_l")) - centroid(_points(contours, "brow_r"))
+    return HeadFrame(head.x, head.y, head.scale, math.atan2(d[1], d[0]))
+
+
 def head_frame(contours) -> HeadFrame:
     """Head reference frame from the hairline and nose-tip contours.
 
     Parameters
     ----------
     contours : mapping name -> (n, 2) array
-        Needs ``hairline`` and ``nose_tip``.
+        Needs ``hairline`` and ``nose_tip``; ``brow_l`` and ``brow_r`` are used for
+        the roll when present.
 
     Returns
     -------
@@ -171,14 +239,19 @@ def head_frame(contours) -> HeadFrame:
     # orient the x axis so that the nose is below (+y) in the head frame
     if axis[0] * down[1] - axis[1] * down[0] < 0:
         axis = -axis
-    roll = math.atan2(axis[1], axis[0])
+    angles = [math.atan2(axis[1], axis[0])]
+    if "brow_l" in contours and "brow_r" in contours:
+        d = centroid(_points(contours, "brow_l")) - centroid(_points(contours, "brow_r"))
+        angles.append(math.atan2(d[1], d[0]))
+    roll = math.atan2(sum(math.sin(a) for a in angles), sum(math.cos(a) for a in angles))
     scale = float(np.hypot(*down))
     if scale <= 1e-6:
         raise ValueError("nose_tip contour coincides with the hairline origin")
     return HeadFrame(float(origin[0]), float(origin[1]), scale, float(roll))
 
 
-def fiducials(contours, head: HeadFrame | None = None) -> dict[str, tuple[float, float]]:
+def fiducials(contours, head: HeadFrame | None = None, *,
+              brow_mid_fraction: dict | None = None) -> dict[str, tuple[float, float]]:
     """The 11 fiducial points of 004 from the contours.
 
     Parameters
@@ -189,6 +262,9 @@ def fiducials(contours, head: HeadFrame | None = None) -> dict[str, tuple[float,
         when ``head`` is not given).
     head : HeadFrame, optional
         Frame that decides left/right and up; computed from the contours if absent.
+    brow_mid_fraction : dict {'l': f, 'r': f}, optional
+        Arc-length fractions (from the inner end) of the brow centre points; default:
+        the apex of each brow on this frame (:func:`apex_fraction`).
 
     Returns
     -------
@@ -209,10 +285,17 @@ def fiducials(contours, head: HeadFrame | None = None) -> dict[str, tuple[float,
     out: dict[str, tuple[float, float]] = {}
     for side in ("l", "r"):
         b = _points(contours, f"brow_{side}")
-        ends = (b[0], b[-1])
-        inner, outer = sorted(ends, key=lambda p: abs(hx(p)))
+        if abs(hx(b[0])) > abs(hx(b[-1])):
+            b = b[::-1]  # inner end first
+        inner, outer = b[0], b[-1]
         out[f"brow_inner_{side}"] = (float(inner[0]), float(inner[1]))
-        m = arc_point(b, 0.5)
+        if brow_mid_fraction is not None and side in brow_mid_fraction:
+            f = float(brow_mid_fraction[side])
+            if not 0.0 <= f <= 1.0:
+                raise ValueError(f"brow_mid_fraction[{side!r}] must be in [0, 1], got {f}")
+        else:
+            f = apex_fraction(b, brow_axis_frame(contours, head))
+        m = arc_point(b, f)
         out[f"brow_mid_{side}"] = (float(m[0]), float(m[1]))
         out[f"brow_outer_{side}"] = (float(outer[0]), float(outer[1]))
     lip = _points(contours, "upper_lip")

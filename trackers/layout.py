@@ -98,18 +98,23 @@ def _build_template():
 TEMPLATE: dict[str, np.ndarray] = _build_template()
 
 #: Per-contour defaults: (closed, kind, sigma in inter-eye units, search window (x, y)
-#: in inter-eye units, refine ends).
+#: in inter-eye units, ends, parent). ``ends``: 'free' (left to the snake), 'tip'
+#: (relocated on the end of the line each frame) or 'centre' (the tip moved back by
+#: the line's half-width, i.e. the end of a thick band's centre line). The search of a
+#: contour is centred on the template moved by its parent's offset (the mouth follows
+#: the nose, the chin follows the lower lip), in this order.
 CONTOUR_DEFAULTS = {
-    "hairline": (False, "edge", 0.03, (0.0, 0.30), False),
-    "brow_l": (False, "valley", 0.035, (0.06, 0.12), True),
-    "brow_r": (False, "valley", 0.035, (0.06, 0.12), True),
-    "furrow_l": (False, "valley", 0.022, (0.08, 0.10), True),
-    "furrow_r": (False, "valley", 0.022, (0.08, 0.10), True),
-    "nose_tip": (False, "valley", 0.035, (0.05, 0.12), False),
-    "upper_lip": (False, "valley", 0.022, (0.05, 0.12), True),
-    "lower_lip": (False, "edge", 0.025, (0.0, 0.12), False),
-    "chin_boss": (True, "valley", 0.022, (0.05, 0.15), False),
+    "hairline": (False, "edge", 0.03, (0.0, 0.30), "free", None),
+    "brow_l": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
+    "brow_r": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
+    "nose_tip": (False, "valley", 0.035, (0.05, 0.25), "free", None),
+    "furrow_l": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
+    "furrow_r": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
+    "upper_lip": (False, "valley", 0.022, (0.05, 0.15), "tip", "nose_tip"),
+    "lower_lip": (False, "edge", 0.025, (0.0, 0.10), "free", "upper_lip"),
+    "chin_boss": (True, "valley", 0.022, (0.05, 0.20), "free", "lower_lip"),
 }
+ENDS = ("free", "tip", "centre")
 
 #: Where the eye centres lie inside a Haar ``frontalface_default`` box, as fractions of
 #: its width / height (x from the box's left, y from its top).
@@ -129,15 +134,17 @@ class LayoutContour:
         Potential the contour follows.
     sigma : float
         Width of that potential, pixels.
-    refine_ends : bool
-        Whether the tracker relocates the two ends on the feature's ends each frame.
+    ends : {'free', 'tip', 'centre'}
+        How the tracker treats the two ends of an open contour each frame: left to
+        the snake, relocated on the end of the line, or relocated on the end of the
+        line's centre line (tip moved back by the half-width, for thick bands).
     """
 
     points: np.ndarray
     closed: bool = False
     kind: str = "valley"
     sigma: float = 2.0
-    refine_ends: bool = False
+    ends: str = "free"
 
     def __post_init__(self):
         self.points = np.asarray(self.points, dtype=np.float64)
@@ -151,7 +158,10 @@ class LayoutContour:
         if not np.isfinite(self.sigma) or self.sigma <= 0:
             raise ValueError(f"sigma must be positive, got {self.sigma}")
         self.closed = bool(self.closed)
-        self.refine_ends = bool(self.refine_ends) and not self.closed
+        if self.ends not in ENDS:
+            raise ValueError(f"ends must be one of {ENDS}, got {self.ends!r}")
+        if self.closed:
+            self.ends = "free"
 
 
 @dataclass
@@ -219,7 +229,7 @@ class FaceLayout:
             "source": self.source,
             "contours": {
                 n: {"closed": c.closed, "kind": c.kind, "sigma": round(float(c.sigma), 4),
-                    "refine_ends": c.refine_ends, "points": c.points.round(3).tolist()}
+                    "ends": c.ends, "points": c.points.round(3).tolist()}
                 for n, c in self.contours.items()},
         }
 
@@ -261,11 +271,11 @@ class FaceLayout:
         try:
             contours = {}
             for name, c in d["contours"].items():
-                dflt = CONTOUR_DEFAULTS.get(name, (False, "valley", 0.03, None, False))
+                dflt = CONTOUR_DEFAULTS.get(name, (False, "valley", 0.03, None, "free", None))
                 contours[name] = LayoutContour(
                     np.asarray(c["points"], float), bool(c.get("closed", dflt[0])),
                     c.get("kind", dflt[1]), float(c.get("sigma", 2.0)),
-                    bool(c.get("refine_ends", dflt[4])))
+                    c.get("ends", dflt[4]))
             return cls(contours, tuple(d["image_size"]), d.get("eyes"),
                        tuple(d["face_box"]) if d.get("face_box") else None,
                        d.get("source", "file") or "file")
@@ -279,7 +289,7 @@ class FaceLayout:
         out = {}
         for n, c in self.contours.items():
             out[n] = LayoutContour(c.points @ M[:, :2].T + M[:, 2], c.closed, c.kind,
-                                   c.sigma * s, c.refine_ends)
+                                   c.sigma * s, c.ends)
         eyes = None if self.eyes is None else self.eyes @ M[:, :2].T + M[:, 2]
         return FaceLayout(out, self.image_size, eyes, None, self.source, dict(self.meta))
 
@@ -327,7 +337,7 @@ def layout_from_eyes(eye_r, eye_l, image_size, *, spacing: float | None = None,
         spacing = max(1.0, 0.03 * iod)
     contours = {}
     for name in CONTOUR_NAMES:
-        closed, kind, sig, _, ends = CONTOUR_DEFAULTS[name]
+        closed, kind, sig, _, ends, _ = CONTOUR_DEFAULTS[name]
         pts = TEMPLATE[name] @ M[:, :2].T + M[:, 2]
         pts = resample_polyline(pts, spacing=spacing, closed=closed)
         pts = np.clip(pts, 0, [w - 1, h - 1])
@@ -360,28 +370,33 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
                          f"{layout.image_size[0]}x{layout.image_size[1]}")
     iod = layout.inter_eye
     out = {}
+    offsets = {}
     cache = {}
-    for name, c in layout.contours.items():
-        win = CONTOUR_DEFAULTS.get(name, (0, 0, 0, (0.05, 0.05), 0))[3]
+    order = [n for n in CONTOUR_DEFAULTS if n in layout.contours]
+    for name in order:
+        c = layout.contours[name]
+        win, parent = CONTOUR_DEFAULTS[name][3], CONTOUR_DEFAULTS[name][5]
         rx, ry = win[0] * iod, win[1] * iod
+        base = np.asarray(offsets.get(parent, (0.0, 0.0)), float)
         key = (c.kind, round(c.sigma, 3))
         if key not in cache:
             cache[key] = potential_from_gray(gray, c.kind, c.sigma)
         P = cache[key]
         dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)
-        best, best_d = np.inf, (0.0, 0.0)
+        best, best_d = np.inf, base
         for dy in dys:
             for dx in dxs:
-                q = c.points + [dx, dy]
+                d = base + (dx, dy)
+                q = c.points + d
                 if (q < 0).any() or (q[:, 0] > W - 1).any() or (q[:, 1] > H - 1).any():
                     continue
-                v = float(sample_bilinear(P, q).mean())
                 # prefer the smallest move among equally good ones
-                v += 1e-6 * (dx * dx + dy * dy)
+                v = float(sample_bilinear(P, q).mean()) + 1e-6 * (dx * dx + dy * dy)
                 if v < best:
-                    best, best_d = v, (dx, dy)
-        out[name] = LayoutContour(c.points + best_d, c.closed, c.kind, c.sigma, c.refine_ends)
+                    best, best_d = v, d
+        offsets[name] = best_d
+        out[name] = LayoutContour(c.points + best_d, c.closed, c.kind, c.sigma, c.ends)
     return FaceLayout(out, layout.image_size, layout.eyes, layout.face_box,
                       layout.source, dict(layout.meta))
 

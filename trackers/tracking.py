@@ -24,7 +24,7 @@ it samples the potential along the contour's end tangent and puts the end where
 the ravine has risen to half its depth (the end of a blurred line), then inset by
 the line's half-width measured across it (so the end lies on the centre line,
 e.g. the centre of a round-capped eyebrow stroke), and redistributes the nodes
-evenly. This is recorded in ``LayoutContour.refine_ends`` and can be switched off.
+evenly. This is recorded in ``LayoutContour.ends`` and can be switched off.
 
 Image forces act along the contour normal only (``Contour.normal_forces``): along
 an uneven ravine (a tapering eyebrow) the tangential part of eq. 12 would slide the
@@ -45,7 +45,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trackers.fiducials import HeadFrame, fiducials, head_frame
+from trackers.fiducials import (
+    HeadFrame,
+    apex_fraction,
+    brow_axis_frame,
+    fiducials,
+    head_frame,
+)
 from trackers.layout import CONTOUR_NAMES, FaceLayout
 from trackers.potentials import force_field, potential_from_gray, sample_bilinear, to_gray
 from trackers.snakes import (
@@ -155,6 +161,9 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         Grey image on the same grid; with ``inset`` the end is moved back by the
         line's half-width, measured across the line from ``gray``.
     inset : bool
+        Treat the feature as a band: reference depth taken just inside the end and
+        the end moved back by the half-width (needs ``gray``). Otherwise a thin line:
+        reference depth = deepest point inside, no inset.
 
     Returns
     -------
@@ -174,16 +183,31 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         return None
     t /= norm
     length = _polyline_length(p)
-    s_in = min(5.0 * sigma, 0.45 * length)
+    s_in = 0.45 * length if not inset else min(5.0 * sigma, 0.45 * length)
     s_out = 5.0 * sigma
     s = np.arange(-s_in, s_out + 1e-9, 0.25)
-    v = _sample_safe(potential, p[0] + s[:, None] * t, np.asarray(origin, float))
+    # inside: along the contour itself; outside: along the end tangent
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    path = p[0] + np.maximum(s, 0.0)[:, None] * t
+    neg = s < 0
+    path[neg, 0] = np.interp(-s[neg], arc, p[:, 0])
+    path[neg, 1] = np.interp(-s[neg], arc, p[:, 1])
+    v = _sample_safe(potential, path, np.asarray(origin, float))
     inside = s <= 0
     if np.isnan(v[inside]).all():
         return None
-    vin = np.where(inside, v, np.inf)
-    i0 = int(np.nanargmin(vin))
-    depth = v[i0]
+    if inset:
+        # a band: reference depth just inside the end (a tapering band is shallower
+        # near its end than in its middle, and its end is where *that* depth halves)
+        near = inside & (s >= -2.5 * sigma) & (s <= -1.0 * sigma)
+        if not near.any() or np.isnan(v[near]).all():
+            return None
+        depth = float(np.nanmedian(v[near]))
+        i0 = int(np.nonzero(near)[0][-1])
+    else:
+        # a line: the deepest point inside, so that a faint continuation is no end
+        i0 = int(np.nanargmin(np.where(inside, v, np.inf)))
+        depth = float(v[i0])
     if not np.isfinite(depth) or depth >= -1e-3:
         return None
     half = 0.5 * depth
@@ -198,12 +222,22 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         return None
     f = (half - v[j - 1]) / (v[j] - v[j - 1])
     s_end = s[j - 1] + f * (s[j] - s[j - 1])
+    # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
+    beyond = v[(s > s_end) & (s <= s_end + 3.0 * sigma)]
+    if len(beyond) == 0 or np.isnan(beyond).all() or np.nanmax(beyond) < 0.25 * depth:
+        return None
     if inset and gray is not None:
-        hw = _half_width(gray, p[0] + (s_end - 2.0 * sigma) * t, t,
+        hw = _half_width(gray, _path_point(p, arc, t, s_end - 2.0 * sigma), t,
                          np.asarray(origin, float), sigma)
         if hw is not None:
             s_end -= hw
-    return p[0] + s_end * t
+    return _path_point(p, arc, t, s_end)
+
+
+def _path_point(p, arc, t, s):
+    if s >= 0:
+        return p[0] + s * t
+    return np.array([np.interp(-s, arc, p[:, 0]), np.interp(-s, arc, p[:, 1])])
 
 
 def _half_width(gray, centre, tangent, origin, sigma):
@@ -341,6 +375,7 @@ class Tracker:
         self.ref_depth: dict[str, float] = {}
         self.ref_length: dict[str, float] = {}
         self.ref_head: HeadFrame | None = None
+        self.brow_fraction: dict[str, float] | None = None
         self.last_head: HeadFrame | None = None
         self.frame_size = tuple(layout.image_size)
         iod = layout.inter_eye
@@ -415,7 +450,7 @@ class Tracker:
             return
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
-            if not c.refine_ends:
+            if c.ends == "free":
                 continue
             pts = self.system.contour_points(k)
             n = len(pts)
@@ -423,7 +458,7 @@ class Tracker:
             new = pts
             for end in (0, -1):
                 q = refine_end(new, P, c.sigma, origin=origin, end=end, gray=gray,
-                               inset=c.kind == "valley")
+                               inset=c.ends == "centre")
                 if q is None:
                     continue
                 e = new[0] if end == 0 else new[-1]
@@ -432,9 +467,17 @@ class Tracker:
                 t = ref[0] - ref[min(3, len(ref) - 1)]
                 t /= max(np.hypot(*t), 1e-9)
                 s = float(d @ t)
-                if abs(s) < 1e-3 or abs(s) > 5 * c.sigma:
+                if abs(s) < 1e-3 or s > 5 * c.sigma:
                     continue
-                ref = np.vstack([q, ref]) if s > 0 else _trim_start(ref, -s)
+                if s < 0:
+                    # retract: cut the contour where the end now lies
+                    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref, axis=0).T))])
+                    cut = arc[np.argmin(np.hypot(*(ref - q).T))]
+                    if cut > 0.45 * arc[-1]:
+                        continue
+                    ref = np.vstack([q, _trim_start(ref, cut)[1:]]) if cut > 0 else ref
+                else:
+                    ref = np.vstack([q, ref])
                 if len(ref) < 2 or _polyline_length(ref) < 2.0:
                     continue
                 new = ref if end == 0 else ref[::-1]
@@ -523,13 +566,21 @@ class Tracker:
             depths = self._depths(Ps, origin)
             quality = self._quality(depths, outside, reinit)
             head = self._head()
-        if first:
+        if first and head is not None:
             self.ref_head = head
+            self.brow_fraction = {}
+            cont = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
+            axis = brow_axis_frame(cont, head)
+            for side in ("l", "r"):
+                b = cont[f"brow_{side}"]
+                if abs(head.to_head(b[:1])[0, 0]) > abs(head.to_head(b[-1:])[0, 0]):
+                    b = b[::-1]
+                self.brow_fraction[side] = apex_fraction(b, axis)
         if head is None:
             raise ValueError(f"frame {self.index}: no head frame could be computed")
         self.last_head = head
         contours = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
-        fids = fiducials(contours, head)
+        fids = fiducials(contours, head, brow_mid_fraction=self.brow_fraction)
         out = TrackResult(self.index, contours, quality, int(iters), bool(res.converged),
                           head, fids)
         self.index += 1
