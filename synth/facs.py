@@ -585,12 +585,18 @@ def muscles_to_aus(contractions, *, aus=CORE_AUS, ridge: float = 1e-8):
     col = {a: j for j, a in enumerate(au_list)}
     if lin:
         A = _au_matrix(lin)
-        A_aug = np.vstack([A, math.sqrt(ridge) * np.eye(len(lin))]) if ridge > 0 else A
-        for i, c in enumerate(C):
-            b = np.concatenate([c, np.zeros(len(lin))]) if ridge > 0 else c
-            x = lsq_linear(A_aug, b, bounds=(0.0, 1.0), method="bvls").x
-            for j, a in enumerate(lin):
-                out[i, col[a]] = x[j]
+        # unconstrained ridge solution for every frame at once; frames whose solution leaves
+        # [0, 1] are solved again with the bounds (BVLS)
+        gram = A.T @ A + ridge * np.eye(len(lin))
+        X = np.linalg.lstsq(gram, A.T @ C.T, rcond=None)[0].T
+        bad = np.flatnonzero(np.any((X < -1e-9) | (X > 1 + 1e-9), axis=1))
+        if len(bad):
+            A_aug = np.vstack([A, math.sqrt(ridge) * np.eye(len(lin))]) if ridge > 0 else A
+            for i in bad:
+                b = np.concatenate([C[i], np.zeros(len(lin))]) if ridge > 0 else C[i]
+                X[i] = lsq_linear(A_aug, b, bounds=(0.0, 1.0), method="bvls").x
+        for j, a in enumerate(lin):
+            out[:, col[a]] = X[:, j]
     a27 = np.clip((jaw - JAW_AU26) / (JAW_AU27 - JAW_AU26), 0, 1)
     jaw_values = {
         25: np.clip(jaw / JAW_AU25, 0, 1),
