@@ -44,9 +44,9 @@ class Light:
         Multiplier of the per-material specular strengths.
     """
 
-    direction: tuple = (-0.25, 0.3, 1.0)
+    direction: tuple = (-0.2, 0.15, 1.0)
     colour: tuple = (1.0, 1.0, 1.0)
-    ambient: float = 0.5
+    ambient: float = 0.55
     shininess: float = 24.0
     specular_scale: float = 1.0
 

@@ -78,7 +78,7 @@ def texture_params(seed: int) -> TextureParams:
                          hair=tuple(float(v) for v in hair),
                          lip=tuple(float(v) for v in lip),
                          brow_darkness=float(rng.uniform(0.88, 0.97)),
-                         brow_thickness=float(rng.uniform(0.022, 0.032)),
+                         brow_thickness=float(rng.uniform(0.026, 0.034)),
                          furrow_darkness=float(rng.uniform(0.35, 0.5)),
                          noise_amplitude=float(rng.uniform(0.8, 1.2)),
                          noise_seed=int(rng.integers(2**31)))
@@ -111,16 +111,21 @@ def _poly(mask, pts_px, *, closed: bool, thickness: float = 0.0, fill: bool = Fa
                       lineType=cv2.LINE_AA, shift=4)
 
 
-def _tapered_band(size, pts_px, width_px, taper=0.35) -> np.ndarray:
-    """Soft band along a polyline whose width tapers toward the outer end."""
+def _tapered_band(size, pts_px, width_px, taper=0.0, extend=0.0) -> np.ndarray:
+    """Soft band along a polyline; its width tapers toward the last point by ``taper`` and
+    it runs on ``extend`` px past the last point (along the end tangent)."""
     mask = np.zeros((size, size), np.float32)
-    # resample densely and stamp discs whose radius follows the taper
-    seg = np.linalg.norm(np.diff(pts_px, axis=0), axis=1)
+    pts = np.asarray(pts_px, dtype=np.float64)
+    if extend > 0:
+        d = pts[-1] - pts[-2]
+        d /= max(np.linalg.norm(d), 1e-12)
+        pts = np.vstack([pts, pts[-1] + extend * d])
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     s = np.concatenate([[0], np.cumsum(seg)])
     total = s[-1] if s[-1] > 0 else 1.0
     ts = np.linspace(0, total, max(2, int(total / 1.0)))
-    xs = np.interp(ts, s, pts_px[:, 0])
-    ys = np.interp(ts, s, pts_px[:, 1])
+    xs = np.interp(ts, s, pts[:, 0])
+    ys = np.interp(ts, s, pts[:, 1])
     frac = ts / total
     rad = 0.5 * width_px * (1.0 - taper * np.clip((frac - 0.6) / 0.4, 0, 1))
     for x, y, r in zip(xs, ys, rad):
@@ -282,7 +287,9 @@ def _paint(curves: dict, p: TextureParams, size: int) -> np.ndarray:
     for name in ("brow_l", "brow_r"):
         if name in curves:
             c = _curve_px(curves[name], S)
-            m = _tapered_band(S, c, p.brow_thickness * S)
+            # the outer end sits where the temple turns away (strong foreshortening): run the
+            # band a little past it so that the brow_outer fiducial is inside the dark band
+            m = _tapered_band(S, c, p.brow_thickness * S, extend=0.5 * p.brow_thickness * S)
             m = cv2.GaussianBlur(m, (0, 0), 1.5 * px)
             hairc = (0.6 * hair)[None, None, :] * hair_noise[..., None]
             a = (m * p.brow_darkness)[..., None]

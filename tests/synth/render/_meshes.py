@@ -25,7 +25,8 @@ def sphere(n_lat=40, n_lon=80, radius=7.0, centre=(0.0, -2.0, -7.0)):
     lat = np.linspace(0, np.pi, n_lat)
     lon = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
     th, ph = np.meshgrid(lat, lon, indexing="ij")
-    V = np.stack([np.sin(th) * np.sin(ph), np.cos(th), np.sin(th) * np.cos(ph)], -1)
+    # longitude 0 (the uv seam) at the back, away from the camera
+    V = np.stack([-np.sin(th) * np.sin(ph), np.cos(th), -np.sin(th) * np.cos(ph)], -1)
     V = V.reshape(-1, 3) * radius + np.asarray(centre)
     U = np.stack([(ph / (2 * np.pi)).ravel(), (th / np.pi).ravel()], 1)
     idx = np.arange(n_lat * n_lon).reshape(n_lat, n_lon)
@@ -48,7 +49,7 @@ def noise_texture(size=512, seed=0):
     rng = np.random.default_rng(seed)
     import cv2
     tex = np.zeros((size, size), np.float32)
-    for k, amp in ((8, 0.25), (32, 0.2), (128, 0.15)):
+    for k, amp in ((6, 0.25), (16, 0.2), (40, 0.2)):
         g = rng.random((k, k)).astype(np.float32)
         tex += amp * cv2.resize(g, (size, size), interpolation=cv2.INTER_CUBIC)
     tex = (tex - tex.min()) / (tex.max() - tex.min())
