@@ -409,7 +409,6 @@ def test_resolution_scaling():
                                   coarse.vertices * MIRROR)
 
 
-@pytest.mark.slow
 def test_fine_mesh_for_large_lattices():
     fine = generate_face_mesh(resolution=4.0)
     assert fine.n_vertices > 15000
