@@ -18,13 +18,21 @@ Background pixels have zero flow (the background is static).
 
 Head reference frame
 --------------------
-Defined the way the trackers define it (004 V-D), on the rigid head: ``head_x, head_y``
-is the image position of the mean of the three hairline landmarks (``hairline_l``,
-``hairline_centre``, ``hairline_r``) of the *rest* mesh moved by the head pose (the hairline
-sits on the skull: expressions do not move the frame); ``head_scale`` is the image scale in
-px per cm of the model at that point; ``head_roll`` is the in-plane rotation in radians,
-the image angle ``atan2(dy, dx)`` of the projected model x axis (subject's left), positive
-clockwise on screen (image y points down).
+Defined as the trackers define it (``trackers.fiducials.head_frame``; 004 V-D: "a head
+reference frame from the average position of the hairline contour"), but measured on the
+*rigid* head (the rest mesh moved by the head pose, so expressions never move the frame):
+
+- ``head_x, head_y``: the arc-length centroid of the projected hairline curve (the
+  ``hairline`` feature curve lifted from uv onto the rest surface);
+- ``head_scale``: the distance in px from that origin to the projected midpoint of the two
+  nostril centroids (the trackers' nose-tip contour follows the dark nostrils); a length
+  in pixels, not a physical unit (``px_per_cm`` is given separately);
+- ``head_roll``: the in-plane rotation in radians, the image angle ``atan2(dy, dx)`` of the
+  projected model x axis (subject's left): 0 upright, positive when the subject's left side
+  is lower in the image (clockwise on screen, image y points down).
+
+Meshes without feature curves fall back to the hairline landmarks (origin: their mean) and
+the ``subnasale`` landmark.
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ from synth.render.camera import HeadPose, project
 from synth.render.raster import _flow_kernel
 
 __all__ = ["forward_flow", "flow_and_occlusion", "head_frame", "project_landmarks",
+           "surface_points_from_uv",
            "warp_backward", "FIDUCIALS", "HAIRLINE_LANDMARKS"]
 
 #: The 11 fiducial points of 004 V-D, in the order of DESIGN.md.
@@ -168,25 +177,117 @@ def project_landmarks(points: dict, renderer, result) -> dict:
     return out
 
 
-def head_frame(rest_vertices: np.ndarray, landmarks: dict, camera, pose: HeadPose | None
-               ) -> dict:
-    """Head reference frame ground truth (see the module docstring).
+def surface_points_from_uv(mesh, uv_points) -> np.ndarray:
+    """Lift uv points onto the rest surface: (K, 2) uv -> (K, 3) model-space points.
+
+    Each point is located in the mesh's uv triangulation and interpolated barycentrically;
+    points outside every triangle get NaN.
+
+    Examples
+    --------
+    >>> from synth.render.renderer import Surface
+    >>> s = Surface(vertices=np.array([[0.0, 0, 0], [2, 0, 0], [0, 2, 1]]),
+    ...             triangles=np.array([[0, 1, 2]]), uv=np.array([[0, 0], [1, 0], [0, 1.0]]))
+    >>> surface_points_from_uv(s, [[0.5, 0.5], [0.9, 0.9]]).round(3).tolist()
+    [[1.0, 1.0, 0.5], [nan, nan, nan]]
+    """
+    uvq = np.atleast_2d(np.asarray(uv_points, dtype=np.float64))
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    T = np.asarray(mesh.triangles)
+    UV = np.asarray(mesh.uv, dtype=np.float64)
+    a, b, c = UV[T[:, 0]], UV[T[:, 1]], UV[T[:, 2]]
+    e1, e2 = b - a, c - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ok = np.abs(det) > 1e-15
+    out = np.full((len(uvq), 3), np.nan)
+    for k, q in enumerate(uvq):
+        d = q - a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            l1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
+            l2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
+        inside = ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+        hits = np.nonzero(inside)[0]
+        if len(hits):
+            t = hits[0]
+            out[k] = (1 - l1[t] - l2[t]) * V[T[t, 0]] + l1[t] * V[T[t, 1]] + l2[t] * V[T[t, 2]]
+    return out
+
+
+_FRAME_CACHE: dict = {}
+
+
+def _frame_points(mesh):
+    """Rest-surface hairline polyline (K, 3) and nose point (3,) of ``mesh`` (cached)."""
+    key = id(mesh)
+    hit = _FRAME_CACHE.get(key)
+    if hit is not None and hit[0] is mesh:
+        return hit[1], hit[2]
+    curves = getattr(mesh, "feature_curves", None) or {}
+    lm = getattr(mesh, "landmarks", {}) or {}
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    hair = None
+    if "hairline" in curves:
+        h = surface_points_from_uv(mesh, curves["hairline"])
+        h = h[np.all(np.isfinite(h), axis=1)]
+        if len(h) >= 2:
+            hair = h
+    if hair is None:
+        missing = [n for n in HAIRLINE_LANDMARKS if n not in lm]
+        if missing:
+            raise ValueError(f"mesh has no hairline curve and its landmarks lack {missing}")
+        hair = V[[lm[n] for n in HAIRLINE_LANDMARKS]]
+        hair = np.vstack([hair.mean(axis=0), hair.mean(axis=0)])   # centroid = their mean
+    nose = None
+    if "nostril_l" in curves and "nostril_r" in curves:
+        cs = []
+        for name in ("nostril_l", "nostril_r"):
+            p = surface_points_from_uv(mesh, np.asarray(curves[name])[:-1])
+            p = p[np.all(np.isfinite(p), axis=1)]
+            if len(p):
+                cs.append(p.mean(axis=0))
+        if len(cs) == 2:
+            nose = 0.5 * (cs[0] + cs[1])
+    if nose is None:
+        if "subnasale" not in lm:
+            raise ValueError("mesh has no nostril curves and no subnasale landmark")
+        nose = V[lm["subnasale"]]
+    if len(_FRAME_CACHE) > 16:
+        _FRAME_CACHE.clear()
+    _FRAME_CACHE[key] = (mesh, hair, nose)
+    return hair, nose
+
+
+def head_frame(mesh, camera, pose: HeadPose | None = None) -> dict:
+    """Head reference frame ground truth of the rigid head (see the module docstring).
+
+    Parameters
+    ----------
+    mesh : FaceMesh
+        Rest mesh (``vertices``, ``triangles``, ``uv``, ``feature_curves``, ``landmarks``).
+    camera : Camera
+    pose : HeadPose, optional
 
     Returns
     -------
-    dict with head_x, head_y (px), head_scale (px/cm), head_roll (radians)
+    dict with head_x, head_y (px), head_scale (px, origin to nostrils), head_roll
+    (radians) and px_per_cm (image scale at the origin)
     """
     pose = pose or HeadPose()
-    missing = [n for n in HAIRLINE_LANDMARKS if n not in landmarks]
-    if missing:
-        raise ValueError(f"mesh landmarks lack {missing}")
-    pts = np.asarray(rest_vertices, dtype=np.float64)[[landmarks[n] for n in
-                                                       HAIRLINE_LANDMARKS]]
-    origin = pts.mean(axis=0)
-    probe = np.array([origin, origin + [1.0, 0.0, 0.0]])
-    xy, depth = project(probe, camera, pose)
-    dx, dy = xy[1] - xy[0]
-    # px per cm: the length of a 1-cm segment parallel to the image plane at the origin
-    scale = float(camera.px_per_cm(depth[0]))
-    return {"head_x": float(xy[0, 0]), "head_y": float(xy[0, 1]), "head_scale": scale,
-            "head_roll": float(math.atan2(dy, dx))}
+    hair, nose = _frame_points(mesh)
+    xy, depth = project(np.vstack([hair, nose[None, :]]), camera, pose)
+    hxy = xy[:-1]
+    seg = np.hypot(*np.diff(hxy, axis=0).T)
+    if seg.sum() > 1e-12:
+        mid = 0.5 * (hxy[1:] + hxy[:-1])
+        origin = (mid * seg[:, None]).sum(axis=0) / seg.sum()
+    else:
+        origin = hxy.mean(axis=0)
+    # 3-D point under the origin (for the roll probe and the px/cm scale)
+    w = np.r_[seg, 0.0] * 0.5 + np.r_[0.0, seg] * 0.5
+    o3 = (hair * w[:, None]).sum(axis=0) / w.sum() if w.sum() > 0 else hair.mean(axis=0)
+    probe, pdepth = project(np.array([o3, o3 + [1.0, 0.0, 0.0]]), camera, pose)
+    dx, dy = probe[1] - probe[0]
+    scale = float(np.hypot(*(xy[-1] - origin)))
+    return {"head_x": float(origin[0]), "head_y": float(origin[1]), "head_scale": scale,
+            "head_roll": float(math.atan2(dy, dx)),
+            "px_per_cm": float(camera.px_per_cm(pdepth[0]))}

@@ -20,9 +20,10 @@ stores it in an output folder:
   contractions, per-frame head poses and lights, degradations, versions.
 
 The head reference frame of ``truth.csv`` is defined in :mod:`synth.render.groundtruth`
-(origin at the mean of the rigid hairline landmarks, scale in px/cm, roll in radians,
-clockwise on screen). Everything is deterministic per seed: identity shape and texture, head
-motion, illumination and sensor noise.
+(rigid head: origin at the arc-length centroid of the hairline, scale = px from the origin
+to the nostrils, roll in radians, clockwise on screen; as the trackers define it).
+Everything is deterministic per seed: identity shape and texture, head motion,
+illumination and sensor noise.
 """
 
 from __future__ import annotations
@@ -362,6 +363,7 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     occ = np.empty((max(T - 1, 0), height, width), bool) if flow else None
     dis = np.empty((max(T - 1, 0), height, width), bool) if flow else None
     rows = []
+    px_per_cm = []
     rest = np.asarray(mesh.vertices)
     prev = None
     for t in range(T):
@@ -387,7 +389,8 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
         prev = res
         lm = _landmark_positions(model, mesh, skin)
         fids = project_landmarks({k: lm[k] for k in FIDUCIALS if k in lm}, renderer, res)
-        hf = head_frame(rest, mesh.landmarks, cam, poses[t])
+        hf = head_frame(mesh, cam, poses[t])
+        px_per_cm.append(hf.pop("px_per_cm"))
         rec = {"frame": t, "timestamp": t / fps, "success": 1, "confidence": 1.0, **hf}
         for name in FIDUCIALS:
             x, y, vis = fids.get(name, (np.nan, np.nan, False))
@@ -425,8 +428,10 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
                          "lights": [lt.as_dict() for lt in lights]},
         "degradation": {"noise_std": float(noise), "blur_sigma": float(blur)},
         "muscles": muscles,
-        "head_frame": ("origin = mean of rigid hairline landmarks (px), scale = px/cm, "
-                       "roll = radians, clockwise on screen"),
+        "head_frame": ("rigid head: origin = arc-length centroid of the projected hairline "
+                       "curve (px); scale = px from the origin to the nostrils' midpoint; "
+                       "roll = radians, positive clockwise on screen (trackers' convention)"),
+        "px_per_cm": px_per_cm,
         "versions": _versions(),
     }
     return SyntheticSequence(images=images, truth=truth, flow=flows, occluded=occ,

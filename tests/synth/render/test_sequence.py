@@ -64,7 +64,7 @@ def test_truth_table_columns_and_fiducials(moving):
     dx = (tr.fid_mouth_corner_l_x - tr.head_x).to_numpy()
     dy = (tr.fid_mouth_corner_l_y - tr.head_y).to_numpy()
     c, s = np.cos(tr.head_roll.to_numpy()), np.sin(tr.head_roll.to_numpy())
-    hx = (c * dx + s * dy) / tr.head_scale.to_numpy()
+    hx = (c * dx + s * dy) / np.asarray(moving.meta["px_per_cm"])
     assert 0.4 < hx[-1] - hx[0] < 0.7
     assert tr.fid_mouth_corner_l_x.iloc[0] > tr.fid_mouth_corner_r_x.iloc[0]
     assert moving.meta["head_motion"]["poses"][0]["roll"] == 0.0

@@ -84,10 +84,28 @@ def test_hair_above_the_hairline(mesh):
         x, y, _ = pts[name]
         c, r = int(round(x)), int(round(y))
         assert img[r - 5, c] < 0.6 * img[r + 5, c], name
-    hf = head_frame(mesh.vertices, mesh.landmarks, res.camera, res.pose)
-    mean = np.mean([pts[n][:2] for n in ("hairline_centre", "hairline_l", "hairline_r")], 0)
-    np.testing.assert_allclose([hf["head_x"], hf["head_y"]], mean, atol=1e-9)
-    assert hf["head_roll"] == 0.0 and hf["head_scale"] == pytest.approx(res.camera.scale)
+    # head frame: origin on the midline below the hairline's top, roll 0, scale reaching
+    # down to the nostrils (as trackers.fiducials.head_frame measures it on contours)
+    hf = head_frame(mesh, res.camera, res.pose)
+    assert hf["head_x"] == pytest.approx(127.5, abs=0.05) and hf["head_roll"] == 0.0
+    x, y, _ = pts["hairline_centre"]
+    assert y < hf["head_y"] < pts["brow_mid_l"][1]
+    nose_y = hf["head_y"] + hf["head_scale"]
+    assert pts["nose_tip"][1] < nose_y < pts["lip_upper_centre"][1]
+    assert hf["px_per_cm"] == pytest.approx(res.camera.scale)
+
+
+def test_head_frame_follows_the_rigid_head(mesh):
+    from synth.render.camera import HeadPose, default_camera
+
+    cam = default_camera(256, 256)
+    a = head_frame(mesh, cam)
+    b = head_frame(mesh, cam, HeadPose(roll=10.0, translation=(1.0, 0.0, 0.0)))
+    assert b["head_roll"] == pytest.approx(np.radians(10.0))
+    assert b["head_scale"] == pytest.approx(a["head_scale"])
+    assert b["head_x"] > a["head_x"]
+    c = head_frame(mesh, default_camera(512, 512))
+    assert c["head_scale"] == pytest.approx(2 * a["head_scale"], rel=1e-3)
 
 
 def test_texture_is_deterministic_and_varies_per_identity(mesh):
