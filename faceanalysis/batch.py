@@ -72,6 +72,7 @@ MARKER = "_finished.json"
 SUMMARY = "summary.csv"
 _MARKER_FORMAT = 1
 _PARTIAL = ".partial-"
+_OLD = ".old-"
 _GLOB_CHARS = set("*?[")
 # Columns of contractions.csv that are not contractions (see DESIGN.md).
 _NOT_CONTRACTION = {"frame", "timestamp", "success", "confidence"}
@@ -425,7 +426,7 @@ def _process_video(input_path: str, out_root: str, name: str, options: dict,
             "input": {"path": str(path), **signature},
             "options": _canonical_options(options),
             "outputs": outputs,
-            "record": {k: v for k, v in row.items() if k != "resumed"},
+            "record": {k: _json_value(v) for k, v in row.items() if k != "resumed"},
             "faceanalysis": __version__,
             "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
@@ -433,7 +434,7 @@ def _process_video(input_path: str, out_root: str, name: str, options: dict,
         if final.exists():
             if not overwrite:
                 raise FileExistsError(f"{final} appeared while {path} was being analysed")
-            old = root / f".{name}.old-{uuid.uuid4().hex[:12]}"
+            old = root / f".{name}{_OLD}{uuid.uuid4().hex[:12]}"
             os.replace(final, old)
             os.replace(tmp, final)
             shutil.rmtree(old, ignore_errors=True)
@@ -459,6 +460,13 @@ def _finished_record(folder: Path, video: Path, options: Mapping) -> dict | None
     return dict(marker["record"])
 
 
+def _json_value(value):
+    """NaN and infinities as null, so that the marker is strict JSON."""
+    if isinstance(value, (float, np.floating)) and not math.isfinite(value):
+        return None
+    return value
+
+
 def _json_default(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
@@ -479,8 +487,9 @@ def _default_workers() -> int:
 def _remove_partials(root: Path, names: Iterable[str]) -> None:
     """Remove temporary folders left by workers that died (ours, by their exact prefix)."""
     for name in names:
-        for leftover in root.glob(f".{glob.escape(name)}{_PARTIAL}*"):
-            shutil.rmtree(leftover, ignore_errors=True)
+        for kind in (_PARTIAL, _OLD):
+            for leftover in root.glob(f".{glob.escape(name)}{kind}*"):
+                shutil.rmtree(leftover, ignore_errors=True)
 
 
 def _write_summary(root: Path, rows: list[dict]) -> Path:
@@ -697,7 +706,8 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
                            "resumed": True}
             else:
                 rows[i] = _failed_row(video, name, f"{folder} exists but is not a finished "
-                                      f"result: {problem}; pass --overwrite to replace it")
+                                      f"result: {problem}; remove it, or pass --overwrite to "
+                                      f"redo every video")
             continue
         todo.append(i)
     skipped = sum(1 for r in rows if r is not None and r["resumed"])
