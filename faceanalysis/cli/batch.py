@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
+
+from faceanalysis.cli._input import add_input_options
+from faceanalysis.cli.analyze import add_analysis_options
 
 HELP = "analyse many videos (files, folders, glob patterns) on a Dask cluster"
 
@@ -24,6 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.epilog = (
         "examples:\n"
         "  faceanalysis batch clips/ -o results\n"
+        "  faceanalysis batch clips/ -o results --estimator tw93 --overlay\n"
         "  faceanalysis batch 'corpus/**/*.mp4' extra.avi -o results --workers 4\n"
         "  faceanalysis batch 'corpus/**/*.mp4' -o results --scheduler tcp://head:8786")
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
@@ -41,16 +46,39 @@ def configure(parser: argparse.ArgumentParser) -> None:
                             "reachable at the same paths from its workers")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bar, warnings and errors only")
-    analysis = parser.add_argument_group("analysis options (as for 'analyze')")
-    analysis.add_argument("--overlay", action="store_true",
-                          help="also write overlay.mp4 for every video")
+    # the options of 'analyze', defined once there, applied to every video
+    add_input_options(parser, positional=False)
+    add_analysis_options(parser)
+    parser.add_argument("--overlay", action="store_true",
+                        help="also write overlay.mp4 for every video")
+
+
+_ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "layout", "overlay")
 
 
 def analysis_options(args: argparse.Namespace) -> dict:
-    """The analysis options of ``args`` as keyword arguments of the analysis."""
+    """The analysis options of ``args`` that differ from the analysis defaults.
+
+    Options left at their defaults are not passed, so that a result is recognised as
+    finished whether its run spelled a default out or not (they are recorded in each
+    finished marker and compared on the next run). Paths are made absolute, since
+    workers may not share this process's working folder.
+    """
+    import inspect
+
+    from faceanalysis.analysis import analyze, analyze_to_folder
+
+    defaults = {name: p.default for f in (analyze, analyze_to_folder)
+                for name, p in inspect.signature(f).parameters.items()
+                if p.default is not inspect.Parameter.empty}
     options = {}
-    if args.overlay:
-        options["overlay"] = True
+    for name in _ANALYSIS_OPTIONS:
+        value = getattr(args, name)
+        if name in defaults and value == defaults[name]:
+            continue
+        if value is None:
+            continue
+        options[name] = str(Path(value).resolve()) if isinstance(value, Path) else value
     return options
 
 
