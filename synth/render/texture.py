@@ -287,9 +287,9 @@ def _paint(curves: dict, p: TextureParams, size: int) -> np.ndarray:
     for name in ("brow_l", "brow_r"):
         if name in curves:
             c = _curve_px(curves[name], S)
-            # the outer end sits where the temple turns away (strong foreshortening): run the
-            # band a little past it so that the brow_outer fiducial is inside the dark band
-            m = _tapered_band(S, c, p.brow_thickness * S, extend=0.5 * p.brow_thickness * S)
+            # constant width with round caps centred on the curve's ends: the end of the
+            # band's centre line (a fiducial) lies half a band width inside the band's tip
+            m = _tapered_band(S, c, p.brow_thickness * S)
             m = cv2.GaussianBlur(m, (0, 0), 1.5 * px)
             hairc = (0.6 * hair)[None, None, :] * hair_noise[..., None]
             a = (m * p.brow_darkness)[..., None]
