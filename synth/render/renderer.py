@@ -80,7 +80,7 @@ def _background(width: int, height: int, colour) -> np.ndarray:
     c = np.asarray(colour, dtype=np.float64)
     t = np.linspace(0.0, 1.0, height)[:, None, None]
     img = c[None, None, :] * (1.08 - 0.16 * t)
-    return np.ascontiguousarray(np.broadcast_to(img, (height, width, 3)))
+    return np.ascontiguousarray(np.broadcast_to(img, (height, width, 3)), dtype=np.float32)
 
 
 class Renderer:
@@ -236,7 +236,7 @@ class Renderer:
     def _buffers(self, xy, depth, cam):
         zbuf = np.full((cam.height, cam.width), np.inf)
         tri_id = np.full((cam.height, cam.width), -1, dtype=np.int32)
-        bary = np.zeros((cam.height, cam.width, 3))
+        bary = np.empty((cam.height, cam.width, 3))     # only read where tri_id >= 0
         _raster_kernel(xy, depth, self.triangles, self.cull, cam.perspective, zbuf, tri_id,
                        bary)
         return zbuf, tri_id, bary
