@@ -1,0 +1,370 @@
+"""Forces and energies of the tissue lattice: biphasic springs, volume preservation, skull
+non-penetration, plus the external (muscle) load.
+
+Every term is conservative, so the lattice has a potential energy ``E(x)`` whose negative
+gradient is the force; the equilibrium solver minimises it and the explicit integrators
+use the forces.
+
+* Biphasic springs (004 eqs. 1-2).  Eq. 2 switches the stiffness from ``alpha`` to ``beta``
+  at the elongation threshold ``e^c``; Fig. 2 of 004 puts ``e^c`` at the intersection of the
+  two lines, so the force is read as continuous and piecewise linear::
+
+      |s| = alpha * e                          e <= e^c
+      |s| = alpha * e^c + beta * (e - e^c)     e >  e^c
+
+* Volume preservation, the ``Q`` term of 004 III-A: ``bulk / 2 * V0 * ((V - V0) / V0)**2``
+  per prism (three tetrahedra, 000 section 6), force ``-dQ/dx``.
+* Skull non-penetration (000 section 7): a fascia node whose height above the (jaw-rotated)
+  skull plane under it drops below the margin is pushed back out along the skull normal by
+  a stiff penalty.  The integrators also project such nodes out exactly.
+
+The hot loops are Numba kernels (``cache=True``); :func:`spring_forces_numpy` is the
+vectorised NumPy reference used by the tests and the benchmark.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .lattice import PRISM_TETS, Lattice, rotate_about_jaw
+
+__all__ = [
+    "TissueSystem",
+    "spring_forces",
+    "spring_forces_numpy",
+    "volume_forces",
+    "skull_forces",
+]
+
+
+@numba.njit(cache=True, nogil=True)
+def _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out):  # pragma: no cover
+    energy = 0.0
+    for s in range(springs.shape[0]):
+        i = springs[s, 0]
+        j = springs[s, 1]
+        rx = x[j, 0] - x[i, 0]
+        ry = x[j, 1] - x[i, 1]
+        rz = x[j, 2] - x[i, 2]
+        l = np.sqrt(rx * rx + ry * ry + rz * rz)
+        e = l - rest_length[s]
+        kl = k_low[s]
+        ec = switch[s]
+        if e <= ec:
+            fm = kl * e
+            energy += 0.5 * kl * e * e
+        else:
+            d = e - ec
+            fm = kl * ec + k_high[s] * d
+            energy += 0.5 * kl * ec * ec + kl * ec * d + 0.5 * k_high[s] * d * d
+        if l > 1e-12:
+            c = fm / l
+        else:
+            c = 0.0
+        fx = c * rx
+        fy = c * ry
+        fz = c * rz
+        out[i, 0] += fx
+        out[i, 1] += fy
+        out[i, 2] += fz
+        out[j, 0] -= fx
+        out[j, 1] -= fy
+        out[j, 2] -= fz
+    return energy
+
+
+@numba.njit(cache=True, nogil=True)
+def _tet(p0, p1, p2, p3):  # pragma: no cover
+    ax = p1[0] - p0[0]
+    ay = p1[1] - p0[1]
+    az = p1[2] - p0[2]
+    bx = p2[0] - p0[0]
+    by = p2[1] - p0[1]
+    bz = p2[2] - p0[2]
+    cx = p3[0] - p0[0]
+    cy = p3[1] - p0[1]
+    cz = p3[2] - p0[2]
+    return (ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)) / 6.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _volume_kernel(x, prisms, tets, rest_volume, bulk, out):  # pragma: no cover
+    energy = 0.0
+    grad = np.zeros((6, 3))
+    for e in range(prisms.shape[0]):
+        vol = 0.0
+        for a in range(6):
+            grad[a, 0] = 0.0
+            grad[a, 1] = 0.0
+            grad[a, 2] = 0.0
+        for t in range(3):
+            i0 = tets[t, 0]
+            i1 = tets[t, 1]
+            i2 = tets[t, 2]
+            i3 = tets[t, 3]
+            p0 = x[prisms[e, i0]]
+            p1 = x[prisms[e, i1]]
+            p2 = x[prisms[e, i2]]
+            p3 = x[prisms[e, i3]]
+            vol += _tet(p0, p1, p2, p3)
+            # gradients of the signed tet volume (1/6 of the cross products)
+            ax = p1[0] - p0[0]
+            ay = p1[1] - p0[1]
+            az = p1[2] - p0[2]
+            bx = p2[0] - p0[0]
+            by = p2[1] - p0[1]
+            bz = p2[2] - p0[2]
+            cx = p3[0] - p0[0]
+            cy = p3[1] - p0[1]
+            cz = p3[2] - p0[2]
+            g1x = (by * cz - bz * cy) / 6.0
+            g1y = (bz * cx - bx * cz) / 6.0
+            g1z = (bx * cy - by * cx) / 6.0
+            g2x = (cy * az - cz * ay) / 6.0
+            g2y = (cz * ax - cx * az) / 6.0
+            g2z = (cx * ay - cy * ax) / 6.0
+            g3x = (ay * bz - az * by) / 6.0
+            g3y = (az * bx - ax * bz) / 6.0
+            g3z = (ax * by - ay * bx) / 6.0
+            grad[i1, 0] += g1x
+            grad[i1, 1] += g1y
+            grad[i1, 2] += g1z
+            grad[i2, 0] += g2x
+            grad[i2, 1] += g2y
+            grad[i2, 2] += g2z
+            grad[i3, 0] += g3x
+            grad[i3, 1] += g3y
+            grad[i3, 2] += g3z
+            grad[i0, 0] -= g1x + g2x + g3x
+            grad[i0, 1] -= g1y + g2y + g3y
+            grad[i0, 2] -= g1z + g2z + g3z
+        v0 = rest_volume[e]
+        strain = (vol - v0) / v0
+        energy += 0.5 * bulk[e] * v0 * strain * strain
+        c = bulk[e] * strain
+        for a in range(6):
+            n = prisms[e, a]
+            out[n, 0] -= c * grad[a, 0]
+            out[n, 1] -= c * grad[a, 1]
+            out[n, 2] -= c * grad[a, 2]
+    return energy
+
+
+@numba.njit(cache=True, nogil=True)
+def _skull_kernel(x, nodes, bone, normal, margin, k, out):  # pragma: no cover
+    energy = 0.0
+    for q in range(nodes.shape[0]):
+        i = nodes[q]
+        b = bone[q]
+        h = ((x[i, 0] - x[b, 0]) * normal[q, 0] + (x[i, 1] - x[b, 1]) * normal[q, 1]
+             + (x[i, 2] - x[b, 2]) * normal[q, 2]) - margin[q]
+        if h < 0.0:
+            energy += 0.5 * k[q] * h * h
+            c = -k[q] * h
+            out[i, 0] += c * normal[q, 0]
+            out[i, 1] += c * normal[q, 1]
+            out[i, 2] += c * normal[q, 2]
+    return energy
+
+
+@numba.njit(cache=True, nogil=True)
+def _skull_project(x, nodes, bone, normal, margin):  # pragma: no cover
+    moved = 0
+    for q in range(nodes.shape[0]):
+        i = nodes[q]
+        b = bone[q]
+        h = ((x[i, 0] - x[b, 0]) * normal[q, 0] + (x[i, 1] - x[b, 1]) * normal[q, 1]
+             + (x[i, 2] - x[b, 2]) * normal[q, 2]) - margin[q]
+        if h < 0.0:
+            x[i, 0] -= h * normal[q, 0]
+            x[i, 1] -= h * normal[q, 1]
+            x[i, 2] -= h * normal[q, 2]
+            moved += 1
+    return moved
+
+
+def spring_forces(x: np.ndarray, lattice: Lattice, out: np.ndarray | None = None):
+    """Net biphasic spring force on every node (Numba kernel).
+
+    Parameters
+    ----------
+    x : (n, 3) array
+        Node positions.
+    lattice : Lattice
+    out : (n, 3) array, optional
+        Accumulator; forces are **added** to it.  A new zero array when omitted.
+
+    Returns
+    -------
+    forces : (n, 3) array
+    energy : float
+        Elastic energy of the springs.
+
+    Examples
+    --------
+    >>> from synth.lattice import build_lattice            # doctest: +SKIP
+    >>> f, e = spring_forces(lat.rest, lat)                 # doctest: +SKIP
+    >>> float(abs(f).max()), e                              # doctest: +SKIP
+    (0.0, 0.0)
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if out is None:
+        out = np.zeros_like(x)
+    e = _spring_kernel(x, lattice.springs, lattice.rest_length, lattice.k_low, lattice.k_high,
+                       lattice.switch, out)
+    return out, e
+
+
+def spring_forces_numpy(x: np.ndarray, lattice: Lattice):
+    """Vectorised NumPy version of :func:`spring_forces` (reference implementation).
+
+    Returns ``(forces, energy)``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    i, j = lattice.springs[:, 0], lattice.springs[:, 1]
+    r = x[j] - x[i]
+    l = np.sqrt(np.einsum("ij,ij->i", r, r))
+    e = l - lattice.rest_length
+    ec = lattice.switch
+    kl, kh = lattice.k_low, lattice.k_high
+    high = e > ec
+    d = np.where(high, e - ec, 0.0)
+    el = np.where(high, ec, e)
+    fm = kl * el + kh * d
+    energy = float(np.sum(0.5 * kl * el * el + kl * el * d + 0.5 * kh * d * d))
+    f = r * (fm / np.maximum(l, 1e-12))[:, None]
+    n = x.shape[0]
+    out = np.empty_like(x)
+    for c in range(3):
+        out[:, c] = np.bincount(i, weights=f[:, c], minlength=n) - np.bincount(
+            j, weights=f[:, c], minlength=n)
+    return out, energy
+
+
+def volume_forces(x: np.ndarray, lattice: Lattice, out: np.ndarray | None = None):
+    """Volume-restoration forces ``q_i = -dQ/dx_i`` (004 III-A).  Returns ``(forces, energy)``."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if out is None:
+        out = np.zeros_like(x)
+    e = _volume_kernel(x, lattice.prisms, PRISM_TETS, lattice.rest_volume, lattice.bulk, out)
+    return out, e
+
+
+def skull_forces(x: np.ndarray, lattice: Lattice, normals: np.ndarray | None = None,
+                 out: np.ndarray | None = None):
+    """Skull non-penetration penalty forces on the fascia nodes.  Returns ``(forces, energy)``.
+
+    ``normals`` are the current outward skull normals (rest normals when omitted).
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if out is None:
+        out = np.zeros_like(x)
+    n = lattice.skull_normal if normals is None else np.ascontiguousarray(normals)
+    e = _skull_kernel(x, lattice.skull_nodes, lattice.skull_bone, n, lattice.skull_margin,
+                      lattice.skull_k, out)
+    return out, e
+
+
+@numba.njit(cache=True, nogil=True)
+def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, tets, rest_volume,
+                  bulk, use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, f_ext, fixed,
+                  out):  # pragma: no cover
+    out[:] = 0.0
+    energy = _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out)
+    if use_volume:
+        energy += _volume_kernel(x, prisms, tets, rest_volume, bulk, out)
+    energy += _skull_kernel(x, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, out)
+    for i in range(x.shape[0]):
+        if fixed[i]:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+            out[i, 2] = 0.0
+        else:
+            out[i, 0] += f_ext[i, 0]
+            out[i, 1] += f_ext[i, 1]
+            out[i, 2] += f_ext[i, 2]
+            energy -= f_ext[i, 0] * x[i, 0] + f_ext[i, 1] * x[i, 1] + f_ext[i, 2] * x[i, 2]
+    return energy
+
+
+class TissueSystem:
+    """The lattice plus its current boundary conditions and load.
+
+    Holds the prescribed positions of the fixed nodes (bone, glued outline; the mandible
+    nodes rotated by the jaw), the current skull normals and the external nodal forces
+    (muscles).  :meth:`forces` returns the net force on the free nodes and the total
+    potential energy ``E(x) = springs + volume + skull - f_ext . x``.
+
+    Parameters
+    ----------
+    lattice : Lattice
+    volume_preservation : bool
+        Include the volume term (default True).
+    """
+
+    def __init__(self, lattice: Lattice, *, volume_preservation: bool = True):
+        self.lattice = lattice
+        self.volume_preservation = bool(volume_preservation)
+        self.fixed = np.ascontiguousarray(lattice.fixed)
+        self.free = np.flatnonzero(~lattice.fixed)
+        self.f_ext = np.zeros_like(lattice.rest)
+        self.jaw_rotation = 0.0
+        self.prescribed = lattice.rest.copy()
+        self.skull_normal = np.array(lattice.skull_normal)
+        self._bone_jaw = lattice.jaw_weight[lattice.skull_bone]
+
+    def set_jaw(self, angle: float) -> None:
+        """Rotate the mandible-carried fixed nodes and skull normals by ``angle`` radians."""
+        lat = self.lattice
+        self.jaw_rotation = float(angle)
+        fx = np.flatnonzero(lat.fixed)
+        self.prescribed = lat.rest.copy()
+        self.prescribed[fx] = rotate_about_jaw(lat.rest[fx], lat.jaw_weight[fx], lat.jaw_pivot,
+                                               angle)
+        self.skull_normal = rotate_about_jaw(lat.skull_normal, self._bone_jaw,
+                                             np.zeros(3), angle)
+
+    def set_external(self, f_ext: np.ndarray) -> None:
+        """Set the external nodal forces (n, 3) (muscle load); fixed nodes ignore theirs."""
+        f = np.array(f_ext, dtype=np.float64)
+        if f.shape != self.lattice.rest.shape:
+            raise ValueError(f"f_ext must have shape {self.lattice.rest.shape}, got {f.shape}")
+        self.f_ext = f
+
+    def apply_boundary(self, x: np.ndarray) -> None:
+        """Write the prescribed positions of the fixed nodes into ``x`` (in place)."""
+        fx = self.fixed
+        x[fx] = self.prescribed[fx]
+
+    def forces(self, x: np.ndarray, out: np.ndarray | None = None):
+        """Net force on every node (zero on fixed nodes) and the potential energy.
+
+        Returns
+        -------
+        forces : (n, 3) array
+        energy : float
+        """
+        lat = self.lattice
+        if out is None:
+            out = np.empty_like(lat.rest)
+        e = _total_kernel(x, lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch,
+                          lat.prisms, PRISM_TETS, lat.rest_volume, lat.bulk,
+                          self.volume_preservation, lat.skull_nodes, lat.skull_bone,
+                          self.skull_normal, lat.skull_margin, lat.skull_k, self.f_ext,
+                          self.fixed, out)
+        return out, e
+
+    def project_skull(self, x: np.ndarray) -> int:
+        """Move fascia nodes that sit below the skull margin back onto it (in place).
+
+        Returns the number of nodes moved."""
+        lat = self.lattice
+        return int(_skull_project(x, lat.skull_nodes, lat.skull_bone, self.skull_normal,
+                                  lat.skull_margin))
+
+    def skull_heights(self, x: np.ndarray) -> np.ndarray:
+        """Signed height of every constrained fascia node above its skull plane (cm)."""
+        lat = self.lattice
+        d = x[lat.skull_nodes] - x[lat.skull_bone]
+        return np.einsum("ij,ij->i", d, self.skull_normal)

@@ -1,0 +1,432 @@
+"""Time integration and equilibrium solvers for the tissue lattice.
+
+* :func:`rk2_step`: the paper's explicit second-order Runge-Kutta (midpoint) step of
+  ``m x'' + gamma x' + g + q = f`` (004 eq. 4), with slightly over-damped ``gamma``.
+* :func:`verlet_step`: leapfrog (velocity) Verlet with the same damping (001 ch. 6).
+* :class:`EquilibriumSolver`: a fast, unconditionally stable quasi-static solver.  The lattice
+  energy is minimised by the local-global / projective-dynamics iteration
+  ``x <- x + A^{-1} F(x)``, where ``A`` is the constant spring Laplacian (with the large-strain
+  stiffnesses, so that ``A`` bounds the spring Hessian and every step decreases the energy)
+  plus diagonal bounds of the volume and skull terms.  ``A`` is factored once per lattice
+  and reused for every iteration and every frame; Anderson acceleration with an energy
+  safeguard (Peng et al. 2018) speeds the fixed-point iteration up, and each frame starts
+  from the previous equilibrium.
+
+All steppers refuse to return garbage: a step that produces non-finite positions, or a
+runaway that leaves the physical range, raises :class:`SimulationError` naming the
+parameters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .forces import TissueSystem
+
+__all__ = [
+    "SimulationError",
+    "DynamicState",
+    "damping_coefficients",
+    "stable_timestep",
+    "rk2_step",
+    "verlet_step",
+    "EquilibriumSolver",
+]
+
+#: nodes farther than this from their rest positions (cm) mean the simulation has blown up
+RUNAWAY_DISTANCE = 30.0
+
+
+class SimulationError(FloatingPointError):
+    """A simulation step diverged (non-finite values or runaway energy)."""
+
+
+class DynamicState:
+    """Positions and velocities of all nodes (a small mutable record)."""
+
+    __slots__ = ("x", "v", "t")
+
+    def __init__(self, x: np.ndarray, v: np.ndarray | None = None, t: float = 0.0):
+        self.x = np.array(x, dtype=np.float64)
+        self.v = np.zeros_like(self.x) if v is None else np.array(v, dtype=np.float64)
+        self.t = float(t)
+
+
+def _volume_gradients(lattice, x=None) -> np.ndarray:
+    """(e, 6, 3) gradients of the prism volumes at ``x`` (rest when omitted)."""
+    from .lattice import PRISM_TETS
+
+    x = lattice.rest if x is None else x
+    p = x[lattice.prisms]
+    grad = np.zeros_like(p)
+    for t in PRISM_TETS:
+        p0, p1, p2, p3 = (p[:, t[c]] for c in range(4))
+        g1 = np.cross(p2 - p0, p3 - p0) / 6.0
+        g2 = np.cross(p3 - p0, p1 - p0) / 6.0
+        g3 = np.cross(p1 - p0, p2 - p0) / 6.0
+        grad[:, t[1]] += g1
+        grad[:, t[2]] += g2
+        grad[:, t[3]] += g3
+        grad[:, t[0]] -= g1 + g2 + g3
+    return grad
+
+
+def rest_stiffness_matrix(lattice, *, phase: str = "low", volume: bool = True,
+                          skull: bool = True, isotropic: bool = False) -> sp.csr_matrix:
+    """Tangent stiffness (Hessian of the lattice energy) at rest, ``3n x 3n`` over all nodes.
+
+    Parameters
+    ----------
+    lattice : Lattice
+    phase : {'low', 'high'}
+        Spring stiffness used: small-strain ``k_low`` (the true rest Hessian) or the
+        large-strain ``k_high`` (an upper bound anywhere on the extension branch).
+    volume : bool
+        Add the Gauss-Newton Hessian ``bulk / V0 * g g^T`` of the volume term.
+    skull : bool
+        Add the skull penalty stiffness on the fascia nodes (isotropically).
+    isotropic : bool
+        Use ``k I`` per spring instead of ``k n n^T`` (the projective-dynamics Laplacian,
+        which bounds the spring Hessian in any configuration).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, node-major (``3 * node + axis``).
+    """
+    if phase not in ("low", "high"):
+        raise ValueError(f"phase must be 'low' or 'high', got {phase!r}")
+    n = lattice.n_nodes
+    i = lattice.springs[:, 0].astype(np.int64)
+    j = lattice.springs[:, 1].astype(np.int64)
+    k = lattice.k_low if phase == "low" else lattice.k_high
+    if isotropic:
+        blk = k[:, None, None] * np.eye(3)[None]
+    else:
+        r = lattice.rest[j] - lattice.rest[i]
+        u = r / np.linalg.norm(r, axis=1, keepdims=True)
+        blk = k[:, None, None] * u[:, :, None] * u[:, None, :]
+    a3 = np.arange(3)
+    rows, cols, vals = [], [], []
+    for (p, q, sgn) in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+        rows.append((3 * p[:, None, None] + a3[None, :, None]).repeat(3, 2).ravel())
+        cols.append((3 * q[:, None, None] + a3[None, None, :]).repeat(3, 1).ravel())
+        vals.append((sgn * blk).ravel())
+    if volume:
+        g = _volume_gradients(lattice).reshape(len(lattice.prisms), 18)
+        c = lattice.bulk / lattice.rest_volume
+        dof = (3 * lattice.prisms.astype(np.int64)[:, :, None] + a3).reshape(-1, 18)
+        rows.append(np.repeat(dof, 18, axis=1).ravel())
+        cols.append(np.tile(dof, (1, 18)).ravel())
+        vals.append((c[:, None, None] * g[:, :, None] * g[:, None, :]).ravel())
+    if skull:
+        nodes = lattice.skull_nodes.astype(np.int64)
+        dof = (3 * nodes[:, None] + a3).ravel()
+        rows.append(dof)
+        cols.append(dof)
+        vals.append(np.repeat(lattice.skull_k, 3))
+    mat = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(3 * n, 3 * n))
+    return mat.tocsr()
+
+
+def isotropic_matrix(lattice, *, phase: str = "low", volume_weight: float = 1.0):
+    """``n x n`` node matrix: spring Laplacian plus the scalar Gram form of the volume term
+    (``bulk / V0 * g_a . g_b``); as ``A kron I3`` it is a rotation-invariant approximation of
+    the lattice stiffness (projective dynamics)."""
+    n = lattice.n_nodes
+    i = lattice.springs[:, 0].astype(np.int64)
+    j = lattice.springs[:, 1].astype(np.int64)
+    k = lattice.k_low if phase == "low" else lattice.k_high
+    rows = [i, j, i, j]
+    cols = [i, j, j, i]
+    vals = [k, k, -k, -k]
+    if volume_weight > 0:
+        g = _volume_gradients(lattice)
+        c = volume_weight * lattice.bulk / lattice.rest_volume
+        gram = c[:, None, None] * np.einsum("eak,ebk->eab", g, g)
+        pr = lattice.prisms.astype(np.int64)
+        rows.append(np.repeat(pr, 6, axis=1).ravel())
+        cols.append(np.tile(pr, (1, 6)).ravel())
+        vals.append(gram.ravel())
+    mat = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(n, n))
+    return mat.tocsr()
+
+
+def _node_stiffness(lattice) -> np.ndarray:
+    """Gershgorin bound of the stiffness seen by every node (large-strain springs, volume,
+    skull)."""
+    kmat = rest_stiffness_matrix(lattice, phase="high", isotropic=True)
+    row = np.asarray(abs(kmat).sum(axis=1)).ravel()
+    return row.reshape(-1, 3).max(axis=1)
+
+
+def damping_coefficients(lattice, ratio: float = 1.05) -> np.ndarray:
+    """Velocity damping ``gamma_i = 2 ratio sqrt(m_i k_i)`` per node: ``ratio`` slightly above 1
+    makes every node's local mode slightly over-damped (004 III-B)."""
+    return 2.0 * ratio * np.sqrt(lattice.mass * np.maximum(_node_stiffness(lattice), 1e-12))
+
+
+def stable_timestep(lattice, damping: np.ndarray | None = None, safety: float = 0.8) -> float:
+    """A time step (s) inside the stability region of :func:`rk2_step` for this lattice.
+
+    Uses the Gershgorin bound ``2 k_i`` on the stiffness seen by node ``i`` and the real-axis
+    stability limit ``|lambda dt| <= 2`` of the explicit midpoint rule."""
+    free = ~lattice.fixed
+    m = lattice.mass[free]
+    k = _node_stiffness(lattice)[free]
+    g = (damping_coefficients(lattice) if damping is None else np.asarray(damping))[free]
+    # largest |eigenvalue| of m s^2 + g s + k = 0 for every node
+    disc = np.maximum(g * g - 4 * m * k, 0.0)
+    lam = np.where(g * g >= 4 * m * k, (g + np.sqrt(disc)) / (2 * m), np.sqrt(k / m))
+    return float(safety * 2.0 / lam.max())
+
+
+def _check(x, v, system: TissueSystem, *, where: str, dt=None, extra: str = "") -> None:
+    bad = not np.all(np.isfinite(x)) or (v is not None and not np.all(np.isfinite(v)))
+    if not bad:
+        disp = np.abs(x - system.lattice.rest).max()
+        if disp <= RUNAWAY_DISTANCE:
+            return
+        reason = f"runaway: a node moved {disp:.3g} cm from rest (limit {RUNAWAY_DISTANCE} cm)"
+    else:
+        reason = "non-finite positions or velocities"
+    parts = [f"{where} diverged ({reason})"]
+    if dt is not None:
+        parts.append(f"dt={dt:.3g} s (stable_timestep={stable_timestep(system.lattice):.3g} s)")
+    parts.append(f"jaw_rotation={system.jaw_rotation:.3g} rad, max |f_ext|="
+                 f"{np.abs(system.f_ext).max():.3g}")
+    if extra:
+        parts.append(extra)
+    raise SimulationError("; ".join(parts))
+
+
+def rk2_step(system: TissueSystem, state: DynamicState, dt: float,
+             damping: np.ndarray) -> DynamicState:
+    """One explicit midpoint Runge-Kutta step of ``m x'' + gamma x' = F(x)`` (004 eq. 4).
+
+    Fixed nodes take their prescribed positions and zero velocity; fascia nodes that end a
+    step inside the skull are projected out and lose their inward velocity.
+
+    Parameters
+    ----------
+    system : TissueSystem
+    state : DynamicState
+        Updated in place and returned.
+    dt : float
+        Time step in seconds (see :func:`stable_timestep`).
+    damping : (n,) array
+        Damping coefficients ``gamma_i``.
+
+    Returns
+    -------
+    DynamicState
+
+    Raises
+    ------
+    SimulationError
+        If the step produces non-finite values or a runaway.
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be finite and > 0, got {dt}")
+    m = system.lattice.mass[:, None]
+    g = np.asarray(damping)[:, None]
+    x, v = state.x, state.v
+    system.apply_boundary(x)
+    v[system.fixed] = 0.0
+    f, _ = system.forces(x)
+    a = (f - g * v) / m
+    xm = x + 0.5 * dt * v
+    vm = v + 0.5 * dt * a
+    vm[system.fixed] = 0.0
+    system.apply_boundary(xm)
+    f2, _ = system.forces(xm)
+    a2 = (f2 - g * vm) / m
+    x += dt * vm
+    v += dt * a2
+    v[system.fixed] = 0.0
+    system.apply_boundary(x)
+    _project_with_velocity(system, x, v)
+    state.t += dt
+    _check(x, v, system, where="rk2_step", dt=dt)
+    return state
+
+
+def verlet_step(system: TissueSystem, state: DynamicState, dt: float,
+                damping: np.ndarray) -> DynamicState:
+    """One damped velocity-Verlet (leapfrog) step; one force evaluation per step (001 6.3.2).
+
+    The damping force uses the half-step velocity.  Same conventions as :func:`rk2_step`.
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be finite and > 0, got {dt}")
+    m = system.lattice.mass[:, None]
+    g = np.asarray(damping)[:, None]
+    x, v = state.x, state.v
+    system.apply_boundary(x)
+    f, _ = system.forces(x)
+    # semi-implicit treatment of the damping keeps the over-damped limit stable
+    v *= 1.0
+    v[:] = (v * (1.0 - 0.5 * dt * g / m) + dt * f / m) / (1.0 + 0.5 * dt * g / m)
+    v[system.fixed] = 0.0
+    x += dt * v
+    system.apply_boundary(x)
+    _project_with_velocity(system, x, v)
+    state.t += dt
+    _check(x, v, system, where="verlet_step", dt=dt)
+    return state
+
+
+def _project_with_velocity(system: TissueSystem, x, v) -> None:
+    lat = system.lattice
+    h = system.skull_heights(x) - lat.skull_margin
+    below = h < 0
+    if np.any(below):
+        nodes = lat.skull_nodes[below]
+        nrm = system.skull_normal[below]
+        x[nodes] -= h[below, None] * nrm
+        vn = np.einsum("ij,ij->i", v[nodes], nrm)
+        v[nodes] -= np.minimum(vn, 0.0)[:, None] * nrm
+
+
+class EquilibriumSolver:
+    """Prefactored, unconditionally stable quasi-static solver (per-frame equilibrium).
+
+    Minimises the lattice energy ``E(x)`` (springs + volume + skull - muscle work) over the free
+    nodes by L-BFGS whose initial inverse Hessian is ``A^{-1}`` with ``A`` the constant,
+    rotation-invariant projective-dynamics matrix (spring Laplacian plus the scalar Gram form
+    of the volume term, :func:`isotropic_matrix`).  ``A`` is an ``n x n`` node matrix (one
+    factor serves x, y and z), factored once per lattice with SuperLU and reused for every
+    iteration of every frame.  An Armijo line search makes every iteration lower the energy
+    (no time step, so no stability limit); each frame starts from the previous equilibrium.
+
+    Parameters
+    ----------
+    system : TissueSystem
+    history : int
+        Number of L-BFGS correction pairs (>= 0; 0 gives preconditioned gradient descent,
+        i.e. the plain local-global iteration with a line search).
+    phase : {'low', 'high'}
+        Spring stiffness used in ``A``.
+    volume_weight : float
+        Weight of the volume term in ``A``.
+    """
+
+    def __init__(self, system: TissueSystem, *, history: int = 8, phase: str = "low",
+                 volume_weight: float = 1.0):
+        if history < 0:
+            raise ValueError(f"history must be >= 0, got {history}")
+        if phase not in ("low", "high"):
+            raise ValueError(f"phase must be 'low' or 'high', got {phase!r}")
+        if not volume_weight >= 0:
+            raise ValueError(f"volume_weight must be >= 0, got {volume_weight}")
+        self.system = system
+        self.history = int(history)
+        lat = system.lattice
+        free = system.free
+        a = isotropic_matrix(lat, phase=phase, volume_weight=volume_weight)
+        a = a[free][:, free].tocsc()
+        a = a + sp.diags(np.full(a.shape[0], 1e-9 * a.diagonal().mean()))
+        self.matrix = a.tocsc()
+        self._lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                             options={"SymmetricMode": True})
+        self.last_iterations = 0
+        self.last_step = np.inf
+        self.total_iterations = 0
+
+    def _solve(self, g_flat: np.ndarray) -> np.ndarray:
+        return self._lu.solve(np.ascontiguousarray(g_flat.reshape(-1, 3))).ravel()
+
+    def solve(self, x0: np.ndarray, *, tol: float = 3e-4, max_iter: int = 1000) -> np.ndarray:
+        """Relax the lattice to equilibrium, starting from ``x0`` (not modified).
+
+        Parameters
+        ----------
+        x0 : (n, 3) array
+            Starting positions (e.g. the previous frame's equilibrium).
+        tol : float
+            Stop when the largest nodal component of the quasi-Newton step is below ``tol`` cm.
+        max_iter : int
+            Iteration cap; reaching it raises :class:`SimulationError`.
+
+        Returns
+        -------
+        x : (n, 3) array
+            Equilibrium positions (fascia projected out of the skull).
+        """
+        if not (np.isfinite(tol) and tol > 0):
+            raise ValueError(f"tol must be finite and > 0, got {tol}")
+        history = self.history
+        sysm = self.system
+        free = sysm.free
+        x = np.array(x0, dtype=np.float64)
+        sysm.apply_boundary(x)
+        sysm.project_skull(x)
+        f, energy = sysm.forces(x, np.empty_like(x))
+        g = -f[free].ravel()
+        s_hist, y_hist, rho_hist = [], [], []
+        it = 0
+        step = np.inf
+        while True:
+            # two-loop recursion with H0 = A^{-1}
+            q = g.copy()
+            alphas = []
+            for s_k, y_k, r_k in zip(reversed(s_hist), reversed(y_hist), reversed(rho_hist)):
+                a_k = r_k * (s_k @ q)
+                alphas.append(a_k)
+                q -= a_k * y_k
+            z = self._solve(q)
+            for (s_k, y_k, r_k), a_k in zip(zip(s_hist, y_hist, rho_hist), reversed(alphas)):
+                b_k = r_k * (y_k @ z)
+                z += (a_k - b_k) * s_k
+            p = -z
+            slope = float(g @ p)
+            if slope >= 0:          # not a descent direction: restart with the preconditioner
+                s_hist.clear()
+                y_hist.clear()
+                rho_hist.clear()
+                p = -self._solve(g)
+                slope = float(g @ p)
+            step = float(np.abs(p).max())
+            if step <= tol:
+                break
+            it += 1
+            if it > max_iter:
+                raise SimulationError(
+                    f"EquilibriumSolver did not converge in max_iter={max_iter} iterations "
+                    f"(last update {step:.3g} cm > tol={tol:.3g} cm; jaw_rotation="
+                    f"{sysm.jaw_rotation:.3g} rad, max |f_ext|={np.abs(sysm.f_ext).max():.3g})")
+            xf = x[free].ravel()
+            alpha = 1.0
+            xn = x.copy()
+            for _ in range(30):
+                xn[free] = (xf + alpha * p).reshape(-1, 3)
+                fn, en = sysm.forces(xn, np.empty_like(x))
+                if np.isfinite(en) and en <= energy + 1e-4 * alpha * slope:
+                    break
+                alpha *= 0.5
+            else:
+                _check(xn + (0.0 if np.isfinite(en) else np.nan), None, sysm,
+                       where="EquilibriumSolver")
+            gn = -fn[free].ravel()
+            s_k = alpha * p
+            y_k = gn - g
+            sy = float(s_k @ y_k)
+            if sy > 1e-12 * float(y_k @ y_k):
+                s_hist.append(s_k)
+                y_hist.append(y_k)
+                rho_hist.append(1.0 / sy)
+                if len(s_hist) > history:
+                    s_hist.pop(0)
+                    y_hist.pop(0)
+                    rho_hist.pop(0)
+            x, g, energy = xn, gn, en
+        sysm.project_skull(x)
+        self.last_iterations = it
+        self.total_iterations += it
+        self.last_step = step
+        _check(x, None, sysm, where="EquilibriumSolver")
+        return x
+
