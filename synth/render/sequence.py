@@ -250,6 +250,8 @@ def _model_for(seed: int, resolution: float, identity_spread: float):
     from synth.mesh import FaceShape
 
     shape = FaceShape.random(int(seed), spread=identity_spread)
+    if resolution is None:
+        return FaceModel.build(shape), shape
     return FaceModel.build(shape, resolution=resolution), shape
 
 
@@ -273,7 +275,7 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
                head_motion: float = 0.0, out_of_plane: bool = True,
                illumination: float = 0.0, noise: float = 0.0, blur: float = 0.0,
                camera: str = "orthographic", supersample: int = 2, grey: bool = False,
-               flow: bool = True, intensity: float = 1.0, resolution: float = 1.0,
+               flow: bool = True, intensity: float = 1.0, resolution: float | None = None,
                identity_spread: float = 1.0, texture_size: int = 1024,
                progress=None) -> SyntheticSequence:
     """Render a synthetic sequence with exact ground truth (in memory).
@@ -309,8 +311,10 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
         Compute the flow ground truth.
     intensity : float
         Multiplier of expression / AU intensities.
-    resolution, identity_spread : float
-        Mesh resolution and identity variation of the default model.
+    resolution : float, optional
+        Mesh resolution of the default model (default: the model's own default).
+    identity_spread : float
+        Identity variation of the default model (``FaceShape.random`` spread).
     texture_size : int
     progress : callable(int, int), optional
         Called after each frame with (done, total).
@@ -419,6 +423,8 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
         "size": [width, height], "grey": bool(grey), "supersample": int(supersample),
         "camera": cam.as_dict(),
         "identity": {"shape": shape.as_dict() if shape is not None else None,
+                     "identity_spread": float(identity_spread),
+                     "resolution": getattr(mesh, "resolution", None),
                      "texture": tparams.as_dict(), "texture_size": int(texture_size),
                      "mesh_vertices": int(len(rest))},
         "source": source,

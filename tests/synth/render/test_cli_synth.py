@@ -67,3 +67,14 @@ def test_synth_contractions_csv_and_errors(tmp_path, kinematic, capsys):
         main(["synth", "--size", "ten", "-o", str(tmp_path / "o4")])
     with pytest.raises(SystemExit):
         main(["synth", "--expression", "surprise", "--au", "1:1", "-o", str(tmp_path / "o5")])
+
+
+def test_synth_command_with_the_physics_model(tmp_path):
+    out = tmp_path / "surprise"
+    rc = main(["synth", "--expression", "surprise", "--frames", "3", "--size", "64",
+               "--seed", "3", "-q", "-o", str(out)])
+    assert rc == 0
+    truth = pd.read_csv(out / "truth.csv")
+    assert len(truth) == 3 and "frontalis_inner_l" in truth.columns
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["identity"]["shape"] is not None and meta["seed"] == 3

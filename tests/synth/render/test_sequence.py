@@ -188,3 +188,24 @@ def test_video_writer_falls_back_and_says_so(tmp_path):
     assert w.path.suffix == ".avi" and w.path.exists()
     assert "ZZZZ" in w.note
     assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_physics_model_surprise_opens_a_dark_mouth():
+    """End to end with synth.model.FaceModel (the default model of the generator)."""
+    seq = synthesize(expression="surprise", frames=8, seed=3, size=128)
+    tr = seq.truth
+    assert tr.jaw_rotation.max() > 0.1
+    apex = int(tr.jaw_rotation.idxmax())
+    assert tr.fid_chin_y[apex] > tr.fid_chin_y[0] + 2          # the chin drops
+    assert tr.fid_brow_mid_l_y[apex] < tr.fid_brow_mid_l_y[0] - 0.5   # brows go up
+    assert "AU26_r" in tr.columns and tr.AU26_r[apex] > 1
+    # the mouth cavity shows as a dark region between the mouth corners
+    grey = cv2.cvtColor(seq.images[apex], cv2.COLOR_RGB2GRAY).astype(float)
+    xl, xr = tr.fid_mouth_corner_r_x[apex], tr.fid_mouth_corner_l_x[apex]
+    y = 0.5 * (tr.fid_mouth_corner_l_y[apex] + tr.fid_mouth_corner_r_y[apex])
+    cx = int(round(0.5 * (xl + xr)))
+    col0 = cv2.cvtColor(seq.images[0], cv2.COLOR_RGB2GRAY).astype(float)[:, cx]
+    below = grey[int(y):int(y) + 8, cx]
+    assert below.min() < 0.5 * np.median(col0[int(y) - 20:int(y) - 10])
+    assert seq.disoccluded[:apex].any()                        # the opening mouth uncovers
+    assert seq.meta["identity"]["shape"] is not None
