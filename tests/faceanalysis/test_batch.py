@@ -170,6 +170,10 @@ def test_run_batch_validates_arguments(corpus, tmp_path):
         run_batch(corpus["good"], tmp_path / "file")
     with pytest.raises(FileNotFoundError, match="no such file"):
         run_batch([tmp_path / "missing.avi"], tmp_path / "out")
+    (tmp_path / "file_out").mkdir()
+    inside = write_video(tmp_path / "file_out" / "overlay.avi")
+    with pytest.raises(ValueError, match="every input lies inside"):
+        run_batch([inside], tmp_path / "file_out")
 
 
 # --------------------------------------------------------------------------- one video, no cluster
@@ -336,6 +340,7 @@ def test_cli_batch(corpus, tmp_path, monkeypatch, run_cli):
     assert "4 video(s): 2 ok, 2 failed; skipped 0 finished before" in stderr
     assert "corrupt.avi" in stderr and "noface.avi" in stderr
     assert "ok=2 failed=2 left=0" in stderr and "frames/s" in stderr  # the progress bar
+    assert "distributed" not in stderr and "Traceback" not in stderr  # no cluster chatter
     # the finished ones again: skipped (and said so before any work), no cluster needed
     code, stdout, stderr = run_cli("batch", *corpus["good"][:2], "-o", out, "-q",
                                    "--scheduler", "tcp://127.0.0.1:9")
