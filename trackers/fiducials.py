@@ -154,9 +154,9 @@ def apex_fraction(points, head: HeadFrame) -> float:
     Examples
     --------
     >>> import numpy as np
-    >>> x = np.linspace(0, 30, 31)
+    >>> x = np.linspace(0, 30, 31)  # an arch whose top is at x = 10 (y down)
     >>> round(apex_fraction(np.c_[x, 0.02 * (x - 10) ** 2], HeadFrame(0, 0, 1, 0)), 2)
-    0.33
+    0.32
     """
     p = np.asarray(points, float)
     q = head.to_head(p)

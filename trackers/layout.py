@@ -104,14 +104,14 @@ TEMPLATE: dict[str, np.ndarray] = _build_template()
 #: contour is centred on the template moved by its parent's offset (the mouth follows
 #: the nose, the chin follows the lower lip), in this order.
 CONTOUR_DEFAULTS = {
-    "hairline": (False, "edge", 0.03, (0.0, 0.30), "free", None),
+    "hairline": (False, "edge", 0.022, (0.0, 0.30), "free", None),
     "brow_l": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
     "brow_r": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
     "nose_tip": (False, "valley", 0.035, (0.05, 0.25), "free", None),
     "furrow_l": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
     "furrow_r": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
     "upper_lip": (False, "valley", 0.022, (0.05, 0.15), "tip", "nose_tip"),
-    "lower_lip": (False, "edge", 0.025, (0.0, 0.10), "free", "upper_lip"),
+    "lower_lip": (False, "edge", 0.022, (0.0, 0.10), "free", "upper_lip"),
     "chin_boss": (True, "valley", 0.022, (0.05, 0.20), "free", "lower_lip"),
 }
 ENDS = ("free", "tip", "centre")
@@ -328,7 +328,7 @@ def layout_from_eyes(eye_r, eye_l, image_size, *, spacing: float | None = None,
     --------
     >>> lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
     >>> [round(v) for v in lay.contours["upper_lip"].points[0]]
-    [100, 191]
+    [100, 189]
     """
     M = _eye_similarity(eye_r, eye_l)
     iod = float(np.hypot(*M[:, 0]))

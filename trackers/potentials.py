@@ -39,6 +39,7 @@ returns the cropped array whose pixel ``[0, 0]`` is image pixel ``(x0, y0)``.
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 __all__ = [
@@ -47,6 +48,7 @@ __all__ = [
     "paper_potential",
     "valley_potential",
     "potential_from_gray",
+    "potentials_in_boxes",
     "force_field",
     "sample_bilinear",
 ]
@@ -167,17 +169,85 @@ def _blur(img, sigma):
                             borderType=cv2.BORDER_REFLECT)
 
 
-def _grad_central(f):
-    """Central-difference gradient (one-sided at the borders) of a float32 image."""
-    gx = np.empty_like(f)
-    gy = np.empty_like(f)
-    gx[:, 1:-1] = (f[:, 2:] - f[:, :-2]) * np.float32(0.5)
-    gx[:, 0] = f[:, 1] - f[:, 0]
-    gx[:, -1] = f[:, -1] - f[:, -2]
-    gy[1:-1] = (f[2:] - f[:-2]) * np.float32(0.5)
-    gy[0] = f[1] - f[0]
-    gy[-1] = f[-1] - f[-2]
-    return gx, gy
+@numba.njit(cache=True)
+def _edge_nb(g, P):
+    H, W = g.shape
+    for y in range(H):
+        y0 = y - 1 if y > 0 else 0
+        y1 = y + 1 if y < H - 1 else H - 1
+        for x in range(W):
+            x0 = x - 1 if x > 0 else 0
+            x1 = x + 1 if x < W - 1 else W - 1
+            gx = (g[y, x1] - g[y, x0]) / (x1 - x0)
+            gy = (g[y1, x] - g[y0, x]) / (y1 - y0)
+            P[y, x] = -np.sqrt(gx * gx + gy * gy)
+
+
+@numba.njit(cache=True)
+def _valley_nb(g, s2, P):
+    H, W = g.shape
+    gx = np.empty_like(g)
+    for y in range(H):
+        for x in range(W):
+            x0 = x - 1 if x > 0 else 0
+            x1 = x + 1 if x < W - 1 else W - 1
+            gx[y, x] = (g[y, x1] - g[y, x0]) / (x1 - x0)
+    for y in range(H):
+        y0 = y - 1 if y > 0 else 0
+        y1 = y + 1 if y < H - 1 else H - 1
+        for x in range(W):
+            gxx = 0.0
+            gyy = 0.0
+            if 0 < x < W - 1:
+                gxx = g[y, x + 1] - 2.0 * g[y, x] + g[y, x - 1]
+            if 0 < y < H - 1:
+                gyy = g[y + 1, x] - 2.0 * g[y, x] + g[y - 1, x]
+            gxy = (gx[y1, x] - gx[y0, x]) / (y1 - y0)
+            d = 0.5 * (gxx - gyy)
+            lam = 0.5 * (gxx + gyy) + np.sqrt(d * d + gxy * gxy)
+            P[y, x] = -s2 * lam if lam > 0.0 else 0.0
+
+
+@numba.njit(cache=True)
+def _force_nb(P, p, F):
+    H, W = P.shape
+    for y in range(H):
+        y0 = y - 1 if y > 0 else 0
+        y1 = y + 1 if y < H - 1 else H - 1
+        for x in range(W):
+            x0 = x - 1 if x > 0 else 0
+            x1 = x + 1 if x < W - 1 else W - 1
+            F[y, x, 0] = -p * (P[y, x1] - P[y, x0]) / (x1 - x0)
+            F[y, x, 1] = -p * (P[y1, x] - P[y0, x]) / (y1 - y0)
+
+
+@numba.njit(cache=True)
+def _sample_nb(P, pts, ox, oy, out):
+    """Bilinear samples of P at (x, y) - (ox, oy); NaN outside."""
+    H, W = P.shape
+    for i in range(pts.shape[0]):
+        xf = pts[i, 0] - ox
+        yf = pts[i, 1] - oy
+        if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+            out[i] = np.nan
+            continue
+        x0 = min(int(xf), W - 2)
+        y0 = min(int(yf), H - 2)
+        tx = xf - x0
+        ty = yf - y0
+        out[i] = ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
+                  + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
+
+
+def sample_or_nan(P, points, origin=(0.0, 0.0)) -> np.ndarray:
+    """Bilinear samples of a 2-D field at (x, y) points, NaN where a point is outside.
+
+    The unchecked, compiled counterpart of :func:`sample_bilinear` for inner loops.
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    out = np.empty(len(pts))
+    _sample_nb(np.ascontiguousarray(P), pts, float(origin[0]), float(origin[1]), out)
+    return out
 
 
 def gaussian_potential(image, sigma: float = 2.0, *, roi=None,
@@ -213,11 +283,11 @@ def gaussian_potential(image, sigma: float = 2.0, *, roi=None,
                                roi=roi)
 
 
-def _edge_from_gray(gray, sigma, roi):
+def _edge_from_gray(gray, sigma, roi, blurred=None):
     sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
-    g = _blur(sub, sigma)
-    gx, gy = _grad_central(g)
-    P = -cv2.magnitude(gx, gy)
+    g = _blur(sub, sigma) if blurred is None else blurred
+    P = np.empty_like(g)
+    _edge_nb(g, P)
     return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
 
 
@@ -311,21 +381,11 @@ def valley_potential(image, sigma: float = 2.0, *, roi=None,
                                roi=roi)
 
 
-def _valley_from_gray(gray, sigma, roi):
+def _valley_from_gray(gray, sigma, roi, blurred=None):
     sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
-    g = _blur(sub, sigma)
-    gxx = np.zeros_like(g)
-    gyy = np.zeros_like(g)
-    gxy = np.zeros_like(g)
-    gxx[:, 1:-1] = g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]
-    gyy[1:-1] = g[2:] - 2 * g[1:-1] + g[:-2]
-    gx, _ = _grad_central(g)
-    _, gxy = _grad_central(gx)
-    half_tr = 0.5 * (gxx + gyy)
-    disc = cv2.magnitude(0.5 * (gxx - gyy), gxy)
-    lam = half_tr + disc
-    np.maximum(lam, 0, out=lam)
-    P = lam * np.float32(-sigma * sigma)
+    g = _blur(sub, sigma) if blurred is None else blurred
+    P = np.empty_like(g)
+    _valley_nb(g, np.float32(sigma * sigma), P)
     return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
 
 
@@ -370,6 +430,60 @@ def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.
     return _paper_from_gray(gray, kind == "paper_centred", roi)
 
 
+def potentials_in_boxes(gray, specs, boxes):
+    """Potentials of several (kind, sigma) pairs, each inside its own box.
+
+    One Gaussian blur per distinct ``sigma`` is shared by all boxes (the blur sees
+    the whole ``gray`` array, so box borders are exact as long as ``gray`` extends
+    ``3 * sigma`` beyond them); the potential is then evaluated in each box only.
+    This is what the tracker uses: one small box per contour.
+
+    Parameters
+    ----------
+    gray : ndarray of float32 (H, W)
+        From :func:`to_gray`.
+    specs : sequence of (kind, sigma)
+        ``kind`` in {'edge', 'valley'}.
+    boxes : sequence of (x0, y0, x1, y1)
+        Half-open pixel bounds in ``gray``, one per spec.
+
+    Returns
+    -------
+    list of ndarray of float32
+        ``P`` of each box (pixel [0, 0] = box corner).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = to_gray(np.eye(20))
+    >>> [P.shape for P in potentials_in_boxes(g, [("edge", 1.0), ("valley", 1.0)],
+    ...                                       [(0, 0, 5, 6), (2, 2, 12, 12)])]
+    [(6, 5), (10, 10)]
+    """
+    gray = np.asarray(gray)
+    if gray.ndim != 2 or gray.dtype != np.float32:
+        raise ValueError("gray must be a 2-D float32 array from to_gray")
+    if len(specs) != len(boxes):
+        raise ValueError(f"need one box per spec, got {len(specs)} specs and {len(boxes)} boxes")
+    blurred = {}
+    out = []
+    for (kind, sigma), box in zip(specs, boxes):
+        sigma = _check_sigma(sigma)
+        if kind not in ("edge", "valley"):
+            raise ValueError(f"kind must be 'edge' or 'valley', got {kind!r}")
+        x0, y0, x1, y1 = _check_roi(box, gray.shape)
+        if sigma not in blurred:
+            blurred[sigma] = _blur(gray, sigma)
+        g = blurred[sigma][y0:y1, x0:x1]
+        P = np.empty((y1 - y0, x1 - x0), np.float32)
+        if kind == "edge":
+            _edge_nb(g, P)
+        else:
+            _valley_nb(g, np.float32(sigma * sigma), P)
+        out.append(P)
+    return out
+
+
 def force_field(potential, p: float = 1.0) -> np.ndarray:
     """Image force ``-p * grad P`` on the pixel grid (central differences).
 
@@ -402,10 +516,8 @@ def force_field(potential, p: float = 1.0) -> np.ndarray:
     p = float(p)
     if not np.isfinite(p):
         raise ValueError(f"p must be finite, got {p}")
-    gx, gy = _grad_central(P)
     F = np.empty(P.shape + (2,), np.float32)
-    F[..., 0] = gx * np.float32(-p)
-    F[..., 1] = gy * np.float32(-p)
+    _force_nb(np.ascontiguousarray(P), np.float32(p), F)
     return F
 
 

@@ -316,13 +316,23 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange):
                 R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1 + zc[i, 2] * h2
 
 
+@numba.njit(cache=True, inline="always")
+def _pgrad(P, k, y, x, h, w):
+    """-grad P at pixel (y, x) of field k: central differences, one-sided at borders."""
+    x0 = x - 1 if x > 0 else 0
+    x1 = x + 1 if x < w - 1 else w - 1
+    y0 = y - 1 if y > 0 else 0
+    y1 = y + 1 if y < h - 1 else h - 1
+    gx = (P[k, y, x1] - P[k, y, x0]) / (x1 - x0)
+    gy = (P[k, y1, x] - P[k, y0, x]) / (y1 - y0)
+    return -gx, -gy
+
+
 @numba.njit(cache=True, fastmath=False)
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
-                  cb, zc, cidx, ccoef, cM, crange, fields, ox, oy, gdt, dt, tol,
-                  min_iter, max_iter, outside, split, max_step, prv, normal_only):
+                  cb, zc, cidx, ccoef, cM, crange, fields, fgeom, from_potential, gdt, dt,
+                  tol, min_iter, max_iter, outside, split, max_step, prv, normal_only):
     n = X.shape[0]
-    H = fields.shape[1]
-    W = fields.shape[2]
     R = np.empty((n, 2))
     it = 0
     move = np.inf
@@ -331,8 +341,11 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
         for i in range(n):
             fx = 0.0
             fy = 0.0
-            xf = X[i, 0] - ox
-            yf = X[i, 1] - oy
+            k = fidx[i]
+            xf = X[i, 0] - fgeom[k, 0]
+            yf = X[i, 1] - fgeom[k, 1]
+            H = int(fgeom[k, 2])
+            W = int(fgeom[k, 3])
             if xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1:
                 x0 = int(xf)
                 y0 = int(yf)
@@ -342,15 +355,24 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
                     y0 = H - 2
                 tx = xf - x0
                 ty = yf - y0
-                k = fidx[i]
                 w00 = (1.0 - tx) * (1.0 - ty)
                 w01 = tx * (1.0 - ty)
                 w10 = (1.0 - tx) * ty
                 w11 = tx * ty
-                fx = (w00 * fields[k, y0, x0, 0] + w01 * fields[k, y0, x0 + 1, 0]
-                      + w10 * fields[k, y0 + 1, x0, 0] + w11 * fields[k, y0 + 1, x0 + 1, 0])
-                fy = (w00 * fields[k, y0, x0, 1] + w01 * fields[k, y0, x0 + 1, 1]
-                      + w10 * fields[k, y0 + 1, x0, 1] + w11 * fields[k, y0 + 1, x0 + 1, 1])
+                if from_potential:
+                    a0, b0 = _pgrad(fields, k, y0, x0, H, W)
+                    a1, b1 = _pgrad(fields, k, y0, x0 + 1, H, W)
+                    a2, b2 = _pgrad(fields, k, y0 + 1, x0, H, W)
+                    a3, b3 = _pgrad(fields, k, y0 + 1, x0 + 1, H, W)
+                    fx = w00 * a0 + w01 * a1 + w10 * a2 + w11 * a3
+                    fy = w00 * b0 + w01 * b1 + w10 * b2 + w11 * b3
+                else:
+                    fx = (w00 * fields[k, y0, 2 * x0] + w01 * fields[k, y0, 2 * x0 + 2]
+                          + w10 * fields[k, y0 + 1, 2 * x0]
+                          + w11 * fields[k, y0 + 1, 2 * x0 + 2])
+                    fy = (w00 * fields[k, y0, 2 * x0 + 1] + w01 * fields[k, y0, 2 * x0 + 3]
+                          + w10 * fields[k, y0 + 1, 2 * x0 + 1]
+                          + w11 * fields[k, y0 + 1, 2 * x0 + 3])
             else:
                 outside[node_contour[i]] = True
             if normal_only[i]:
@@ -708,18 +730,24 @@ class ContourSystem:
         return self.p_n[self.contour_slice(k)].copy()
 
     # ------------------------------------------------------------------ dynamics
-    def relax(self, forces, *, origin=(0.0, 0.0), user_forces=None, tol: float = 1e-3,
-              max_iter: int = 1000, min_iter: int = 1) -> RelaxResult:
+    def relax(self, forces=None, *, potentials=None, origin=(0.0, 0.0), user_forces=None,
+              tol: float = 1e-3, max_iter: int = 1000, min_iter: int = 1) -> RelaxResult:
         """Integrate eq. 11 until no node moves more than ``tol`` pixels in a step.
 
         Parameters
         ----------
-        forces : array_like, (H, W, 2) or (K, H, W, 2)
+        forces : array_like, (H, W, 2) or (K, H, W, 2), optional
             Image force fields ``-grad P`` (:func:`trackers.potentials.force_field`
             with ``p=1``); each contour uses field ``Contour.field`` and its own
             strength ``p``.
-        origin : (x, y)
-            Image position of pixel ``[0, 0]`` of the fields (the corner of an ROI).
+        potentials : array_like (H, W), (K, H, W) or a sequence of K 2-D arrays, optional
+            Instead of ``forces``: the potentials themselves; ``-grad P`` is taken by
+            central differences at the four pixels around each node and interpolated
+            bilinearly (the same numbers as ``force_field``, without computing the
+            field everywhere). A sequence may hold fields of different shapes.
+        origin : (x, y) or sequence of K (x, y)
+            Image position of pixel ``[0, 0]`` of the fields (the corner of an ROI),
+            one for all or one per field.
         user_forces : array_like, (N, 2), optional
             Extra forces ``f^u`` on every node (eq. 12), constant during the call.
         tol : float
@@ -734,31 +762,70 @@ class ContourSystem:
         Raises
         ------
         ValueError
-            For a bad field or user force array, or when a node starts outside the
-            field.
+            For bad fields or user forces, or when a node starts outside its field.
         """
-        F = np.asarray(forces)
-        if F.ndim == 3:
-            F = F[None]
-        if F.ndim != 4 or F.shape[-1] != 2 or F.shape[1] < 2 or F.shape[2] < 2:
-            raise ValueError(f"forces must have shape (H, W, 2) or (K, H, W, 2) with H, W >= 2,"
-                             f" got {np.shape(forces)}")
-        F = np.ascontiguousarray(F, dtype=np.float32)
+        if (forces is None) == (potentials is None):
+            raise ValueError("give exactly one of forces or potentials")
+        if forces is not None:
+            F = np.asarray(forces)
+            if F.ndim == 3:
+                F = F[None]
+            if F.ndim != 4 or F.shape[-1] != 2 or F.shape[1] < 2 or F.shape[2] < 2:
+                raise ValueError(f"forces must have shape (H, W, 2) or (K, H, W, 2) with "
+                                 f"H, W >= 2, got {np.shape(forces)}")
+            shapes = [F.shape[1:3]] * F.shape[0]
+            data = np.ascontiguousarray(F, dtype=np.float32).reshape(
+                F.shape[0], F.shape[1], 2 * F.shape[2])
+            from_potential = False
+        else:
+            if isinstance(potentials, np.ndarray) and potentials.ndim in (2, 3):
+                plist = [potentials] if potentials.ndim == 2 else list(potentials)
+            else:
+                plist = [np.asarray(q) for q in potentials]
+            shapes = []
+            for q in plist:
+                if np.ndim(q) != 2 or q.shape[0] < 2 or q.shape[1] < 2:
+                    raise ValueError(f"each potential must be 2-D and at least 2x2, got "
+                                     f"shape {np.shape(q)}")
+                shapes.append(q.shape)
+            if len({tuple(sh) for sh in shapes}) == 1:
+                data = np.ascontiguousarray(np.stack(plist) if len(plist) > 1
+                                            else np.asarray(plist[0])[None],
+                                            dtype=np.float32)
+            else:
+                hm = max(sh[0] for sh in shapes)
+                wm = max(sh[1] for sh in shapes)
+                data = np.zeros((len(plist), hm, wm), np.float32)
+                for k, q in enumerate(plist):
+                    data[k, :q.shape[0], :q.shape[1]] = q
+            from_potential = True
+        K = len(shapes)
         need = int(self.fidx.max()) + 1
-        if F.shape[0] < need:
-            raise ValueError(f"a contour uses force field {need - 1} but only {F.shape[0]} "
-                             "were given")
-        ox, oy = float(origin[0]), float(origin[1])
-        H, W = F.shape[1:3]
-        rel = self.X - [ox, oy]
-        bad = (rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > W - 1) | (rel[:, 1] > H - 1)
+        if need > K:
+            raise ValueError(f"a contour uses field {need - 1} but only {K} were given")
+        org = np.asarray(origin, dtype=np.float64)
+        if org.shape == (2,):
+            org = np.tile(org, (K, 1))
+        if org.shape != (K, 2) or not np.isfinite(org).all():
+            raise ValueError(f"origin must be (x, y) or one (x, y) per field ({K}), got "
+                             f"shape {np.shape(origin)}")
+        fgeom = np.empty((K, 4))
+        fgeom[:, :2] = org
+        fgeom[:, 2:] = np.asarray(shapes, dtype=np.float64)
+        if not np.isfinite(data).all():
+            raise ValueError("forces / potentials contain NaN or infinite values")
+        g = fgeom[self.fidx]
+        rel = self.X - g[:, :2]
+        bad = ((rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > g[:, 3] - 1)
+               | (rel[:, 1] > g[:, 2] - 1))
         if bad.any():
             i = int(np.argmax(bad))
             k = int(self.node_contour[i])
+            ox, oy, Hk, Wk = g[i]
             raise ValueError(f"node {i - int(self.starts[k])} of contour {self.names[k]!r} "
                              f"at (x={self.X[i, 0]:.2f}, y={self.X[i, 1]:.2f}) lies outside the"
-                             f" image (x in [{ox:g}, {ox + W - 1:g}], y in [{oy:g}, "
-                             f"{oy + H - 1:g}])")
+                             f" image (x in [{ox:g}, {ox + Wk - 1:g}], y in [{oy:g}, "
+                             f"{oy + Hk - 1:g}])")
         if user_forces is None:
             user = np.zeros((self.n_nodes, 2))
         else:
@@ -777,15 +844,16 @@ class ContourSystem:
         it, move = _relax_kernel(self.X, self.rest, self.nxt, self.a_s, self.nu_s, self.p_n,
                                  self.fidx, user, self.kappa, self.anchor, self.node_contour,
                                  self._cb, self._zc, self._cidx, self._ccoef, self._cM,
-                                 self._crange, F, ox, oy, float(self.gdt[0]),
-                                 float(self.dts[0]), tol, min_iter, max_iter, outside,
-                                 self.split, self.max_step, self.prv, self.normal_only)
+                                 self._crange, data, fgeom, from_potential,
+                                 float(self.gdt[0]), float(self.dts[0]), tol, min_iter,
+                                 max_iter, outside, self.split, self.max_step, self.prv,
+                                 self.normal_only)
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
         return RelaxResult(int(it), float(move), bool(move < tol), outside)
 
-    def step(self, forces, n: int = 1, **kwargs) -> RelaxResult:
+    def step(self, forces=None, n: int = 1, **kwargs) -> RelaxResult:
         """Take exactly ``n`` time steps (no equilibrium test). See :meth:`relax`."""
         return self.relax(forces, tol=0.0, max_iter=n, min_iter=n, **kwargs)
 

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from trackers.fiducials import (
@@ -53,7 +54,7 @@ from trackers.fiducials import (
     head_frame,
 )
 from trackers.layout import CONTOUR_NAMES, FaceLayout
-from trackers.potentials import force_field, potential_from_gray, sample_bilinear, to_gray
+from trackers.potentials import potentials_in_boxes, sample_or_nan, to_gray
 from trackers.snakes import (
     Contour,
     ContourSystem,
@@ -132,18 +133,17 @@ def _trim_start(p, s):
 
 
 def _sample_safe(P, pts, origin):
-    H, W = P.shape
-    q = np.asarray(pts, float) - origin
-    ok = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] <= W - 1) & (q[:, 1] <= H - 1)
-    out = np.full(len(q), np.nan)
-    if ok.any():
-        out[ok] = sample_bilinear(P, q[ok])
-    return out
+    return sample_or_nan(P, pts, origin)
 
 
 def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int = 0,
-               gray=None, inset: bool = True):
+               gray=None, gray_origin=None, inset: bool = True):
     """Relocate one end of an open contour on the end of the dark line it follows.
+
+    The potential is sampled along the contour (inside) and along its end tangent
+    (outside); the end is put where the ravine has risen to half its reference
+    depth, provided the ravine then fades out (to a quarter of that depth within
+    ``3 * sigma``; a line that merely weakens has no end there).
 
     Parameters
     ----------
@@ -158,8 +158,10 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     end : {0, -1}
         Which end.
     gray : ndarray (H, W), optional
-        Grey image on the same grid; with ``inset`` the end is moved back by the
-        line's half-width, measured across the line from ``gray``.
+        Grey image; with ``inset`` the end is moved back by the line's half-width,
+        measured across the line from ``gray``.
+    gray_origin : (x, y), optional
+        Image position of ``gray[0, 0]`` (default: ``origin``).
     inset : bool
         Treat the feature as a band: reference depth taken just inside the end and
         the end moved back by the half-width (needs ``gray``). Otherwise a thin line:
@@ -169,109 +171,186 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     -------
     ndarray (2,) or None
         The new end, or None when no clear ravine end is found.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from trackers.potentials import valley_potential
+    >>> img = np.full((40, 80), 200, np.uint8); img[19:22, 10:60] = 40
+    >>> P = valley_potential(img, 1.5)
+    >>> pts = np.c_[np.linspace(20, 55, 16), np.full(16, 20.0)]
+    >>> refine_end(pts, P, 1.5, end=-1, inset=False).tolist()  # the band ends at x = 59.5
+    [59.5, 20.0]
     """
     p = np.asarray(points, float)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
+        raise ValueError(f"points must have shape (n >= 2, 2), got {p.shape}")
     if end not in (0, -1):
         raise ValueError(f"end must be 0 or -1, got {end}")
     if end == -1:
         p = p[::-1]
-    n = len(p)
-    k = min(3, n - 1)
-    t = p[0] - p[k]
-    norm = float(np.hypot(*t))
-    if norm < 1e-9:
-        return None
-    t /= norm
-    length = _polyline_length(p)
-    s_in = 0.45 * length if not inset else min(5.0 * sigma, 0.45 * length)
-    s_out = 5.0 * sigma
-    s = np.arange(-s_in, s_out + 1e-9, 0.25)
-    # inside: along the contour itself; outside: along the end tangent
-    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
-    path = p[0] + np.maximum(s, 0.0)[:, None] * t
-    neg = s < 0
-    path[neg, 0] = np.interp(-s[neg], arc, p[:, 0])
-    path[neg, 1] = np.interp(-s[neg], arc, p[:, 1])
-    v = _sample_safe(potential, path, np.asarray(origin, float))
-    inside = s <= 0
-    if np.isnan(v[inside]).all():
-        return None
-    if inset:
-        # a band: reference depth just inside the end (a tapering band is shallower
-        # near its end than in its middle, and its end is where *that* depth halves)
-        near = inside & (s >= -2.5 * sigma) & (s <= -1.0 * sigma)
-        if not near.any() or np.isnan(v[near]).all():
-            return None
-        depth = float(np.nanmedian(v[near]))
-        i0 = int(np.nonzero(near)[0][-1])
-    else:
-        # a line: the deepest point inside, so that a faint continuation is no end
-        i0 = int(np.nanargmin(np.where(inside, v, np.inf)))
-        depth = float(v[i0])
-    if not np.isfinite(depth) or depth >= -1e-3:
-        return None
-    half = 0.5 * depth
-    j = None
-    for m in range(i0 + 1, len(s)):
-        if np.isnan(v[m]):
-            break
-        if v[m] > half:
-            j = m
-            break
-    if j is None:
-        return None
-    f = (half - v[j - 1]) / (v[j] - v[j - 1])
-    s_end = s[j - 1] + f * (s[j] - s[j - 1])
-    # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
-    beyond = v[(s > s_end) & (s <= s_end + 3.0 * sigma)]
-    if len(beyond) == 0 or np.isnan(beyond).all() or np.nanmax(beyond) < 0.25 * depth:
-        return None
-    if inset and gray is not None:
-        hw = _half_width(gray, _path_point(p, arc, t, s_end - 2.0 * sigma), t,
-                         np.asarray(origin, float), sigma)
-        if hw is not None:
-            s_end -= hw
-    return _path_point(p, arc, t, s_end)
+    P = np.ascontiguousarray(potential, dtype=np.float32)
+    has_gray = gray is not None
+    g = np.ascontiguousarray(gray, dtype=np.float32) if has_gray else np.zeros((2, 2), np.float32)
+    go = origin if gray_origin is None else gray_origin
+    ok, x, y = _refine_end_nb(np.ascontiguousarray(p), P, float(origin[0]), float(origin[1]),
+                              float(sigma), bool(inset), g, float(go[0]), float(go[1]),
+                              has_gray)
+    return np.array([x, y]) if ok else None
 
 
-def _path_point(p, arc, t, s):
-    if s >= 0:
-        return p[0] + s * t
-    return np.array([np.interp(-s, arc, p[:, 0]), np.interp(-s, arc, p[:, 1])])
+@numba.njit(cache=True, inline="always")
+def _bil(P, x, y, ox, oy):
+    H, W = P.shape
+    xf = x - ox
+    yf = y - oy
+    if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+        return np.nan
+    x0 = min(int(xf), W - 2)
+    y0 = min(int(yf), H - 2)
+    tx = xf - x0
+    ty = yf - y0
+    return ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
+            + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
 
 
-def _half_width(gray, centre, tangent, origin, sigma):
-    """Half width at half depth of the dark line crossing ``centre`` (normal to ``tangent``)."""
-    nrm = np.array([-tangent[1], tangent[0]])
-    r = np.arange(-5.0 * sigma, 5.0 * sigma + 1e-9, 0.25)
-    v = _sample_safe(gray, centre + r[:, None] * nrm, origin)
-    if np.isnan(v).any():
-        return None
-    c = len(r) // 2
-    win = np.abs(r) <= 1.5 * sigma
-    i0 = int(np.argmin(np.where(win, v, np.inf)))
-    bottom = v[i0]
-    outer = np.abs(r) >= 3.5 * sigma
-    top = float(np.median(v[outer]))
-    if top - bottom < 5.0:
-        return None
-    half = 0.5 * (top + bottom)
+@numba.njit(cache=True)
+def _path_xy(p, arc, tx, ty, s):
+    if s >= 0.0:
+        return p[0, 0] + s * tx, p[0, 1] + s * ty
+    d = -s
+    n = p.shape[0]
+    if d >= arc[n - 1]:
+        return p[n - 1, 0], p[n - 1, 1]
+    i = 0
+    while i < n - 2 and arc[i + 1] < d:
+        i += 1
+    seg = arc[i + 1] - arc[i]
+    f = (d - arc[i]) / seg if seg > 0 else 0.0
+    return p[i, 0] + f * (p[i + 1, 0] - p[i, 0]), p[i, 1] + f * (p[i + 1, 1] - p[i, 1])
+
+
+@numba.njit(cache=True)
+def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
+    """Half width at half depth of the dark line through (cx, cy), normal to (tx, ty)."""
+    nx, ny = -ty, tx
+    m = int(np.floor(5.0 * sigma / 0.25))
+    cnt = 2 * m + 1
+    r = np.empty(cnt)
+    v = np.empty(cnt)
+    for i in range(cnt):
+        r[i] = (i - m) * 0.25
+        v[i] = _bil(gray, cx + r[i] * nx, cy + r[i] * ny, gox, goy)
+        if np.isnan(v[i]):
+            return np.nan
+    i0 = -1
+    best = np.inf
+    outer = []
+    for i in range(cnt):
+        if abs(r[i]) <= 1.5 * sigma and v[i] < best:
+            best = v[i]
+            i0 = i
+        if abs(r[i]) >= 3.5 * sigma:
+            outer.append(v[i])
+    if i0 < 0 or len(outer) == 0:
+        return np.nan
+    top = np.median(np.array(outer))
+    if top - best < 5.0:
+        return np.nan
+    half = 0.5 * (top + best)
     hi = i0
-    while hi < len(r) - 1 and v[hi] < half:
+    while hi < cnt - 1 and v[hi] < half:
         hi += 1
     lo = i0
     while lo > 0 and v[lo] < half:
         lo -= 1
     if v[hi] < half or v[lo] < half:
-        return None
-
-    def cross(a, b):
-        return r[a] + (half - v[a]) / (v[b] - v[a]) * (r[b] - r[a])
-
-    right = cross(hi - 1, hi)
-    left = cross(lo + 1, lo)
-    del c
+        return np.nan
+    right = r[hi - 1] + (half - v[hi - 1]) / (v[hi] - v[hi - 1]) * (r[hi] - r[hi - 1])
+    left = r[lo + 1] + (half - v[lo + 1]) / (v[lo] - v[lo + 1]) * (r[lo] - r[lo + 1])
     return 0.5 * (right - left)
+
+
+@numba.njit(cache=True)
+def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
+    n = p.shape[0]
+    k = min(3, n - 1)
+    tx = p[0, 0] - p[k, 0]
+    ty = p[0, 1] - p[k, 1]
+    norm = np.sqrt(tx * tx + ty * ty)
+    if norm < 1e-9:
+        return False, 0.0, 0.0
+    tx /= norm
+    ty /= norm
+    arc = np.zeros(n)
+    for i in range(1, n):
+        arc[i] = arc[i - 1] + np.sqrt((p[i, 0] - p[i - 1, 0]) ** 2 + (p[i, 1] - p[i - 1, 1]) ** 2)
+    length = arc[n - 1]
+    s_in = 0.45 * length if not inset else min(5.0 * sigma, 0.45 * length)
+    s_out = 5.0 * sigma
+    i_first = -int(np.floor(s_in / 0.25))
+    i_last = int(np.floor(s_out / 0.25 + 1e-9))
+    cnt = i_last - i_first + 1
+    s = np.empty(cnt)
+    v = np.empty(cnt)
+    any_inside = False
+    for i in range(cnt):
+        s[i] = (i_first + i) * 0.25
+        x, y = _path_xy(p, arc, tx, ty, s[i])
+        v[i] = _bil(P, x, y, ox, oy)
+        if s[i] <= 0 and not np.isnan(v[i]):
+            any_inside = True
+    if not any_inside:
+        return False, 0.0, 0.0
+    if inset:
+        vals = []
+        i0 = -1
+        for i in range(cnt):
+            if s[i] <= 0 and s[i] >= -2.5 * sigma and s[i] <= -1.0 * sigma:
+                i0 = i
+                if not np.isnan(v[i]):
+                    vals.append(v[i])
+        if i0 < 0 or len(vals) == 0:
+            return False, 0.0, 0.0
+        depth = np.median(np.array(vals))
+    else:
+        i0 = -1
+        depth = np.inf
+        for i in range(cnt):
+            if s[i] <= 0 and not np.isnan(v[i]) and v[i] < depth:
+                depth = v[i]
+                i0 = i
+    if not np.isfinite(depth) or depth >= -1e-3:
+        return False, 0.0, 0.0
+    half = 0.5 * depth
+    j = -1
+    for m in range(i0 + 1, cnt):
+        if np.isnan(v[m]):
+            break
+        if v[m] > half:
+            j = m
+            break
+    if j < 1:
+        return False, 0.0, 0.0
+    f = (half - v[j - 1]) / (v[j] - v[j - 1])
+    s_end = s[j - 1] + f * (s[j] - s[j - 1])
+    # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
+    mx = -np.inf
+    seen = False
+    for i in range(cnt):
+        if s[i] > s_end and s[i] <= s_end + 3.0 * sigma and not np.isnan(v[i]):
+            seen = True
+            if v[i] > mx:
+                mx = v[i]
+    if not seen or mx < 0.25 * depth:
+        return False, 0.0, 0.0
+    if inset and has_gray:
+        cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
+        hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
+        if not np.isnan(hw):
+            s_end -= hw
+    x, y = _path_xy(p, arc, tx, ty, s_end)
+    return True, x, y
 
 
 class Tracker:
@@ -352,25 +431,17 @@ class Tracker:
         self.refine_ends = bool(refine_ends)
         self.channel_order = channel_order
         self.names = list(CONTOUR_NAMES)
-        # one force field per (kind, sigma)
-        self.field_keys: list[tuple[str, float]] = []
-        fidx = {}
-        for name in self.names:
-            c = layout.contours[name]
-            key = (c.kind, round(float(c.sigma), 4))
-            if key not in self.field_keys:
-                self.field_keys.append(key)
-            fidx[name] = self.field_keys.index(key)
-        self.field_of = fidx
+        self.specs = [(layout.contours[n].kind, float(layout.contours[n].sigma))
+                      for n in self.names]
         contours = []
         for name in self.names:
             c = layout.contours[name]
             p0 = paper_equivalent_strength(c.sigma, params.p) if strength in ("auto", "paper") \
                 else float(strength)
             contours.append(Contour(c.points, closed=c.closed, params=params, p=p0,
-                                    field=fidx[name], name=name, normal_forces=True))
+                                    field=len(contours), name=name, normal_forces=True))
         self.system = ContourSystem(contours, params, max_step=max_step)
-        self.sigma_max = max(s for _, s in self.field_keys)
+        self.sigma_max = max(sig for _, sig in self.specs)
         self.index = 0
         self.ref_depth: dict[str, float] = {}
         self.ref_length: dict[str, float] = {}
@@ -379,19 +450,11 @@ class Tracker:
         self.last_head: HeadFrame | None = None
         self.frame_size = tuple(layout.image_size)
         iod = layout.inter_eye
-        self.motion_margin = max(6.0, 0.12 * iod)
+        self.motion_margin = max(6.0, 0.08 * iod) + 2.0 * self.sigma_max
 
     # ------------------------------------------------------------------ helpers
-    def _roi(self, W, H):
-        X = self.system.X
-        m = self.motion_margin + 3.0 * self.sigma_max
-        x0 = int(max(np.floor(X[:, 0].min() - m), 0))
-        y0 = int(max(np.floor(X[:, 1].min() - m), 0))
-        x1 = int(min(np.ceil(X[:, 0].max() + m) + 1, W))
-        y1 = int(min(np.ceil(X[:, 1].max() + m) + 1, H))
-        return x0, y0, x1, y1
-
     def _fields(self, frame):
+        """Per-contour potentials (each in a box around its contour) and their origins."""
         img = np.asarray(frame)
         if img.ndim < 2:
             raise ValueError(f"frame {self.index}: must be 2-D or 3-D, got shape {img.shape}")
@@ -399,34 +462,45 @@ class Tracker:
         if self.frame_size != (W, H):
             raise ValueError(f"frame {self.index} is {W}x{H} but the layout was made for "
                              f"{self.frame_size[0]}x{self.frame_size[1]}")
-        x0, y0, x1, y1 = self._roi(W, H)
+        X = self.system.X
+        m = self.motion_margin
+        lo = np.floor(X.min(0) - m).astype(int)
+        hi = np.ceil(X.max(0) + m).astype(int) + 1
         pad = int(np.ceil(3 * self.sigma_max)) + 3
-        X0, Y0 = max(x0 - pad, 0), max(y0 - pad, 0)
-        X1, Y1 = min(x1 + pad, W), min(y1 + pad, H)
+        X0, Y0 = max(lo[0] - pad, 0), max(lo[1] - pad, 0)
+        X1, Y1 = min(hi[0] + pad, W), min(hi[1] + pad, H)
         try:
             gray = to_gray(img[Y0:Y1, X0:X1], channel_order=self.channel_order)
         except ValueError as exc:
             raise ValueError(f"frame {self.index}: {exc}") from None
-        roi = (x0 - X0, y0 - Y0, x1 - X0, y1 - Y0)
-        Ps = [potential_from_gray(gray, kind, sig, roi=roi) for kind, sig in self.field_keys]
-        F = np.stack([force_field(P) for P in Ps])
-        g_roi = gray[roi[1]:roi[3], roi[0]:roi[2]]
-        return F, Ps, g_roi, (float(x0), float(y0))
+        boxes, origins = [], []
+        gh, gw = gray.shape
+        for k in range(len(self.names)):
+            pts = X[self.system.contour_slice(k)]
+            bx0 = int(max(np.floor(pts[:, 0].min() - m) - X0, 0))
+            by0 = int(max(np.floor(pts[:, 1].min() - m) - Y0, 0))
+            bx1 = int(min(np.ceil(pts[:, 0].max() + m) + 1 - X0, gw))
+            by1 = int(min(np.ceil(pts[:, 1].max() + m) + 1 - Y0, gh))
+            boxes.append((bx0, by0, bx1, by1))
+            origins.append((float(X0 + bx0), float(Y0 + by0)))
+        specs = [self.specs[k] for k in range(len(self.names))]
+        Ps = potentials_in_boxes(gray, specs, boxes)
+        return Ps, np.asarray(origins), gray, (float(X0), float(Y0))
 
-    def _depths(self, Ps, origin):
+    def _depths(self, Ps, origins):
         out = {}
         for k, name in enumerate(self.names):
             pts = self.system.X[self.system.contour_slice(k)]
-            v = _sample_safe(Ps[self.field_of[name]], pts, np.asarray(origin))
+            v = _sample_safe(Ps[k], pts, origins[k])
             out[name] = float(-np.nanmean(v)) if np.isfinite(v).any() else 0.0
         return out
 
-    def _auto_strength(self, Ps, origin):
+    def _auto_strength(self, Ps, origins):
         gdt = self.params.gamma / self.params.dt
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
             pts = self.system.X[self.system.contour_slice(k)]
-            P = Ps[self.field_of[name]]
+            P, origin = Ps[k], origins[k]
             tang = np.gradient(pts, axis=0)
             tang /= np.maximum(np.hypot(*tang.T), 1e-9)[:, None]
             nrm = np.c_[-tang[:, 1], tang[:, 0]]
@@ -445,7 +519,7 @@ class Tracker:
                 p = float(np.clip(p, 0.1 * p_paper, 100 * p_paper))
             self.system.set_strength(k, p)
 
-    def _refine(self, Ps, gray, origin):
+    def _refine(self, Ps, origins, gray, gorigin):
         if not self.refine_ends:
             return
         for k, name in enumerate(self.names):
@@ -454,11 +528,10 @@ class Tracker:
                 continue
             pts = self.system.contour_points(k)
             n = len(pts)
-            P = Ps[self.field_of[name]]
             new = pts
             for end in (0, -1):
-                q = refine_end(new, P, c.sigma, origin=origin, end=end, gray=gray,
-                               inset=c.ends == "centre")
+                q = refine_end(new, Ps[k], c.sigma, origin=origins[k], end=end, gray=gray,
+                               gray_origin=gorigin, inset=c.ends == "centre")
                 if q is None:
                     continue
                 e = new[0] if end == 0 else new[-1]
@@ -527,21 +600,26 @@ class Tracker:
             (the message names the frame index).
         """
         first = self.index == 0
-        F, Ps, gray, origin = self._fields(frame)
+        Ps, origins, gray, gorigin = self._fields(frame)
         cap = self.first_max_iter if first else self.max_iter
-        res = self.system.relax(F, origin=origin, tol=self.tol, max_iter=cap)
+
+        def relax():
+            return self.system.relax(potentials=Ps, origin=origins, tol=self.tol,
+                                     max_iter=cap)
+
+        res = relax()
         iters = res.iterations
         if first and self.strength_mode == "auto":
-            self._auto_strength(Ps, origin)
-            res = self.system.relax(F, origin=origin, tol=self.tol, max_iter=cap)
+            self._auto_strength(Ps, origins)
+            res = relax()
             iters += res.iterations
-        self._refine(Ps, gray, origin)
-        if self.refine_ends:
-            r2 = self.system.relax(F, origin=origin, tol=self.tol, max_iter=cap)
-            iters += r2.iterations
-            self._refine(Ps, gray, origin)
+        self._refine(Ps, origins, gray, gorigin)
+        if first and self.refine_ends:
+            # the first frame moves the ends farthest: settle and relocate once more
+            iters += relax().iterations
+            self._refine(Ps, origins, gray, gorigin)
         outside = res.outside
-        depths = self._depths(Ps, origin)
+        depths = self._depths(Ps, origins)
         if first:
             for k, name in enumerate(self.names):
                 self.ref_depth[name] = depths[name]
@@ -557,13 +635,13 @@ class Tracker:
             for k in lost:
                 self.system.set_contour(k, self._layout_points(k, base), reset_rest=True)
                 reinit.add(self.names[k])
-            # the new positions must lie inside the fields' ROI
-            F, Ps, gray, origin = self._fields(frame)
-            r3 = self.system.relax(F, origin=origin, tol=self.tol, max_iter=cap)
+            # the new positions need their own boxes
+            Ps, origins, gray, gorigin = self._fields(frame)
+            r3 = relax()
             iters += r3.iterations
-            self._refine(Ps, gray, origin)
+            self._refine(Ps, origins, gray, gorigin)
             outside = r3.outside
-            depths = self._depths(Ps, origin)
+            depths = self._depths(Ps, origins)
             quality = self._quality(depths, outside, reinit)
             head = self._head()
         if first and head is not None:

@@ -1,0 +1,185 @@
+"""Tracking: frames per second of the nine-contour face layout on 640x480 video (decode excluded).
+
+Per frame the tracker computes the image potentials (edge + two valley widths, inside
+the region the contours occupy), relaxes the nine contours from the previous
+equilibrium to a movement threshold, relocates the feature ends, checks each
+contour's quality, and computes the head frame and the 11 fiducials: everything
+:meth:`trackers.Tracker.track` does. Frames are decoded (or drawn) beforehand.
+
+Cases:
+
+* ``synthetic 640x480``: a face drawn with OpenCV from the layout template (hair,
+  brows, furrows, nostrils, lips, mouth line, chin boss) on textured skin with
+  sensor noise, moving: head translation and roll, brows raising, mouth opening.
+  Also reports the mean fiducial error against the drawn truth.
+* ``real <name>``: the first frames of each video in ``../shared/data/real`` when
+  present (layout detected on the first frame), resized to 640x480.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _harness import Figure  # noqa: E402
+
+from trackers import FIDUCIAL_NAMES, Tracker, detect_layout, layout_from_eyes  # noqa: E402
+from trackers.layout import TEMPLATE  # noqa: E402
+
+REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real"
+W, H = 640, 480
+
+
+def _similarity(eye_r, eye_l):
+    d = np.subtract(eye_l, eye_r)
+    iod = float(np.hypot(*d))
+    c, s = d / iod
+    return np.array([[c, -s], [s, c]]) * iod, 0.5 * (np.asarray(eye_r) + np.asarray(eye_l))
+
+
+def _poly(img, pts, colour, thickness, closed=False):
+    p = np.round(np.asarray(pts) * 16).astype(np.int32).reshape(-1, 1, 2)
+    cv2.polylines(img, [p], closed, colour, thickness, cv2.LINE_AA, shift=4)
+
+
+def draw_face(t: float, rng: np.random.Generator, skin_noise: np.ndarray):
+    """One frame of the drawn face at time ``t`` in [0, 1]; returns (RGB image, truth)."""
+    dx, dy = 6.0 * np.sin(2 * np.pi * t), 4.0 * np.sin(4 * np.pi * t)
+    roll = 0.03 * np.sin(2 * np.pi * t)
+    raise_ = 0.05 * np.sin(np.pi * t) ** 2  # brow raise, inter-eye units
+    jaw = 0.06 * np.sin(np.pi * t) ** 2  # mouth opening
+    centre = np.array([320.0 + dx, 200.0 + dy])
+    half = 55.0
+    eye_r = centre + half * np.array([-np.cos(roll), -np.sin(roll)])
+    eye_l = centre + half * np.array([np.cos(roll), np.sin(roll)])
+    R, o = _similarity(eye_r, eye_l)
+
+    def tf(p, shift=(0.0, 0.0)):
+        return (np.asarray(p) + shift) @ R.T + o
+
+    img = np.empty((H, W, 3), np.uint8)
+    img[:] = (110, 120, 135)
+    face = tf(np.c_[0.95 * np.cos(np.linspace(0, 2 * np.pi, 80)),
+                    0.45 + 1.55 * np.sin(np.linspace(0, 2 * np.pi, 80))])
+    cv2.fillPoly(img, [np.round(face * 16).astype(np.int32)], (200, 160, 135), cv2.LINE_AA,
+                 shift=4)
+    hair = np.vstack([tf(TEMPLATE["hairline"]), tf([[0.9, -1.4], [-0.9, -1.4]])])
+    cv2.fillPoly(img, [np.round(hair * 16).astype(np.int32)], (70, 45, 30), cv2.LINE_AA, shift=4)
+    iod = 2 * half
+    for side in ("l", "r"):
+        _poly(img, tf(TEMPLATE[f"brow_{side}"], (0, -raise_)), (60, 40, 30),
+              int(round(0.07 * iod)))
+        _poly(img, tf(TEMPLATE[f"furrow_{side}"]), (150, 110, 95), 2)
+        sx = 1 if side == "l" else -1
+        cv2.ellipse(img, (int(round(tf([[0.11 * sx, 0.98]])[0, 0] * 16)),
+                          int(round(tf([[0.11 * sx, 0.98]])[0, 1] * 16))),
+                    (int(0.05 * iod * 16), int(0.025 * iod * 16)), np.degrees(roll), 0, 360,
+                    (40, 25, 25), -1, cv2.LINE_AA, shift=4)
+    mouth = TEMPLATE["upper_lip"]
+    lower = TEMPLATE["lower_lip"] + [0, jaw]
+    lip_poly = np.vstack([tf(mouth + [0, -0.09]), tf(lower[::-1])])
+    cv2.fillPoly(img, [np.round(lip_poly * 16).astype(np.int32)], (170, 70, 70), cv2.LINE_AA,
+                 shift=4)
+    _poly(img, tf(mouth + [0, 0.5 * jaw]), (60, 20, 20), 2)
+    _poly(img, tf(TEMPLATE["chin_boss"], (0, jaw)), (150, 110, 95), 2, closed=True)
+    img = cv2.GaussianBlur(img, (0, 0), 0.8)
+    noisy = img.astype(np.float32) * skin_noise[..., None] + rng.normal(0, 3, img.shape)
+    img = np.clip(noisy, 0, 255).astype(np.uint8)
+    brow_l, brow_r = tf(TEMPLATE["brow_l"], (0, -raise_)), tf(TEMPLATE["brow_r"], (0, -raise_))
+    truth = {
+        "brow_inner_l": brow_l[0], "brow_outer_l": brow_l[-1],
+        "brow_inner_r": brow_r[0], "brow_outer_r": brow_r[-1],
+        "mouth_corner_l": tf(mouth[-1:] + [0, 0.5 * jaw])[0],
+        "mouth_corner_r": tf(mouth[:1] + [0, 0.5 * jaw])[0],
+        "furrow_top_l": tf(TEMPLATE["furrow_l"][:1])[0],
+        "furrow_top_r": tf(TEMPLATE["furrow_r"][:1])[0],
+        "chin": tf([[0.0, 1.829 + jaw]])[0],
+    }
+    return img, truth, (eye_r, eye_l)
+
+
+def _track_fps(frames, layout, repeat):
+    times = []
+    last = None
+    for _ in range(repeat):
+        tracker = Tracker(layout)
+        tracker.track(frames[0])  # the first frame settles the layout (not timed)
+        t0 = time.perf_counter()
+        results = [tracker.track(f) for f in frames[1:]]
+        times.append((time.perf_counter() - t0) / (len(frames) - 1))
+        last = results
+    return 1.0 / statistics.median(times), last
+
+
+def _real_frames(path, n):
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while len(frames) < n:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(cv2.cvtColor(cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA),
+                                   cv2.COLOR_BGR2RGB))
+    cap.release()
+    return frames
+
+
+def run(quick: bool = False) -> list[Figure]:
+    n = 60 if quick else 200
+    repeat = 3 if quick else 5
+    rng = np.random.default_rng(0)
+    skin = (1.0 + 0.04 * cv2.GaussianBlur(rng.normal(size=(H, W)).astype(np.float32),
+                                          (0, 0), 3.0) * 3).astype(np.float32)
+    frames, truths = [], []
+    for i in range(n):
+        img, truth, eyes = draw_face(i / (n - 1), rng, skin)
+        frames.append(img)
+        truths.append(truth)
+        if i == 0:
+            eyes0 = eyes
+    layout = layout_from_eyes(*eyes0, (W, H))
+    fps, results = _track_fps(frames, layout, repeat)
+    errs = [np.hypot(*(np.asarray(r.fiducials[k]) - t[k])) for r, t in zip(results, truths[1:])
+            for k in t]
+    lost = sum(not r.success for r in results)
+    iters = statistics.median(r.iterations for r in results)
+    figures = [Figure("tracking", "synthetic 640x480", "frames per second", fps, "frame/s",
+                      higher_is_better=True, target=300.0,
+                      extra={"frames": n - 1, "median_iterations": iters,
+                             "lost_frames": lost}),
+               Figure("tracking", "synthetic 640x480", "mean fiducial error", float(np.mean(errs)),
+                      "px", higher_is_better=False,
+                      extra={"fiducials": [k for k in FIDUCIAL_NAMES if k in truths[0]]})]
+    if REAL.is_dir():
+        for path in sorted(REAL.glob("*.mp4")):
+            frames = _real_frames(path, 40 if quick else 150)
+            if len(frames) < 3:
+                continue
+            try:
+                layout = detect_layout(frames[0])
+            except ValueError as exc:
+                figures.append(Figure("tracking", f"real {path.stem}", "frames per second",
+                                      float("nan"), "frame/s", higher_is_better=True,
+                                      extra={"error": str(exc)}))
+                continue
+            fps, results = _track_fps(frames, layout, max(repeat // 2, 2))
+            figures.append(Figure("tracking", f"real {path.stem}", "frames per second", fps,
+                                  "frame/s", higher_is_better=True, target=300.0,
+                                  extra={"frames": len(frames) - 1,
+                                         "lost_frames": sum(not r.success for r in results),
+                                         "median_iterations": statistics.median(
+                                             r.iterations for r in results)}))
+    return figures
+
+
+if __name__ == "__main__":
+    from _harness import emit
+
+    emit("tracking", run(quick="--quick" in sys.argv))
