@@ -1,12 +1,13 @@
 """Renderer: frames/s at 256x256 and 640x480 (one core) and optical-flow EPE vs exact flow.
 
-Frames per second of the headless renderer on the default face mesh (shaded, textured;
-with and without anti-aliasing; with and without the exact flow ground truth), measured as
-medians on one core (Numba kernels are serial; OpenCV is set to one thread). Then a rendered
-sequence (an expression through the physics model when ``synth.model`` is available, else
-the rest mesh moved by head motion and jaw rotation only) is given to OpenCV's DIS,
-Farneback and TV-L1 optical flow, whose end-point error against the renderer's exact flow is
-reported on non-occluded face pixels (eroded by 2 px from the silhouette).
+Frames per second of the headless renderer on the default model's face mesh (and on the
+finer resolution-1 mesh), shaded and textured, with and without anti-aliasing, with and
+without the exact flow ground truth, measured as medians on one core (Numba kernels are
+serial; OpenCV is set to one thread). Then a rendered sequence (surprise with head motion
+through the physics model when ``synth.model`` is available, else the rest mesh moved by
+head motion and jaw rotation only) is given to OpenCV's DIS, Farneback and TV-L1 optical
+flow, whose end-point error against the renderer's exact flow is reported on non-occluded
+face pixels (eroded by 2 px from the silhouette).
 """
 
 from __future__ import annotations
@@ -18,10 +19,17 @@ from _harness import Figure, median_time
 NAME = "render"
 
 
-def _mesh():
+def _mesh(resolution: float | None = None):
+    """The default model's mesh (FaceModel's resolution) or the mesh at ``resolution``."""
     from synth.mesh import generate_face_mesh
 
-    return generate_face_mesh()
+    if resolution is None:
+        try:
+            from synth.model import DEFAULT_RESOLUTION
+        except ImportError:
+            DEFAULT_RESOLUTION = 1.0
+        resolution = DEFAULT_RESOLUTION
+    return generate_face_mesh(resolution=resolution), resolution
 
 
 def _fps_figures(quick: bool) -> list[Figure]:
@@ -30,39 +38,44 @@ def _fps_figures(quick: bool) -> list[Figure]:
     from synth.render.renderer import Renderer
     from synth.render.texture import paint_skin_texture
 
-    mesh = _mesh()
-    tex = paint_skin_texture(mesh, 0)
-    v0 = np.asarray(mesh.vertices)
-    rng = np.random.default_rng(0)
-    v1 = v0 + rng.normal(0, 0.01, v0.shape)
-    pose1 = HeadPose(roll=1.0, yaw=1.0, translation=(0.05, 0.0, 0.0))
+    out = []
     repeat = 5 if quick else 15
     number = 3 if quick else 10
-    out = []
-    for size, target in (((256, 256), 200.0), ((640, 480), 50.0)):
+    cases = [(None, size, ss) for size in ((256, 256), (640, 480)) for ss in (1, 2)]
+    cases += [(1.0, size, 1) for size in ((256, 256), (640, 480))]
+    meshes = {}
+    for res_req, size, ss in cases:
+        if res_req not in meshes:
+            meshes[res_req] = _mesh(res_req)
+        mesh, res = meshes[res_req]
+        tex = paint_skin_texture(mesh, 0)
+        v0 = np.asarray(mesh.vertices)
+        v1 = v0 + np.random.default_rng(0).normal(0, 0.01, v0.shape)
+        pose1 = HeadPose(roll=1.0, yaw=1.0, translation=(0.05, 0.0, 0.0))
+        target = {(256, 256): 200.0, (640, 480): 50.0}[size]
         cam = default_camera(*size)
-        for ss in (1, 2):
-            r = Renderer(mesh, texture=tex, camera=cam, supersample=ss)
-            t = median_time(lambda r=r: r.render(v0), repeat=repeat, number=number)
-            label = f"{size[0]}x{size[1]}" + (f" ss{ss}" if ss > 1 else "")
-            # the issue's target is for plain shaded, textured frames; supersampled (ss2)
-            # frames cost ~4x the shading and are reported without a target
-            out.append(Figure(NAME, f"shaded textured {label}", "frames per second", 1.0 / t,
-                              "frames/s", True, target=target if ss == 1 else None,
-                              extra={"triangles": int(len(r.triangles)),
-                                     "supersample": ss}))
+        r = Renderer(mesh, texture=tex, camera=cam, supersample=ss)
+        t = median_time(lambda r=r, v0=v0: r.render(v0), repeat=repeat, number=number)
+        label = (f"{size[0]}x{size[1]}" + (f" ss{ss}" if ss > 1 else "")
+                 + ("" if res_req is None else f" mesh res {res:g}"))
+        # the issue's target is for plain shaded, textured frames; supersampled (ss2)
+        # frames cost ~4x the shading and are reported without a target
+        out.append(Figure(NAME, f"shaded textured {label}", "frames per second", 1.0 / t,
+                          "frames/s", True, target=target if ss == 1 else None,
+                          extra={"triangles": int(len(r.triangles)),
+                                 "mesh_resolution": res, "supersample": ss}))
 
-            def with_flow(r=r):
-                a = r.render(v0)
-                b = r.render(v1, pose=pose1, shade=False)
-                flow_and_occlusion(r, a, b)
+        def with_flow(r=r, v0=v0, v1=v1, pose1=pose1):
+            a = r.render(v0)
+            b = r.render(v1, pose=pose1, shade=False)
+            flow_and_occlusion(r, a, b)
 
-            t = median_time(with_flow, repeat=repeat, number=number)
-            out.append(Figure(NAME, f"shaded textured + flow truth {label}",
-                              "frames per second", 1.0 / t, "frames/s", True,
-                              extra={"supersample": ss,
-                                     "note": "render + next-frame buffers + forward flow + "
-                                             "disocclusion"}))
+        t = median_time(with_flow, repeat=repeat, number=number)
+        out.append(Figure(NAME, f"shaded textured + flow truth {label}",
+                          "frames per second", 1.0 / t, "frames/s", True,
+                          extra={"supersample": ss,
+                                 "note": "render + next-frame buffers + forward flow + "
+                                         "disocclusion"}))
     return out
 
 
@@ -103,14 +116,14 @@ def _sequence(quick: bool):
     try:
         from synth.model import FaceModel  # noqa: F401
     except ImportError:
-        model = _JawHeadDriver(_mesh())
+        model = _JawHeadDriver(_mesh()[0])
         jaw = 0.25 * np.sin(np.linspace(0, np.pi, frames)) ** 2
         seq = synthesize(model=model, contractions=pd.DataFrame({"jaw_rotation": jaw}),
                          frames=frames, seed=3, head_motion=1.0, size=256)
         return seq, "rest mesh + jaw rotation + head motion (synth.model unavailable)"
-    seq = synthesize(expression="happiness", frames=frames, seed=3, head_motion=1.0,
+    seq = synthesize(expression="surprise", frames=frames, seed=3, head_motion=1.0,
                      size=256)
-    return seq, "FaceModel, happiness + head motion"
+    return seq, "FaceModel (default resolution), surprise + head motion, seed 3, ss2"
 
 
 def _epe_figures(quick: bool) -> list[Figure]:

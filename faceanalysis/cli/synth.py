@@ -72,6 +72,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--supersample", type=int, default=2,
                         help="anti-aliasing factor (default 2; 1 = off)")
     parser.add_argument("--grey", action="store_true", help="single-channel frames")
+    parser.add_argument("--resolution", type=float, default=None,
+                        help="face mesh resolution of the model (default: the model's own)")
     parser.add_argument("--no-flow", action="store_true",
                         help="skip the dense flow ground truth (masks and depth are kept)")
     add_output_options(parser)
@@ -105,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             out_of_plane=not args.in_plane_only, illumination=args.illumination,
             noise=args.noise, blur=args.blur, camera=args.camera,
             supersample=args.supersample, grey=args.grey, flow=not args.no_flow,
-            intensity=args.intensity, progress=progress)
+            intensity=args.intensity, resolution=args.resolution, progress=progress)
     finally:
         if bar is not None:
             bar.close()
