@@ -101,8 +101,9 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
     Returns
     -------
     list of Path
-        Absolute paths, without duplicates, in the order of ``patterns`` (sorted within
-        a folder or pattern).
+        Absolute paths (symbolic links kept, so that a linked clip keeps its name),
+        without duplicates, in the order of ``patterns`` (sorted within a folder or
+        pattern).
 
     Raises
     ------
@@ -155,10 +156,11 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
         else:
             raise FileNotFoundError(f"{text}: no such file or folder")
         for p in matches:
-            p = p.resolve()
-            if p not in seen:
-                seen.add(p)
-                found.append(p)
+            real = p.resolve()
+            if real not in seen:  # the same file reached twice (or through a link)
+                seen.add(real)
+                # absolute but links kept: a linked clip keeps its own name
+                found.append(Path(os.path.abspath(p)))
     return found
 
 
@@ -676,10 +678,10 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise FileExistsError(f"{root} exists and is not a folder")
-    root_abs = root.resolve()
+    inside = (root.resolve(), Path(os.path.abspath(root)))
     videos = []
     for video in discover_inputs(inputs):
-        if video.is_relative_to(root_abs):
+        if any(video.is_relative_to(r) or video.resolve().is_relative_to(r) for r in inside):
             logger.warning("leaving out %s: it lies inside the output folder %s", video, root)
         else:
             videos.append(video)

@@ -130,6 +130,10 @@ def test_discover_files_folders_and_globs(corpus):
     # duplicates collapse, order follows the patterns, explicit files are taken as given
     both = discover_inputs([src / "b.avi", src, src / "notes.txt"])
     assert both[0].name == "b.avi" and both[-1].name == "notes.txt" and len(both) == 5
+    # a link keeps its own name; the file it points to is not listed twice
+    (src / "subject7.avi").symlink_to(src / "b.avi")
+    assert [p.name for p in discover_inputs([src / "subject7.avi", src / "b.avi"])] == [
+        "subject7.avi"]
 
 
 def test_discover_errors_name_the_pattern(tmp_path):
