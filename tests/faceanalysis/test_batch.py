@@ -416,6 +416,7 @@ def face_corpus(tmp_path_factory):
             "all": [*videos, noface, corrupt], "response": tabulate_response(model)}
 
 
+@pytest.mark.slow
 def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_path):
     # The analysis itself (tracking, calibration, estimation, files), with the fiducial
     # response of the face that rendered the clips passed in.
@@ -452,6 +453,7 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
     assert again["status"].tolist() == summary["status"].tolist()
 
 
+@pytest.mark.slow
 def test_default_task_is_the_analysis(face_corpus, tmp_path):
     try:
         from synth import FaceModel  # noqa: F401
