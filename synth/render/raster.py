@@ -231,11 +231,12 @@ def _sample_bilinear(tex, x, y, out):
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _shade_kernel(tri_id, bary, tris, material, uv, normals, wpos, tex, eye_tex, flat_colours,
                   light_dir, light_rgb, ambient, specular, shininess, view_persp, eye_pos,
-                  image):
-    """Lambert + Blinn-Phong shading with texture lookup; writes RGB floats into image.
+                  image, out_scale, out_offset, out_max):
+    """Lambert + Blinn-Phong shading with texture lookup; writes RGB into image.
 
     material: 0 = skin (tex by uv), 1 = eye (eye_tex by uv), 2.. = flat colour
-    flat_colours[material].
+    flat_colours[material]. Values are written as ``min(max(v * out_scale + out_offset,
+    0), out_max)`` (image may be float, or uint8 with scale 255, offset 0.5, max 255).
     """
     H, W = tri_id.shape
     th = tex.shape[0]
@@ -307,8 +308,9 @@ def _shade_kernel(tri_id, bary, tris, material, uv, normals, wpos, tex, eye_tex,
                 if ndh > 0.0:
                     spec = specular[m] * ndh ** shininess
             for ch in range(3):
-                image[r, c, ch] = (albedo[ch] * (ambient + (1.0 - ambient) * ndl)
-                                   + spec) * light_rgb[ch]
+                val = ((albedo[ch] * (ambient + (1.0 - ambient) * ndl) + spec) * light_rgb[ch]
+                       * out_scale + out_offset)
+                image[r, c, ch] = min(max(val, 0.0), out_max)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -241,19 +241,24 @@ class Renderer:
                        bary)
         return zbuf, tri_id, bary
 
-    def _shade(self, tri_id, bary, world, xy, cam, light: Light, normals) -> np.ndarray:
-        key = (cam.width, cam.height)
+    def _shade(self, tri_id, bary, world, xy, cam, light: Light, normals, *,
+               as_uint8: bool = False) -> np.ndarray:
+        key = (cam.width, cam.height, as_uint8)
         bg = self._bg_cache.get(key)
         if bg is None:
-            bg = self._bg_cache[key] = _background(cam.width, cam.height, self.background)
+            bg = _background(cam.width, cam.height, self.background)
+            if as_uint8:
+                bg = np.clip(bg * 255.0 + 0.5, 0, 255).astype(np.uint8)
+            self._bg_cache[key] = bg
         image = bg.copy()
+        scale, offset, top = (255.0, 0.5, 255.0) if as_uint8 else (1.0, 0.0, np.inf)
         tex = self._mips[self._mip_level(xy)]
         eye_pos = np.array([cam.look_at[0], cam.look_at[1], cam.look_at[2] + cam.distance])
         _shade_kernel(tri_id, bary, self.triangles, self.material, self.uv, normals, world,
                       tex, self.eye_tex, FLAT_COLOURS, light.unit_direction,
                       np.asarray(light.colour, dtype=np.float64), float(light.ambient),
                       SPECULAR * light.specular_scale, float(light.shininess),
-                      cam.perspective, eye_pos, image)
+                      cam.perspective, eye_pos, image, scale, offset, top)
         return image
 
     # ---------------------------------------------------------------- render
@@ -294,11 +299,14 @@ class Renderer:
                 _, tri_k, bary_k = self._buffers(xy_k, depth, cam_k)
                 big = self._shade(tri_k, bary_k, world, xy_k, cam_k, light, normals)
                 img = cv2.resize(big, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+                if self.grey:
+                    img = img @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+                image = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
             else:
-                img = self._shade(tri_id, bary, world, xy, cam, light, normals)
-            if self.grey:
-                img = img @ np.array([0.299, 0.587, 0.114])
-            image = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+                image = self._shade(tri_id, bary, world, xy, cam, light, normals,
+                                    as_uint8=True)
+                if self.grey:
+                    image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         mask = tri_id >= 0
         skin_mask = mask & (tri_id < self.n_skin_tris)
         return RenderResult(image=image, depth=zbuf, triangle_id=tri_id, barycentric=bary,
