@@ -7,13 +7,17 @@ frontal view.
 Head frame (004: "a head reference frame from the average position of the hairline
 contour"):
 
-* origin: the arc-length centroid of the hairline contour;
-* roll: the mean direction of the hairline's principal axis and of the line from
-  the right to the left eyebrow's centroid (both pointing to the subject's left,
-  image right when upright), as ``atan2(dy, dx)`` in image coordinates (0 for an
-  upright face, positive when the subject's left side is lower in the image). The
-  hairline's axis alone depends on where its free ends settle; the brows alone on
-  asymmetric brow motion; their mean halves both errors;
+* origin: the arc-length centroid of the hairline contour, moved along the head's
+  x axis onto the face's midline (the head-vertical line through the midpoints of
+  the brows, of the furrows and of the mouth corners, where it crosses the
+  hairline). A contour on an edge cannot see motion along the edge, so the
+  hairline's own centroid would not follow a sideways head motion; its height does;
+* roll: the mean direction of the line from the right to the left eyebrow's
+  centroid and of the line joining the mouth corners (both pointing to the
+  subject's left, image right when upright), as ``atan2(dy, dx)`` in image
+  coordinates (0 for an upright face, positive when the subject's left side is lower
+  in the image). The hairline's principal axis is used only when those contours are
+  absent: it tilts when the contour slides along the hairline (free ends);
 * scale: the distance in pixels from the origin to the centroid of the nose-tip
   contour (hairline and nose barely move with expressions). It is a length in
   pixels, not a physical unit; divide positions by it to factor out zoom.
@@ -208,8 +212,8 @@ def head_frame(contours) -> HeadFrame:
     Parameters
     ----------
     contours : mapping name -> (n, 2) array
-        Needs ``hairline`` and ``nose_tip``; ``brow_l`` and ``brow_r`` are used for
-        the roll when present.
+        Needs ``hairline`` and ``nose_tip``; the brows, furrows and ``upper_lip`` are
+        used for the midline and the roll when present.
 
     Returns
     -------
@@ -221,8 +225,8 @@ def head_frame(contours) -> HeadFrame:
     >>> x = np.linspace(-40, 40, 21)
     >>> hf = head_frame({"hairline": np.c_[100 + x, 50 + 0.01 * x**2],
     ...                  "nose_tip": np.c_[np.linspace(90, 110, 5), np.full(5, 150.0)]})
-    >>> round(hf.roll, 6), round(hf.scale) > 90
-    (0.0, True)
+    >>> round(hf.roll, 6), round(hf.x, 6), round(hf.scale) > 90
+    (0.0, 100.0, True)
     """
     hair = _points(contours, "hairline")
     nose = _points(contours, "nose_tip")
@@ -240,10 +244,39 @@ def head_frame(contours) -> HeadFrame:
     if axis[0] * down[1] - axis[1] * down[0] < 0:
         axis = -axis
     angles = [math.atan2(axis[1], axis[0])]
-    if "brow_l" in contours and "brow_r" in contours:
-        d = centroid(_points(contours, "brow_l")) - centroid(_points(contours, "brow_r"))
-        angles.append(math.atan2(d[1], d[0]))
+    mids = []
+    for a_name, b_name, kind in (("brow_l", "brow_r", "centroid"),
+                                 ("furrow_l", "furrow_r", "centroid"),
+                                 ("upper_lip", None, "ends")):
+        if a_name not in contours or (b_name is not None and b_name not in contours):
+            continue
+        if kind == "centroid":
+            pl = centroid(_points(contours, a_name))
+            pr = centroid(_points(contours, b_name))
+        else:
+            lip = _points(contours, a_name)
+            pl, pr = (lip[-1], lip[0]) if (lip[-1] - lip[0]) @ axis > 0 else (lip[0], lip[-1])
+        d = pl - pr
+        if a_name.startswith("brow") or kind == "ends":
+            angles.append(math.atan2(d[1], d[0]))
+        mids.append(0.5 * (pl + pr))
+    if len(angles) > 1:
+        angles = angles[1:]  # the hairline's axis tilts when the contour slides along it
     roll = math.atan2(sum(math.sin(a) for a in angles), sum(math.cos(a) for a in angles))
+    ex = np.array([math.cos(roll), math.sin(roll)])
+    # along the hairline the contour cannot see motion (an edge has no texture along
+    # it), so its x is taken where the face's midline crosses it: the head-vertical
+    # line through the midpoints of the paired features (brows, furrows, mouth
+    # corners), which are tracked in both directions thanks to their ends
+    centre = np.mean(mids, axis=0) if mids else nose_c
+    u = (hair - centre) @ ex
+    for i in range(len(u) - 1):
+        if u[i] == 0 or u[i] * u[i + 1] < 0:
+            t = 0.0 if u[i] == 0 else u[i] / (u[i] - u[i + 1])
+            cross = hair[i] + t * (hair[i + 1] - hair[i])
+            origin = origin + ((cross - origin) @ ex) * ex
+            break
+    down = nose_c - origin
     scale = float(np.hypot(*down))
     if scale <= 1e-6:
         raise ValueError("nose_tip contour coincides with the hairline origin")

@@ -1,8 +1,10 @@
 """Track the nine facial contours through a sequence (004 V-C).
 
 Each frame's contours start from the previous frame's equilibrium and slide downhill
-in the new potential until no node moves more than ``tol`` pixels in a step
-(equilibrium by a movement threshold, never a fixed number of iterations). All nine
+in the new potential until the root-mean-square node displacement in a step falls
+below ``tol`` pixels (equilibrium by a movement threshold, never a fixed number of
+iterations; ``max_iter`` is only a safety cap). On the first frame the largest
+node displacement must fall below ``tol``. All nine
 contours form one :class:`~trackers.snakes.ContourSystem`, separated by
 ``a_i = b_i = 0``, whose matrix is factored once for the whole sequence.
 
@@ -368,7 +370,8 @@ class Tracker:
         Fraction of the distance to the ravine bottom covered per step with
         ``strength='auto'``.
     tol : float
-        Movement threshold (pixels per step) that defines equilibrium.
+        Movement threshold that defines equilibrium: root-mean-square node
+        displacement in a step, pixels.
     max_iter : int
         Safety cap on steps per frame.
     first_max_iter : int
@@ -406,8 +409,10 @@ class Tracker:
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
             params = SnakeParams()
-        if not (strength in ("auto", "paper") or (np.isscalar(strength)
-                                                  and float(strength) > 0)):
+        ok = strength in ("auto", "paper") or (
+            isinstance(strength, int | float | np.floating | np.integer)
+            and not isinstance(strength, bool) and np.isfinite(strength) and strength > 0)
+        if not ok:
             raise ValueError(f"strength must be 'auto', 'paper' or a positive number, got "
                              f"{strength!r}")
         if not 0 < descent_rate < 1.5:
@@ -449,6 +454,7 @@ class Tracker:
         self.brow_fraction: dict[str, float] | None = None
         self.last_head: HeadFrame | None = None
         self.frame_size = tuple(layout.image_size)
+        self._clipped: set[int] = set()
         iod = layout.inter_eye
         self.motion_margin = max(6.0, 0.08 * iod) + 2.0 * self.sigma_max
 
@@ -463,6 +469,15 @@ class Tracker:
             raise ValueError(f"frame {self.index} is {W}x{H} but the layout was made for "
                              f"{self.frame_size[0]}x{self.frame_size[1]}")
         X = self.system.X
+        # nodes pushed out of the frame (by the image force or a re-initialisation)
+        # are put back on its border; their contour is reported lost this frame
+        out = (X[:, 0] < 0) | (X[:, 1] < 0) | (X[:, 0] > W - 1) | (X[:, 1] > H - 1)
+        self._clipped = set()
+        if out.any():
+            for k in np.unique(self.system.node_contour[out]):
+                self._clipped.add(int(k))
+            np.clip(X[:, 0], 0, W - 1, out=X[:, 0])
+            np.clip(X[:, 1], 0, H - 1, out=X[:, 1])
         m = self.motion_margin
         lo = np.floor(X.min(0) - m).astype(int)
         hi = np.ceil(X.max(0) + m).astype(int) + 1
@@ -578,7 +593,7 @@ class Tracker:
                 name, _polyline_length(pts, closed)), 1e-9)
             lost = (not np.isfinite(pts).all() or depth < self.lost_depth
                     or not self.stretch_range[0] <= stretch <= self.stretch_range[1]
-                    or bool(outside[k]))
+                    or bool(outside[k]) or k in self._clipped)
             q[name] = ContourQuality(float(depth), float(stretch), bool(lost), name in reinit)
         return q
 
@@ -604,8 +619,11 @@ class Tracker:
         cap = self.first_max_iter if first else self.max_iter
 
         def relax():
+            # the first frame settles strictly (largest move), later frames by the
+            # root-mean-square move, which a few nodes creeping along a weak
+            # feature cannot hold up
             return self.system.relax(potentials=Ps, origin=origins, tol=self.tol,
-                                     max_iter=cap)
+                                     max_iter=cap, criterion="max" if first else "rms")
 
         res = relax()
         iters = res.iterations
@@ -616,6 +634,8 @@ class Tracker:
         self._refine(Ps, origins, gray, gorigin)
         if first and self.refine_ends:
             # the first frame moves the ends farthest: settle and relocate once more
+            # (on fields around the relocated contours)
+            Ps, origins, gray, gorigin = self._fields(frame)
             iters += relax().iterations
             self._refine(Ps, origins, gray, gorigin)
         outside = res.outside

@@ -1,0 +1,131 @@
+import json
+
+import numpy as np
+import pytest
+
+from tests.trackers.conftest import draw_face
+from trackers.layout import (
+    CONTOUR_NAMES,
+    FaceLayout,
+    LayoutContour,
+    detect_layout,
+    layout_from_eyes,
+    refine_layout,
+)
+
+EYES = ((96.0, 105.0), (159.0, 105.0))
+
+
+def test_layout_from_eyes_has_nine_named_contours():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    assert tuple(lay.contours) == CONTOUR_NAMES
+    assert lay.contours["chin_boss"].closed
+    assert not any(lay.contours[n].closed for n in CONTOUR_NAMES if n != "chin_boss")
+    # _l is the subject's left: on the image's right
+    assert lay.contours["brow_l"].points[:, 0].mean() > 127.5
+    assert lay.contours["brow_r"].points[:, 0].mean() < 127.5
+    # brows start at their inner end, furrows at their top
+    assert lay.contours["brow_l"].points[0, 0] < lay.contours["brow_l"].points[-1, 0]
+    assert lay.contours["brow_r"].points[0, 0] > lay.contours["brow_r"].points[-1, 0]
+    for side in ("l", "r"):
+        f = lay.contours[f"furrow_{side}"].points
+        assert f[0, 1] < f[-1, 1]
+    # vertical order of the features
+    y = {n: c.points[:, 1].mean() for n, c in lay.contours.items()}
+    assert y["hairline"] < y["brow_l"] < y["nose_tip"] < y["upper_lip"] < y["lower_lip"] \
+        < y["chin_boss"]
+    assert lay.inter_eye == pytest.approx(63.0)
+
+
+def test_layout_follows_rotated_eyes():
+    a = layout_from_eyes(*EYES, (256, 256))
+    ang = np.deg2rad(10)
+    c = np.array([127.5, 105.0])
+    Rm = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    eyes = [(np.asarray(e) - c) @ Rm.T + c for e in EYES]
+    b = layout_from_eyes(*eyes, (256, 256))
+    pa = a.contours["upper_lip"].points
+    pb = b.contours["upper_lip"].points
+    np.testing.assert_allclose(pb, (pa - c) @ Rm.T + c, atol=1e-6)
+
+
+def test_json_round_trip(tmp_path):
+    lay = layout_from_eyes(*EYES, (256, 256))
+    path = tmp_path / "layout.json"
+    text = lay.to_json(path)
+    back = FaceLayout.from_json(path)
+    again = FaceLayout.from_json(text)
+    for other in (back, again):
+        assert tuple(other.contours) == CONTOUR_NAMES
+        assert other.image_size == (256, 256)
+        for n in CONTOUR_NAMES:
+            np.testing.assert_allclose(other.contours[n].points, lay.contours[n].points,
+                                       atol=1e-3)
+            assert other.contours[n].kind == lay.contours[n].kind
+            assert other.contours[n].ends == lay.contours[n].ends
+    # a user correction survives the round trip
+    d = json.loads(text)
+    d["contours"]["brow_l"]["points"][0] = [140.0, 90.0]
+    fixed = FaceLayout.from_json(json.dumps(d))
+    np.testing.assert_allclose(fixed.contours["brow_l"].points[0], [140, 90])
+
+
+def test_bad_layout_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="not found"):
+        FaceLayout.from_json(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match="bad.json: not valid JSON"):
+        FaceLayout.from_json(bad)
+    d = json.loads(layout_from_eyes(*EYES, (256, 256)).to_json())
+    del d["contours"]["chin_boss"]
+    with pytest.raises(ValueError, match="chin_boss"):
+        FaceLayout.from_json(json.dumps(d))
+    d = json.loads(layout_from_eyes(*EYES, (256, 256)).to_json())
+    d["contours"]["hairline"]["points"][0] = [300.0, 10.0]
+    with pytest.raises(ValueError, match="hairline.*outside"):
+        FaceLayout.from_json(json.dumps(d))
+    d = json.loads(layout_from_eyes(*EYES, (256, 256)).to_json())
+    d["contours"]["nose_tip"]["kind"] = "ridge"
+    with pytest.raises(ValueError, match="kind"):
+        FaceLayout.from_json(json.dumps(d))
+    with pytest.raises(ValueError, match="n >= 3"):
+        LayoutContour(np.zeros((2, 2)))
+
+
+@pytest.mark.parametrize("img", [np.full((120, 160), 128, np.uint8),
+                                 np.zeros((64, 64, 3), np.float32)])
+def test_no_face_names_the_frame(img):
+    with pytest.raises(ValueError, match="no face found in frame 7"):
+        detect_layout(img, frame_index=7)
+
+
+def test_refine_moves_displaced_contours_onto_features():
+    img, truth = draw_face()
+    lay = layout_from_eyes(*EYES, (256, 256))
+    moved = {n: LayoutContour(c.points + [0.0, 4.0], c.closed, c.kind, c.sigma, c.ends)
+             for n, c in lay.contours.items()}
+    shifted = FaceLayout(moved, lay.image_size, lay.eyes)
+    fixed = refine_layout(img, shifted)
+    for n in ("brow_l", "brow_r", "upper_lip", "chin_boss", "nose_tip"):
+        dy = fixed.contours[n].points[:, 1].mean() - lay.contours[n].points[:, 1].mean()
+        assert abs(dy) <= 1.0, (n, dy)
+    with pytest.raises(ValueError, match="made for"):
+        refine_layout(np.zeros((100, 100), np.uint8), lay)
+
+
+@pytest.mark.real_data
+def test_detect_layout_on_real_video(real_video_dir):
+    import cv2
+
+    path = sorted(real_video_dir.glob("*.mp4"))[0]
+    cap = cv2.VideoCapture(str(path))
+    ok, frame = cap.read()
+    cap.release()
+    if not ok:
+        pytest.skip(f"cannot decode {path.name}")
+    lay = detect_layout(frame, channel_order="bgr")
+    x, y, w, h = lay.face_box
+    for n in ("brow_l", "brow_r", "nose_tip", "upper_lip"):
+        cx, cy = lay.contours[n].points.mean(0)
+        assert x <= cx <= x + w and y <= cy <= y + h, n
