@@ -76,22 +76,26 @@ def _spin(n: int) -> int:
     return total
 
 
-def _machine_capacity(n: int = 3_000_000) -> float:
+def _machine_capacity(n: int = 2_000_000, repeat: int = 3) -> float:
     """How many CPU-bound processes this machine runs at once right now: the time of two
     pure-Python loops one after the other over the time of the two in two processes
-    (2.0 on two idle cores; less when other programs share them)."""
+    (2.0 on two idle cores; less when other programs share them); median of ``repeat``
+    interleaved measurements."""
+    import statistics
     from concurrent.futures import ProcessPoolExecutor
 
+    ratios = []
     with ProcessPoolExecutor(2) as pool:
         list(pool.map(_spin, [1000, 1000]))             # start both processes first
-        t0 = time.perf_counter()
-        _spin(n)
-        _spin(n)
-        serial = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        list(pool.map(_spin, [n, n]))
-        parallel = time.perf_counter() - t0
-    return serial / parallel
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            _spin(n)
+            _spin(n)
+            serial = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            list(pool.map(_spin, [n, n]))
+            ratios.append(serial / (time.perf_counter() - t0))
+    return statistics.median(ratios)
 
 
 def run(quick: bool) -> list[Figure]:
