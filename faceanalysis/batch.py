@@ -660,9 +660,19 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
     Notes
     -----
     Reruns are cheap: videos whose folders pass :func:`is_complete` are not sent to the
-    cluster at all (no cluster is started when nothing is left to do). Temporary
-    folders left by workers that died are removed at the start and end of a run; do not
-    run two batches into the same ``out`` at the same time.
+    cluster at all (no cluster is started when nothing is left to do); failed videos
+    are tried again. A video whose worker dies is rerun by the scheduler on another
+    worker, up to dask's ``distributed.scheduler.allowed-failures`` (default 3) deaths,
+    then recorded as failed (``KilledWorker``); an error of the runner's own file
+    handling is retried once. Temporary folders left by workers that died are removed
+    at the start and end of a run; do not run two batches into the same ``out`` at the
+    same time.
+
+    Examples
+    --------
+    >>> summary = run_batch(["clips/", "more/*.mp4"], "results", workers=4,
+    ...                     options={"estimator": "tw93"})  # doctest: +SKIP
+    >>> summary.loc[summary.status == "failed", ["video", "error"]]  # doctest: +SKIP
     """
     if workers is not None:
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) \
