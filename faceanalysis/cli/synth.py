@@ -74,6 +74,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grey", action="store_true", help="single-channel frames")
     parser.add_argument("--resolution", type=float, default=None,
                         help="face mesh resolution of the model (default: the model's own)")
+    parser.add_argument("--flow-float16", action="store_true",
+                        help="store the flow as float16 (half the size of flow.npz)")
     parser.add_argument("--no-flow", action="store_true",
                         help="skip the dense flow ground truth (masks and depth are kept)")
     add_output_options(parser)
@@ -101,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frames if (args.frames is not None or args.contractions) else 60
     try:
         out = render_sequence(
-            args.output, overwrite=args.overwrite, expression=args.expression, au=args.au,
+            args.output, overwrite=args.overwrite,
+            flow_dtype="float16" if args.flow_float16 else "float32",
+            expression=args.expression, au=args.au,
             contractions=args.contractions, frames=frames, fps=args.fps, size=args.size,
             seed=args.seed, head_motion=args.head_motion,
             out_of_plane=not args.in_plane_only, illumination=args.illumination,

@@ -56,9 +56,13 @@ def test_synth_contractions_csv_and_errors(tmp_path, kinematic, capsys):
     pd.DataFrame({"frame": [0, 1, 2], "zygomaticus_major_l": [0, 0.3, 0.6],
                   "jaw_rotation": [0, 0.05, 0.1]}).to_csv(csv, index=False)
     rc = main(["synth", "--contractions", str(csv), "--size", "48", "--supersample", "1",
-               "-q", "-o", str(tmp_path / "o1")])
+               "--flow-float16", "-q", "-o", str(tmp_path / "o1")])
     assert rc == 0
     assert len(pd.read_csv(tmp_path / "o1" / "truth.csv")) == 3
+    import numpy as np
+
+    with np.load(tmp_path / "o1" / "flow.npz") as z:
+        assert z["flow"].dtype == np.float16 and z["flow"].shape == (2, 48, 48, 2)
     rc = main(["synth", "--expression", "boredom", "-q", "-o", str(tmp_path / "o2")])
     assert rc == 1 and "boredom" in capsys.readouterr().err
     rc = main(["synth", "--au", "12=1", "-q", "-o", str(tmp_path / "o3")])
