@@ -169,6 +169,23 @@ def _skull_kernel(x, nodes, bone, normal, margin, k, out):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
+def _contact_kernel(x, pairs, normal, k, out):  # pragma: no cover
+    energy = 0.0
+    for q in range(pairs.shape[0]):
+        a = pairs[q, 0]
+        b = pairs[q, 1]
+        h = ((x[a, 0] - x[b, 0]) * normal[q, 0] + (x[a, 1] - x[b, 1]) * normal[q, 1]
+             + (x[a, 2] - x[b, 2]) * normal[q, 2])
+        if h < 0.0:
+            energy += 0.5 * k[q] * h * h
+            c = -k[q] * h
+            for ax in range(3):
+                out[a, ax] += c * normal[q, ax]
+                out[b, ax] -= c * normal[q, ax]
+    return energy
+
+
+@numba.njit(cache=True, nogil=True)
 def _skull_project(x, nodes, bone, normal, margin):  # pragma: no cover
     moved = 0
     for q in range(nodes.shape[0]):
@@ -268,13 +285,14 @@ def skull_forces(x: np.ndarray, lattice: Lattice, normals: np.ndarray | None = N
 
 @numba.njit(cache=True, nogil=True)
 def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, tets, rest_volume,
-                  bulk, use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, f_ext, fixed,
-                  out):  # pragma: no cover
+                  bulk, use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs,
+                  c_normal, c_k, f_ext, fixed, out):  # pragma: no cover
     out[:] = 0.0
     energy = _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out)
     if use_volume:
         energy += _volume_kernel(x, prisms, tets, rest_volume, bulk, out)
     energy += _skull_kernel(x, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, out)
+    energy += _contact_kernel(x, c_pairs, c_normal, c_k, out)
     for i in range(x.shape[0]):
         if fixed[i]:
             out[i, 0] = 0.0
@@ -313,6 +331,10 @@ class TissueSystem:
         self.prescribed = lattice.rest.copy()
         self.skull_normal = np.array(lattice.skull_normal)
         self._bone_jaw = lattice.jaw_weight[lattice.skull_bone]
+        self.contact_pairs = np.ascontiguousarray(lattice.contact_pairs)
+        self.contact_normal = np.array(lattice.contact_normal)
+        self._contact_jaw = 0.5 * lattice.jaw_weight[lattice.contact_pairs].sum(axis=1) \
+            if len(lattice.contact_pairs) else np.zeros(0)
 
     def set_jaw(self, angle: float) -> None:
         """Rotate the mandible-carried fixed nodes and skull normals by ``angle`` radians."""
@@ -324,6 +346,9 @@ class TissueSystem:
                                                angle)
         self.skull_normal = rotate_about_jaw(lat.skull_normal, self._bone_jaw,
                                              np.zeros(3), angle)
+        if len(self.contact_pairs):
+            self.contact_normal = rotate_about_jaw(lat.contact_normal, self._contact_jaw,
+                                                   np.zeros(3), angle)
 
     def set_external(self, f_ext: np.ndarray) -> None:
         """Set the external nodal forces (n, 3) (muscle load); fixed nodes ignore theirs."""
@@ -337,8 +362,11 @@ class TissueSystem:
         fx = self.fixed
         x[fx] = self.prescribed[fx]
 
-    def forces(self, x: np.ndarray, out: np.ndarray | None = None):
+    def forces(self, x: np.ndarray, out: np.ndarray | None = None, *, skull: bool = True):
         """Net force on every node (zero on fixed nodes) and the potential energy.
+
+        ``skull=False`` leaves out the skull penalty (the explicit integrators enforce
+        non-penetration by projection instead).
 
         Returns
         -------
@@ -348,20 +376,37 @@ class TissueSystem:
         lat = self.lattice
         if out is None:
             out = np.empty_like(lat.rest)
+        nodes = lat.skull_nodes if skull else lat.skull_nodes[:0]
+        pairs = self.contact_pairs if skull else self.contact_pairs[:0]
         e = _total_kernel(x, lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch,
                           lat.prisms, PRISM_TETS, lat.rest_volume, lat.bulk,
-                          self.volume_preservation, lat.skull_nodes, lat.skull_bone,
-                          self.skull_normal, lat.skull_margin, lat.skull_k, self.f_ext,
-                          self.fixed, out)
+                          self.volume_preservation, nodes, lat.skull_bone,
+                          self.skull_normal, lat.skull_margin, lat.skull_k, pairs,
+                          self.contact_normal, lat.contact_k, self.f_ext, self.fixed, out)
         return out, e
 
-    def project_skull(self, x: np.ndarray) -> int:
-        """Move fascia nodes that sit below the skull margin back onto it (in place).
+    def project_skull(self, x: np.ndarray, *, lip_slack: float = 0.05) -> int:
+        """Fail-safe for the penalties (in place): fascia nodes that went *through* the skull
+        (below the bone surface, not just inside the margin) are put back on it, and lips
+        crossed by more than ``lip_slack`` cm are separated to that depth.  In normal
+        operation the penalties keep every node clear and nothing moves.
 
         Returns the number of nodes moved."""
         lat = self.lattice
-        return int(_skull_project(x, lat.skull_nodes, lat.skull_bone, self.skull_normal,
-                                  lat.skull_margin))
+        moved = int(_skull_project(x, lat.skull_nodes, lat.skull_bone, self.skull_normal,
+                                   np.zeros_like(lat.skull_margin)))
+        if len(self.contact_pairs):
+            p = self.contact_pairs
+            h = np.einsum("ij,ij->i", x[p[:, 0]] - x[p[:, 1]], self.contact_normal) + lip_slack
+            bad = h < 0
+            if np.any(bad):
+                shift = 0.5 * h[bad, None] * self.contact_normal[bad]
+                free = ~self.fixed
+                a, b = p[bad, 0], p[bad, 1]
+                x[a] -= shift * free[a, None]
+                x[b] += shift * free[b, None]
+                moved += int(bad.sum())
+        return moved
 
     def skull_heights(self, x: np.ndarray) -> np.ndarray:
         """Signed height of every constrained fascia node above its skull plane (cm)."""

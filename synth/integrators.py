@@ -126,6 +126,12 @@ def rest_stiffness_matrix(lattice, *, phase: str = "low", volume: bool = True,
         rows.append(dof)
         cols.append(dof)
         vals.append(np.repeat(lattice.skull_k, 3))
+        if lattice.contact_pairs is not None and len(lattice.contact_pairs):
+            for c in range(2):
+                dof = (3 * lattice.contact_pairs[:, c].astype(np.int64)[:, None] + a3).ravel()
+                rows.append(dof)
+                cols.append(dof)
+                vals.append(np.repeat(2.0 * lattice.contact_k, 3))
     mat = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                         shape=(3 * n, 3 * n))
     return mat.tocsr()
@@ -158,30 +164,46 @@ def isotropic_matrix(lattice, *, phase: str = "low", volume_weight: float = 1.0)
 def _node_stiffness(lattice) -> np.ndarray:
     """Gershgorin bound of the stiffness seen by every node (large-strain springs, volume,
     skull)."""
-    kmat = rest_stiffness_matrix(lattice, phase="high", isotropic=True)
+    kmat = rest_stiffness_matrix(lattice, phase="high", isotropic=True, skull=True)
     row = np.asarray(abs(kmat).sum(axis=1)).ravel()
     return row.reshape(-1, 3).max(axis=1)
 
 
-def damping_coefficients(lattice, ratio: float = 1.05) -> np.ndarray:
-    """Velocity damping ``gamma_i = 2 ratio sqrt(m_i k_i)`` per node: ``ratio`` slightly above 1
-    makes every node's local mode slightly over-damped (004 III-B)."""
-    return 2.0 * ratio * np.sqrt(lattice.mass * np.maximum(_node_stiffness(lattice), 1e-12))
+def lowest_frequency(lattice) -> float:
+    """Angular frequency (rad/s) of the softest vibration mode of the lattice at rest,
+    from the generalised eigenproblem ``K v = omega^2 M v`` on the free nodes."""
+    free = np.flatnonzero(~lattice.fixed)
+    dof = (3 * free[:, None] + np.arange(3)).ravel()
+    k = rest_stiffness_matrix(lattice, phase="low", skull=False)[dof][:, dof].tocsc()
+    m = sp.diags(np.repeat(lattice.mass[free], 3))
+    val = spla.eigsh(k, k=1, M=m, sigma=0.0, which="LM", return_eigenvectors=False)
+    return float(np.sqrt(max(val[0], 1e-12)))
 
 
-def stable_timestep(lattice, damping: np.ndarray | None = None, safety: float = 0.8) -> float:
+def damping_coefficients(lattice, ratio: float = 1.1) -> np.ndarray:
+    """Velocity damping ``gamma_i = 2 ratio omega_min m_i`` per node (004 III-B): with
+    ``ratio`` slightly above 1 the dominant (softest) mode of the tissue is slightly
+    over-damped, so the lattice settles in a few of its periods without ringing."""
+    if not ratio > 0:
+        raise ValueError(f"ratio must be > 0, got {ratio}")
+    return 2.0 * ratio * lowest_frequency(lattice) * np.asarray(lattice.mass)
+
+
+def stable_timestep(lattice, damping: np.ndarray | None = None, safety: float = 0.3) -> float:
     """A time step (s) inside the stability region of :func:`rk2_step` for this lattice.
 
-    Uses the Gershgorin bound ``2 k_i`` on the stiffness seen by node ``i`` and the real-axis
-    stability limit ``|lambda dt| <= 2`` of the explicit midpoint rule."""
+    ``safety / omega_max`` with ``omega_max`` the Gershgorin bound of the highest frequency
+    (large-strain springs and volume term); the midpoint rule amplifies lightly damped
+    oscillations by ``(omega dt)**4 / 8`` per step, which the damping absorbs for
+    ``omega dt <~ 0.3``.  Also keeps ``gamma dt / m < 1``."""
     free = ~lattice.fixed
     m = lattice.mass[free]
     k = _node_stiffness(lattice)[free]
-    g = (damping_coefficients(lattice) if damping is None else np.asarray(damping))[free]
-    # largest |eigenvalue| of m s^2 + g s + k = 0 for every node
-    disc = np.maximum(g * g - 4 * m * k, 0.0)
-    lam = np.where(g * g >= 4 * m * k, (g + np.sqrt(disc)) / (2 * m), np.sqrt(k / m))
-    return float(safety * 2.0 / lam.max())
+    dt = safety / float(np.sqrt((k / m).max()))
+    if damping is not None:
+        g = np.asarray(damping)[free]
+        dt = min(dt, 0.5 * float((m / np.maximum(g, 1e-300)).min()))
+    return dt
 
 
 def _check(x, v, system: TissueSystem, *, where: str, dt=None, extra: str = "") -> None:
@@ -242,6 +264,7 @@ def rk2_step(system: TissueSystem, state: DynamicState, dt: float,
     vm = v + 0.5 * dt * a
     vm[system.fixed] = 0.0
     system.apply_boundary(xm)
+    _project_with_velocity(system, xm, vm)
     f2, _ = system.forces(xm)
     a2 = (f2 - g * vm) / m
     x += dt * vm
@@ -268,7 +291,6 @@ def verlet_step(system: TissueSystem, state: DynamicState, dt: float,
     system.apply_boundary(x)
     f, _ = system.forces(x)
     # semi-implicit treatment of the damping keeps the over-damped limit stable
-    v *= 1.0
     v[:] = (v * (1.0 - 0.5 * dt * g / m) + dt * f / m) / (1.0 + 0.5 * dt * g / m)
     v[system.fixed] = 0.0
     x += dt * v
@@ -279,9 +301,26 @@ def verlet_step(system: TissueSystem, state: DynamicState, dt: float,
     return state
 
 
-def _project_with_velocity(system: TissueSystem, x, v) -> None:
+def _project_with_velocity(system: TissueSystem, x, v, lip_slack: float = 0.05) -> None:
+    """Fail-safe behind the penalties: nodes that went through the skull, or lips crossed
+    deeper than ``lip_slack``, are put back and lose their approaching velocity."""
     lat = system.lattice
-    h = system.skull_heights(x) - lat.skull_margin
+    p = system.contact_pairs
+    if len(p):
+        nrm = system.contact_normal
+        h = np.einsum("ij,ij->i", x[p[:, 0]] - x[p[:, 1]], nrm) + lip_slack
+        bad = h < 0
+        if np.any(bad):
+            a, b, nb = p[bad, 0], p[bad, 1], nrm[bad]
+            fa = ~system.fixed[a]
+            fb = ~system.fixed[b]
+            x[a] -= (0.5 * h[bad] * fa)[:, None] * nb
+            x[b] += (0.5 * h[bad] * fb)[:, None] * nb
+            rel = np.einsum("ij,ij->i", v[a] - v[b], nb)
+            approach = np.minimum(rel, 0.0)
+            v[a] -= (0.5 * approach * fa)[:, None] * nb
+            v[b] += (0.5 * approach * fb)[:, None] * nb
+    h = system.skull_heights(x)
     below = h < 0
     if np.any(below):
         nodes = lat.skull_nodes[below]
@@ -335,6 +374,15 @@ class EquilibriumSolver:
         self.last_iterations = 0
         self.last_step = np.inf
         self.total_iterations = 0
+        self._s_hist: list = []
+        self._y_hist: list = []
+        self._rho_hist: list = []
+
+    def reset_history(self) -> None:
+        """Forget the L-BFGS curvature pairs (e.g. after a large jump in the load)."""
+        self._s_hist.clear()
+        self._y_hist.clear()
+        self._rho_hist.clear()
 
     def _solve(self, g_flat: np.ndarray) -> np.ndarray:
         return self._lu.solve(np.ascontiguousarray(g_flat.reshape(-1, 3))).ravel()
@@ -366,7 +414,9 @@ class EquilibriumSolver:
         sysm.project_skull(x)
         f, energy = sysm.forces(x, np.empty_like(x))
         g = -f[free].ravel()
-        s_hist, y_hist, rho_hist = [], [], []
+        # curvature pairs are kept from the previous solve: the Hessian of the lattice depends
+        # on the configuration, which changes little between consecutive frames
+        s_hist, y_hist, rho_hist = self._s_hist, self._y_hist, self._rho_hist
         it = 0
         step = np.inf
         while True:

@@ -54,11 +54,11 @@ DEFAULT_LAYER_DEPTHS = (0.0, 0.25, 0.6, 1.0)
 #: The ratios follow Lee et al. (000, section 4: epidermis 60, dermal-fatty 30 / 70,
 #: fascia 80, muscle 10); the subcutaneous fat is the most deformable layer (004 III-A).
 DEFAULT_STIFFNESS: dict[str, tuple[float, float, float]] = {
-    "epidermis": (60.0, 120.0, 0.10),
-    "dermis": (30.0, 70.0, 0.15),
-    "subcutaneous": (10.0, 25.0, 0.30),
-    "fascia": (80.0, 160.0, 0.10),
-    "muscle": (10.0, 25.0, 0.30),
+    "epidermis": (60.0, 120.0, 0.15),
+    "dermis": (30.0, 70.0, 0.20),
+    "subcutaneous": (10.0, 25.0, 0.50),
+    "fascia": (80.0, 160.0, 0.15),
+    "muscle": (10.0, 25.0, 0.50),
 }
 
 #: Membrane thickness (cm) of the epidermis and the fascia sheets.
@@ -99,6 +99,9 @@ class Lattice:
     skull_margin: np.ndarray    #: (f,) minimum fascia height above the skull (cm)
     skull_k: np.ndarray         #: (f,) penalty stiffness of the non-penetration constraint
     inward: np.ndarray          #: (n_vertices, 3) unit inward direction used for extrusion
+    contact_pairs: np.ndarray = None   #: (c, 2) (upper-lip node, lower-lip node) seam pairs
+    contact_normal: np.ndarray = None  #: (c, 3) direction from the lower to the upper lip
+    contact_k: np.ndarray = None       #: (c,) penalty stiffness keeping the lips apart
     info: dict = field(default_factory=dict)
 
     @property
@@ -232,7 +235,7 @@ def _smooth_normals_radius(points, normals, sigma):
 def build_lattice(mesh, *, layer_depths=DEFAULT_LAYER_DEPTHS, stiffness=None,
                   membrane_thickness=None, bulk_modulus: float = 100.0,
                   density: float = 1e-4, skull_margin: float = 0.1,
-                  skull_stiffness: float = 2000.0, normal_smoothing: float = 0.8) -> Lattice:
+                  skull_stiffness: float = 300.0, normal_smoothing: float = 0.8) -> Lattice:
     """Assemble the trilayer tissue lattice under an epidermal triangle mesh (004 III-D).
 
     Parameters
@@ -466,6 +469,27 @@ def build_lattice(mesh, *, layer_depths=DEFAULT_LAYER_DEPTHS, stiffness=None,
     v_area = np.bincount(tri.ravel(), weights=np.repeat(tri_area / 3.0, 3), minlength=n_v)
     skull_k = skull_stiffness * v_area[free_v] / muscle_thick
 
+    # ---- lip contact: the upper lip stays above the lower lip along the seam ----
+    if len(seam):
+        up = np.array([0.0, 1.0, 0.0])
+        pairs_c, normals_c, k_c = [], [], []
+        for l in range(3):
+            pu, pl = seam[:, 0] + l * n_v, seam[:, 1] + l * n_v
+            ok = ~(fixed[pu] & fixed[pl])
+            nrm = normals[seam[:, 0]]
+            d = up - (nrm @ up)[:, None] * nrm
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            pairs_c.append(np.stack([pu, pl], axis=1)[ok])
+            normals_c.append(d[ok])
+            k_c.append((skull_stiffness * v_area[seam[:, 0]] / depth[seam[:, 0]])[ok])
+        contact_pairs = np.concatenate(pairs_c).astype(np.int32)
+        contact_normal = np.concatenate(normals_c)
+        contact_k = np.concatenate(k_c)
+    else:
+        contact_pairs = np.zeros((0, 2), np.int32)
+        contact_normal = np.zeros((0, 3))
+        contact_k = np.zeros(0)
+
     ro = lambda a: _readonly(a)  # noqa: E731
     return Lattice(
         rest=ro(rest), layer=ro(layer), n_vertices=int(n_v),
@@ -476,7 +500,8 @@ def build_lattice(mesh, *, layer_depths=DEFAULT_LAYER_DEPTHS, stiffness=None,
         rest_volume=ro(rest_volume), bulk=ro(bulk), mass=ro(mass),
         skull_nodes=ro(skull_nodes.astype(np.int32)), skull_bone=ro(skull_bone.astype(np.int32)),
         skull_normal=ro(skull_normal), skull_margin=ro(margin), skull_k=ro(skull_k),
-        inward=ro(inward),
+        inward=ro(inward), contact_pairs=ro(contact_pairs), contact_normal=ro(contact_normal),
+        contact_k=ro(contact_k),
         info={"layer_depths": tuple(float(d) for d in depths), "stiffness": stiff,
               "membrane_thickness": membrane, "bulk_modulus": float(bulk_modulus),
               "density": float(density), "depth": _readonly(depth),
