@@ -41,7 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from trackers.potentials import potential_from_gray, sample_bilinear, to_gray
+from trackers.potentials import potentials_in_boxes, sample_bilinear, to_gray
 from trackers.snakes import resample_polyline
 
 __all__ = [
@@ -56,7 +56,7 @@ __all__ = [
 
 CONTOUR_NAMES = ("hairline", "brow_l", "brow_r", "furrow_l", "furrow_r", "nose_tip",
                  "upper_lip", "lower_lip", "chin_boss")
-KINDS = ("edge", "valley")
+KINDS = ("edge", "valley", "dark_below")
 
 
 def _parabola(x0, x1, pts, n=25):
@@ -380,7 +380,7 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
         base = np.asarray(offsets.get(parent, (0.0, 0.0)), float)
         key = (c.kind, round(c.sigma, 3))
         if key not in cache:
-            cache[key] = potential_from_gray(gray, c.kind, c.sigma)
+            cache[key] = potentials_in_boxes(gray, [(c.kind, c.sigma)], [(0, 0, W, H)])[0]
         P = cache[key]
         dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)

@@ -47,6 +47,7 @@ __all__ = [
     "gaussian_potential",
     "paper_potential",
     "valley_potential",
+    "dark_below_potential",
     "potential_from_gray",
     "potentials_in_boxes",
     "force_field",
@@ -181,6 +182,17 @@ def _edge_nb(g, P):
             gx = (g[y, x1] - g[y, x0]) / (x1 - x0)
             gy = (g[y1, x] - g[y0, x]) / (y1 - y0)
             P[y, x] = -np.sqrt(gx * gx + gy * gy)
+
+
+@numba.njit(cache=True)
+def _dark_below_nb(g, P):
+    H, W = g.shape
+    for y in range(H):
+        y0 = y - 1 if y > 0 else 0
+        y1 = y + 1 if y < H - 1 else H - 1
+        for x in range(W):
+            gy = (g[y1, x] - g[y0, x]) / (y1 - y0)
+            P[y, x] = gy if gy < 0.0 else 0.0
 
 
 @numba.njit(cache=True)
@@ -389,7 +401,7 @@ def _valley_from_gray(gray, sigma, roi, blurred=None):
     return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
 
 
-KINDS = ("edge", "valley", "paper", "paper_centred")
+KINDS = ("edge", "valley", "dark_below", "paper", "paper_centred")
 
 
 def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.ndarray:
@@ -399,9 +411,10 @@ def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.
     ----------
     gray : ndarray of float32, (H, W)
         Grey image in 8-bit units, as :func:`to_gray` returns.
-    kind : {'edge', 'valley', 'paper', 'paper_centred'}
-        :func:`gaussian_potential`, :func:`valley_potential` or :func:`paper_potential`
-        (``centred=False`` / ``True``); ``sigma`` is ignored by the paper's filter.
+    kind : {'edge', 'valley', 'dark_below', 'paper', 'paper_centred'}
+        :func:`gaussian_potential`, :func:`valley_potential`,
+        :func:`dark_below_potential` or :func:`paper_potential` (``centred=False`` /
+        ``True``); ``sigma`` is ignored by the paper's filter.
     sigma : float
     roi : (x0, y0, x1, y1), optional
 
@@ -427,6 +440,13 @@ def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.
         return _edge_from_gray(gray, _check_sigma(sigma), roi)
     if kind == "valley":
         return _valley_from_gray(gray, _check_sigma(sigma), roi)
+    if kind == "dark_below":
+        sigma = _check_sigma(sigma)
+        sub, (ox, oy, w, h) = _crop_with_margin(gray, roi, int(np.ceil(3 * sigma)) + 2)
+        g = _blur(sub, sigma)
+        P = np.empty_like(g)
+        _dark_below_nb(g, P)
+        return np.ascontiguousarray(P[oy:oy + h, ox:ox + w])
     return _paper_from_gray(gray, kind == "paper_centred", roi)
 
 
@@ -443,7 +463,7 @@ def potentials_in_boxes(gray, specs, boxes):
     gray : ndarray of float32 (H, W)
         From :func:`to_gray`.
     specs : sequence of (kind, sigma)
-        ``kind`` in {'edge', 'valley'}.
+        ``kind`` in {'edge', 'valley', 'dark_below'}.
     boxes : sequence of (x0, y0, x1, y1)
         Half-open pixel bounds in ``gray``, one per spec.
 
@@ -469,8 +489,8 @@ def potentials_in_boxes(gray, specs, boxes):
     out = []
     for (kind, sigma), box in zip(specs, boxes):
         sigma = _check_sigma(sigma)
-        if kind not in ("edge", "valley"):
-            raise ValueError(f"kind must be 'edge' or 'valley', got {kind!r}")
+        if kind not in ("edge", "valley", "dark_below"):
+            raise ValueError(f"kind must be 'edge', 'valley' or 'dark_below', got {kind!r}")
         x0, y0, x1, y1 = _check_roi(box, gray.shape)
         if sigma not in blurred:
             blurred[sigma] = _blur(gray, sigma)
@@ -478,10 +498,48 @@ def potentials_in_boxes(gray, specs, boxes):
         P = np.empty((y1 - y0, x1 - x0), np.float32)
         if kind == "edge":
             _edge_nb(g, P)
+        elif kind == "dark_below":
+            _dark_below_nb(g, P)
         else:
             _valley_nb(g, np.float32(sigma * sigma), P)
         out.append(P)
     return out
+
+
+def dark_below_potential(image, sigma: float = 1.5, *, roi=None,
+                         channel_order: str = "rgb") -> np.ndarray:
+    """Polarised edge potential: ``P = min(d(G_sigma * I)/dy, 0)``.
+
+    Ravines lie only on edges that go from bright (above) to dark (below) in the
+    image, such as the lower border of the upper lip, whether the mouth is closed
+    (a thin dark mouth line below it) or open (the dark cavity below it). Edges of
+    the other polarity (the lower lip's top border) give no response.
+
+    Parameters
+    ----------
+    image : array_like
+        Frame of any dtype (see :func:`to_gray`).
+    sigma : float
+    roi : (x0, y0, x1, y1), optional
+    channel_order : {'rgb', 'bgr'}
+
+    Returns
+    -------
+    P : ndarray of float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> img = np.full((30, 10), 200, np.uint8); img[15:, :] = 40   # dark below row 15
+    >>> P = dark_below_potential(img, 1.0)
+    >>> int(np.argmin(P[:, 5])) in (14, 15), float(P[20:25, 5].max()) == 0.0
+    (True, True)
+    >>> float(dark_below_potential(255 - img, 1.0).min())  # opposite polarity: nothing
+    0.0
+    """
+    sigma = _check_sigma(sigma)
+    return potential_from_gray(to_gray(image, channel_order=channel_order), "dark_below",
+                               sigma, roi=roi)
 
 
 def force_field(potential, p: float = 1.0) -> np.ndarray:

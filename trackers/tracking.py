@@ -385,6 +385,13 @@ class Tracker:
     max_step : float
         Cap on a node's move per step, pixels (a guard against a too strong image
         force; it does not change equilibria).
+    brow_mid : 'apex' or float
+        Where ``brow_mid_*`` sits along each eyebrow contour (arc-length fraction
+        from the inner end). 'apex' (default) finds the top of the arch on the first
+        frame and keeps that fraction afterwards; a number fixes it (0.5 = middle).
+        On renders of this project's face model the landmark lies at 0.556 +- 0.01
+        of the brow's image arc length (five identities; the outer brow is
+        foreshortened), where 'apex' is 1-2.5 px off.
     channel_order : {'rgb', 'bgr'}
 
     Examples
@@ -404,7 +411,7 @@ class Tracker:
                  strength="auto", descent_rate: float = 0.3, tol: float = 0.01,
                  max_iter: int = 300, first_max_iter: int = 2000, lost_depth: float = 0.3,
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
-                 max_step: float = 1.0, channel_order: str = "rgb"):
+                 max_step: float = 1.0, brow_mid="apex", channel_order: str = "rgb"):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -424,6 +431,11 @@ class Tracker:
             raise ValueError(f"stretch_range must be (lo < 1 < hi), got {stretch_range}")
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
+        if not (isinstance(brow_mid, str) and brow_mid == "apex") and not (
+                isinstance(brow_mid, int | float) and 0.0 <= brow_mid <= 1.0):
+            raise ValueError(f"brow_mid must be 'apex' or a fraction in [0, 1], got "
+                             f"{brow_mid!r}")
+        self.brow_mid = brow_mid
         self.layout = layout
         self.params = params
         self.strength_mode = strength
@@ -673,7 +685,8 @@ class Tracker:
                 b = cont[f"brow_{side}"]
                 if abs(head.to_head(b[:1])[0, 0]) > abs(head.to_head(b[-1:])[0, 0]):
                     b = b[::-1]
-                self.brow_fraction[side] = apex_fraction(b, axis)
+                self.brow_fraction[side] = apex_fraction(b, axis) \
+                    if self.brow_mid == "apex" else float(self.brow_mid)
         if head is None:
             raise ValueError(f"frame {self.index}: no head frame could be computed")
         self.last_head = head

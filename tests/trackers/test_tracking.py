@@ -115,3 +115,12 @@ def test_real_video_tracks_without_crashing(real_video_dir):
         r = tr.track(f)
         assert all(np.isfinite(p).all() for p in r.contours.values())
         assert np.isfinite(list(r.fiducials.values())).all()
+
+
+def test_brow_mid_fraction_option():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    img, _ = draw_face()
+    r = Tracker(lay, brow_mid=0.0).track(img)
+    np.testing.assert_allclose(r.fiducials["brow_mid_l"], r.fiducials["brow_inner_l"])
+    with pytest.raises(ValueError, match="brow_mid"):
+        Tracker(lay, brow_mid=2.0)
