@@ -99,7 +99,8 @@ def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | Non
     image0, image1 : ndarray
         Grey ``(H, W)`` or colour ``(H, W, 3)`` (BGR) frames of the same size, any dtype.
     method : {'dis', 'farneback', 'tvl1'}
-        ``dis``: DIS optical flow, medium preset (default); ``farneback``: Farneback's
+        ``dis``: DIS optical flow, medium preset refined down to full resolution (finest
+        scale 0; default); ``farneback``: Farneback's
         polynomial expansion; ``tvl1``: Dual TV-L1 (``cv2.optflow``) with a pyramid deep
         enough for ``max_motion`` (:func:`tvl1_scales`).
     max_motion : float, optional
@@ -132,8 +133,9 @@ def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | Non
     if method == "dis":
         dis = _DIS_CACHE.get("dis")
         if dis is None:
-            dis = _DIS_CACHE["dis"] = cv2.DISOpticalFlow_create(
-                cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+            dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+            dis.setFinestScale(0)       # full resolution: sub-pixel face motion needs it
+            _DIS_CACHE["dis"] = dis
         flow = dis.calc(a, b, None)
     elif method == "farneback":
         levels = int(max(3, min(6, math.ceil(math.log2(max(max_motion, 1.0))) + 1)))

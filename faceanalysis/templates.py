@@ -7,8 +7,8 @@ node motion) into fields on the canonical :class:`~faceanalysis.flow.FaceGrid`:
 
 - one **per control** (each muscle and the jaw): the displacement from rest to the
   equilibrium under a contraction of ``level`` (default 1), divided by the level, so that a
-  template is the motion per unit contraction (per radian for the jaw, whose bound is
-  :data:`JAW_MAX`);
+  template is the motion per unit contraction (the jaw's, made at ``level *``
+  :data:`JAW_TEMPLATE` radians, is per radian; its bound is :data:`JAW_MAX`);
 - one **per primary expression** (:data:`synth.facs.EXPRESSIONS`): the spatio-temporal
   template of its onset, the displacement from rest at ``n_steps`` instants from neutral to
   apex (the timing of :func:`synth.facs.expression_timeline`), and the motion-energy map
@@ -47,11 +47,15 @@ from faceanalysis.flow import FaceGrid, grid_image_points, image_flow_to_grid, r
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FlowTemplates", "make_templates", "personalize", "default_templates",
-           "write_templates", "preview_templates", "JAW_MAX", "REGION_GROUPS", "EXPRESSION_NAMES"]
+__all__ = ["FlowTemplates", "ModelView", "SubjectWarp", "make_templates", "personalize",
+           "default_templates", "write_templates", "preview_templates", "JAW_MAX",
+           "JAW_TEMPLATE", "REGION_GROUPS", "EXPRESSION_NAMES"]
 
-#: Jaw rotation (radians) of the jaw template's full level (as the fiducial response).
-JAW_MAX = 0.35
+#: Upper bound of the jaw rotation (radians), that of :data:`synth.facs.MAX_JAW_ROTATION`.
+JAW_MAX = 0.5
+#: Jaw rotation (radians) at which the jaw template is made (times ``level``); the template
+#: is the motion per radian.
+JAW_TEMPLATE = 0.25
 #: Expression classes in a fixed order (the six primaries of :mod:`synth.facs`).
 EXPRESSION_NAMES = ("happiness", "sadness", "surprise", "fear", "anger", "disgust")
 #: Reporting regions of the face grid: name -> synth.mesh.Region codes.
@@ -226,6 +230,87 @@ def _nodes_to_grid(res0, res1, n_skin, head, grid, mask):
     return np.nan_to_num(out)
 
 
+class ModelView:
+    """The face model at rest, rendered, with its head frame and face mask on the grid.
+
+    Turns any later state of the model into its displacement field on the grid (head
+    units, from rest), from the renderer's exact flow (``source='exact'``; occluded pixels
+    left out) or from the projected node motion (``'nodes'``). Used for the templates and
+    for the resynthesis flow of :mod:`faceanalysis.validation`.
+
+    Parameters
+    ----------
+    model : FaceModel-like
+    grid : FaceGrid, optional
+    size : int
+        Square render size, px (orthographic default camera).
+    texture_seed : int
+    source : {'exact', 'nodes'}
+    """
+
+    def __init__(self, model, *, grid: FaceGrid | None = None, size: int = 256,
+                 texture_seed: int = 0, source: str = "exact"):
+        import cv2
+        from scipy.spatial import cKDTree
+
+        from faceanalysis.calibration import to_head_frame
+        from synth.render import Renderer, default_camera, paint_skin_texture
+        from synth.render.camera import project
+
+        if source not in ("exact", "nodes"):
+            raise ValueError(f"source={source!r} must be 'exact' or 'nodes'")
+        self.model = model
+        self.grid = grid = grid or FaceGrid()
+        self.source = source
+        self.mesh = mesh = model.mesh
+        cam = default_camera(int(size), int(size))
+        self.renderer = Renderer(mesh, texture=paint_skin_texture(mesh, int(texture_seed),
+                                                                  size=512),
+                                 camera=cam, supersample=2)
+        self.n_skin = self.renderer.n_skin
+        if hasattr(model, "reset"):
+            model.reset()
+        self.skin0, self.inner0 = _model_state(model)
+        self.rest = res0 = self.renderer.render(self.skin0, self.inner0)
+        lm = (model.landmark_positions() if hasattr(model, "landmark_positions")
+              else mesh.landmark_positions(self.skin0))
+        head = _tracked_head(res0.image)
+        self.head_source = "tracker"
+        if head is None:
+            head = _landmark_head(self.renderer, res0, lm)
+            self.head_source = "landmarks"
+        self.head = head
+        pts = grid_image_points(grid, head).astype(np.float32)
+        fm = cv2.remap(res0.mask.astype(np.float32), pts[..., 0], pts[..., 1],
+                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        # face cells: the whole neighbourhood on the face
+        self.mask = cv2.erode((fm > 0.99).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        _, near = cKDTree(res0.xy[:self.n_skin]).query(pts.reshape(-1, 2))
+        region = np.asarray(mesh.region)[near].reshape(grid.shape).astype(np.int8)
+        region[~self.mask] = -1
+        self.region = region
+        fid_xy, _ = project(np.array([lm[n] for n in _FIDUCIALS]), cam)
+        self.fiducials = to_head_frame(fid_xy, head)
+
+    def to_grid(self, result) -> np.ndarray:
+        """Displacement field (rows, cols, 2) from rest to the render ``result``."""
+        from synth.render import forward_flow
+
+        if self.source == "exact":
+            flow, occ = forward_flow(self.renderer, self.rest, result)
+            d = image_flow_to_grid(flow, self.head, self.grid, valid=self.rest.mask & ~occ)
+            d[~self.mask] = 0.0
+            return np.nan_to_num(d)
+        return _nodes_to_grid(self.rest, result, self.n_skin, self.head, self.grid, self.mask)
+
+    def displacement(self, values=None, jaw_rotation: float = 0.0, *, pose=None
+                     ) -> np.ndarray:
+        """Equilibrate the model at ``values`` (dict or None) and return its displacement
+        field from rest (optionally with a head pose)."""
+        skin, inner = _model_state(self.model, values, jaw_rotation)
+        return self.to_grid(self.renderer.render(skin, inner, pose=pose, shade=False))
+
+
 def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
                    level: float = 1.0, controls=None, expressions=EXPRESSION_NAMES,
                    n_steps: int = 6, source: str = "exact", texture_seed: int = 0,
@@ -261,7 +346,6 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
     FlowTemplates
     """
     from synth import facs
-    from synth.render import Renderer, default_camera, forward_flow, paint_skin_texture
     from synth.render.camera import HeadPose
 
     if source not in ("exact", "nodes"):
@@ -286,48 +370,11 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
     bad = [c for c in controls if c != "jaw_rotation" and c not in muscles]
     if bad:
         raise ValueError(f"unknown controls {bad}; the model has {', '.join(muscles)}")
-    mesh = model.mesh
-    cam = default_camera(int(size), int(size))
-    renderer = Renderer(mesh, texture=paint_skin_texture(mesh, int(texture_seed), size=512),
-                        camera=cam, supersample=2)
-    n_skin = renderer.n_skin
-    if hasattr(model, "reset"):
-        model.reset()
-    skin0, inner0 = _model_state(model)
-    res0 = renderer.render(skin0, inner0)
-    lm = (model.landmark_positions() if hasattr(model, "landmark_positions")
-          else mesh.landmark_positions(skin0))
-    head = _tracked_head(res0.image)
-    head_source = "tracker"
-    if head is None:
-        head = _landmark_head(renderer, res0, lm)
-        head_source = "landmarks"
-    # face mask on the grid: cells whose neighbourhood is all face
-    import cv2
-
-    pts = grid_image_points(grid, head).astype(np.float32)
-    fm = cv2.remap(res0.mask.astype(np.float32), pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
-                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-    mask = cv2.erode((fm > 0.99).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    from scipy.spatial import cKDTree
-
-    _, near = cKDTree(res0.xy[:n_skin]).query(pts.reshape(-1, 2))
-    region = np.asarray(mesh.region)[near].reshape(grid.shape).astype(np.int8)
-    region[~mask] = -1
-    from synth.render.camera import project as _project
-
-    fid_xy, _ = _project(np.array([lm[n] for n in _FIDUCIALS]), cam)
-    from faceanalysis.calibration import to_head_frame
-
-    fiducials = to_head_frame(fid_xy, head)
-
-    def to_grid(res1):
-        if source == "exact":
-            flow, occ = forward_flow(renderer, res0, res1)
-            d = image_flow_to_grid(flow, head, grid, valid=res0.mask & ~occ)
-            d[~mask] = 0.0
-            return np.nan_to_num(d)
-        return _nodes_to_grid(res0, res1, n_skin, head, grid, mask)
+    view = ModelView(model, grid=grid, size=size, texture_seed=texture_seed, source=source)
+    mesh, renderer, head, mask = view.mesh, view.renderer, view.head, view.mask
+    skin0, inner0 = view.skin0, view.inner0
+    cam = renderer.camera
+    to_grid = view.to_grid
 
     total = len(controls) + 2 + len(expressions) * n_steps
     done = 0
@@ -342,10 +389,12 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
     upper = np.array([JAW_MAX if c == "jaw_rotation" else 1.0 for c in controls])
     for m, name in enumerate(controls):
         if name == "jaw_rotation":
-            skin, inner = _model_state(model, None, level * JAW_MAX)
+            amount = level * JAW_TEMPLATE
+            skin, inner = _model_state(model, None, amount)
         else:
+            amount = level
             skin, inner = _model_state(model, {name: level})
-        control[m] = to_grid(renderer.render(skin, inner, shade=False)) / level
+        control[m] = to_grid(renderer.render(skin, inner, shade=False)) / amount
         tick()
     # nuisance: similarity + out-of-plane rotation by one degree
     nuis = [*rigid_basis(grid)]
@@ -382,13 +431,13 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
     if hasattr(model, "reset"):
         model.reset()
     meta = {"source": source, "level": float(level), "size": int(size),
-            "n_steps": int(n_steps), "head_source": head_source,
+            "n_steps": int(n_steps), "head_source": view.head_source,
             "model_vertices": int(len(mesh.vertices)), "personalised": False,
             "camera": cam.as_dict(), "texture_seed": int(texture_seed)}
     return FlowTemplates(grid=grid, controls=controls, upper=upper, control=control,
                          nuisance_names=tuple(names), nuisance=nuisance, mask=mask,
-                         region=region, expressions=tuple(expressions), expression=expr,
-                         energy=energy, fiducials=fiducials, head=head, meta=meta)
+                         region=view.region, expressions=tuple(expressions), expression=expr,
+                         energy=energy, fiducials=view.fiducials, head=head, meta=meta)
 
 
 # ---------------------------------------------------------------------------- personalisation
@@ -400,6 +449,58 @@ def _tps_warp(src: np.ndarray, dst: np.ndarray):
     design = np.c_[src, np.ones(len(src))]
     coef, *_ = np.linalg.lstsq(design, dst, rcond=None)
     return rbf, coef[:2].T
+
+
+class SubjectWarp:
+    """2-D landmark-driven warp from the model's face onto a subject's, on the face grid.
+
+    A thin-plate spline maps each grid point of the subject's face to the corresponding
+    point of the model's (driven by the 11 fiducials and five rigid anchors: the head origin
+    and the grid corners); fields are resampled there and vectors mapped by the inverse of
+    the warp's affine part.
+
+    Parameters
+    ----------
+    grid : FaceGrid
+    model_fiducials, subject_fiducials : (11, 2) array_like
+        Head coordinates of the model's rest fiducials and of the subject's neutral ones.
+    """
+
+    def __init__(self, grid: FaceGrid, model_fiducials, subject_fiducials):
+        q = np.asarray(subject_fiducials, dtype=float)
+        p = np.asarray(model_fiducials, dtype=float)
+        if q.shape != p.shape or q.ndim != 2 or q.shape[1] != 2 or not np.isfinite(q).all():
+            raise ValueError(f"subject fiducials must be {p.shape} finite values, "
+                             f"got shape {q.shape}")
+        self.grid = grid
+        anchors = np.array([[0.0, 0.0], [grid.u[0], grid.v[0]], [grid.u[1], grid.v[0]],
+                            [grid.u[0], grid.v[1]], [grid.u[1], grid.v[1]]])
+        rbf, lin = _tps_warp(np.vstack([q, anchors]), np.vstack([p, anchors]))
+        pts = grid.points
+        self.back = rbf(pts.reshape(-1, 2)).reshape(pts.shape)
+        self.jac = np.linalg.inv(lin)
+
+    def scalars(self, stack: np.ndarray) -> np.ndarray:
+        """Warp scalar fields (..., rows, cols)."""
+        stack = np.asarray(stack, dtype=float)
+        lead = stack.shape[:-2]
+        flat = stack.reshape(-1, *self.grid.shape)
+        out = self.grid.sample(np.moveaxis(flat, 0, -1), self.back)
+        return np.moveaxis(out.reshape(*self.grid.shape, -1), -1, 0).reshape(*lead,
+                                                                           *self.grid.shape)
+
+    def vectors(self, stack: np.ndarray) -> np.ndarray:
+        """Warp vector fields (..., rows, cols, 2)."""
+        stack = np.asarray(stack, dtype=float)
+        lead = stack.shape[:-3]
+        flat = stack.reshape(-1, *self.grid.shape, 2)
+        chans = np.moveaxis(flat, 0, 2).reshape(*self.grid.shape, -1)      # (r, c, K*2)
+        out = self.grid.sample(chans, self.back).reshape(*self.grid.shape, len(flat), 2)
+        out = out @ self.jac.T
+        return np.moveaxis(out, 2, 0).reshape(*lead, *self.grid.shape, 2)
+
+    def mask(self, mask: np.ndarray) -> np.ndarray:
+        return self.grid.sample(np.asarray(mask, dtype=np.float32), self.back) > 0.99
 
 
 def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
@@ -420,38 +521,15 @@ def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
         Templates on the same grid, whose features sit where the subject's are.
     """
     q = np.asarray(fiducials_head, dtype=float)
-    if q.shape != templates.fiducials.shape or not np.isfinite(q).all():
-        raise ValueError(f"fiducials_head must be {templates.fiducials.shape} finite values, "
-                         f"got shape {q.shape}")
-    grid = templates.grid
-    # anchors on the rigid head (origin, frame corners) keep the warp from flying off
-    anchors = np.array([[0.0, 0.0], [grid.u[0], grid.v[0]], [grid.u[1], grid.v[0]],
-                        [grid.u[0], grid.v[1]], [grid.u[1], grid.v[1]]])
-    src = np.vstack([q, anchors])
-    dst = np.vstack([templates.fiducials, anchors])
-    rbf, lin = _tps_warp(src, dst)                     # subject -> model
-    pts = grid.points
-    back = rbf(pts.reshape(-1, 2)).reshape(pts.shape)  # where each subject cell sits on the model
-    jac = np.linalg.inv(lin)                           # model vectors -> subject vectors
-
-    def warp_vectors(stack):
-        stack = np.asarray(stack)
-        lead = stack.shape[:-3]
-        flat = stack.reshape(-1, *grid.shape, 2)
-        chans = np.moveaxis(flat, 0, 2).reshape(*grid.shape, -1)       # (r, c, K*2)
-        out = grid.sample(chans, back).reshape(*grid.shape, len(flat), 2)
-        out = out @ jac.T
-        return np.moveaxis(out, 2, 0).reshape(*lead, *grid.shape, 2)
-
-    mask_w = grid.sample(templates.mask.astype(np.float32), back) > 0.99
-    region = np.rint(grid.sample(templates.region.astype(np.float32), back)).astype(np.int8)
-    near = grid.sample(templates.region.astype(np.float32), back)
-    region = np.where(np.abs(near - np.rint(near)) < 1e-3, region, -1).astype(np.int8)
+    warp = SubjectWarp(templates.grid, templates.fiducials, q)
+    mask_w = warp.mask(templates.mask)
+    near = warp.scalars(templates.region.astype(float))
+    region = np.where(np.abs(near - np.rint(near)) < 1e-3, np.rint(near), -1).astype(np.int8)
     region[~mask_w] = -1
-    control = warp_vectors(templates.control)
-    nuis = np.array([*rigid_basis(grid), *warp_vectors(templates.nuisance[4:])])
-    expr = warp_vectors(templates.expression)
-    energy = np.moveaxis(grid.sample(np.moveaxis(templates.energy, 0, -1), back), -1, 0)
+    control = warp.vectors(templates.control)
+    nuis = np.array([*rigid_basis(templates.grid), *warp.vectors(templates.nuisance[4:])])
+    expr = warp.vectors(templates.expression)
+    energy = warp.scalars(templates.energy)
     for arr in (control, nuis, expr):
         arr[..., ~mask_w, :] = 0.0
     energy[:, ~mask_w] = 0.0
