@@ -99,8 +99,10 @@ TEMPLATE: dict[str, np.ndarray] = _build_template()
 
 #: Per-contour defaults: (closed, kind, sigma in inter-eye units, search window (x, y)
 #: in inter-eye units, ends, parent). ``ends``: 'free' (left to the snake), 'tip'
-#: (relocated on the end of the line each frame) or 'centre' (the tip moved back by
-#: the line's half-width, i.e. the end of a thick band's centre line). The search of a
+#: (relocated on the end of the line each frame), 'centre' (the tip moved back by
+#: the line's half-width, i.e. the end of a thick band's centre line) or 'corner'
+#: (the farthest end of the dark region within 45 degrees of the end tangent: the
+#: commissure, also when the open mouth makes the contour follow its lower border). The search of a
 #: contour is centred on the template moved by its parent's offset (the mouth follows
 #: the nose, the chin follows the lower lip), in this order.
 CONTOUR_DEFAULTS = {
@@ -114,7 +116,7 @@ CONTOUR_DEFAULTS = {
     "lower_lip": (False, "edge", 0.022, (0.0, 0.10), "free", "upper_lip"),
     "chin_boss": (True, "valley", 0.022, (0.05, 0.20), "free", "lower_lip"),
 }
-ENDS = ("free", "tip", "centre")
+ENDS = ("free", "tip", "centre", "corner")
 
 #: Where the eye centres lie inside a Haar ``frontalface_default`` box, as fractions of
 #: its width / height (x from the box's left, y from its top).
@@ -134,10 +136,12 @@ class LayoutContour:
         Potential the contour follows.
     sigma : float
         Width of that potential, pixels.
-    ends : {'free', 'tip', 'centre'}
+    ends : {'free', 'tip', 'centre', 'corner'}
         How the tracker treats the two ends of an open contour each frame: left to
-        the snake, relocated on the end of the line, or relocated on the end of the
-        line's centre line (tip moved back by the half-width, for thick bands).
+        the snake, relocated on the end of the line, relocated on the end of the
+        line's centre line (tip moved back by the half-width, for thick bands), or
+        relocated on the farthest end of the dark region within 45 degrees of the end
+        tangent (mouth corners).
     """
 
     points: np.ndarray
@@ -378,9 +382,13 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
         win, parent = CONTOUR_DEFAULTS[name][3], CONTOUR_DEFAULTS[name][5]
         rx, ry = win[0] * iod, win[1] * iod
         base = np.asarray(offsets.get(parent, (0.0, 0.0)), float)
-        key = (c.kind, round(c.sigma, 3))
+        # a bright-to-dark edge is searched for by the dark line (or region) below it:
+        # the upper lip's lower border is found on the mouth line, not on the lip's
+        # upper border (which has the same polarity)
+        kind = "valley" if c.kind == "dark_below" else c.kind
+        key = (kind, round(c.sigma, 3))
         if key not in cache:
-            cache[key] = potentials_in_boxes(gray, [(c.kind, c.sigma)], [(0, 0, W, H)])[0]
+            cache[key] = potentials_in_boxes(gray, [(kind, c.sigma)], [(0, 0, W, H)])[0]
         P = cache[key]
         dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)

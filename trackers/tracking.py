@@ -139,7 +139,7 @@ def _sample_safe(P, pts, origin):
 
 
 def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int = 0,
-               gray=None, gray_origin=None, inset: bool = True):
+               gray=None, gray_origin=None, inset: bool = True, fan: float = 0.0):
     """Relocate one end of an open contour on the end of the dark line it follows.
 
     The potential is sampled along the contour (inside) and along its end tangent
@@ -168,6 +168,10 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         Treat the feature as a band: reference depth taken just inside the end and
         the end moved back by the half-width (needs ``gray``). Otherwise a thin line:
         reference depth = deepest point inside, no inset.
+    fan : float
+        Half-angle in degrees of a fan of search directions around the end tangent;
+        the farthest end found wins (the corner of an open mouth lies off the
+        tangent of a contour that follows the mouth's lower border). 0: tangent only.
 
     Returns
     -------
@@ -197,7 +201,7 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     go = origin if gray_origin is None else gray_origin
     ok, x, y = _refine_end_nb(np.ascontiguousarray(p), P, float(origin[0]), float(origin[1]),
                               float(sigma), bool(inset), g, float(go[0]), float(go[1]),
-                              has_gray)
+                              has_gray, float(np.deg2rad(fan)))
     return np.array([x, y]) if ok else None
 
 
@@ -274,7 +278,7 @@ def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
 
 
 @numba.njit(cache=True)
-def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
+def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
     n = p.shape[0]
     k = min(3, n - 1)
     tx = p[0, 0] - p[k, 0]
@@ -284,6 +288,34 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
         return False, 0.0, 0.0
     tx /= norm
     ty /= norm
+    if fan <= 0.0:
+        ok, s_end, x, y = _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy,
+                                         has_gray, tx, ty)
+        return ok, x, y
+    # a fan of directions around the tangent: the farthest end of the dark region
+    best = -np.inf
+    bx = 0.0
+    by = 0.0
+    found = False
+    m = 6
+    for j in range(-m, m + 1):
+        a = fan * j / m
+        ca, sa = np.cos(a), np.sin(a)
+        ok, s_end, x, y = _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy,
+                                         has_gray, ca * tx - sa * ty, sa * tx + ca * ty)
+        # prefer the tangent itself among (nearly) equal reaches
+        score = s_end - 0.05 * abs(j)
+        if ok and score > best:
+            best = score
+            bx = x
+            by = y
+            found = True
+    return found, bx, by
+
+
+@numba.njit(cache=True)
+def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty):
+    n = p.shape[0]
     arc = np.zeros(n)
     for i in range(1, n):
         arc[i] = arc[i - 1] + np.sqrt((p[i, 0] - p[i - 1, 0]) ** 2 + (p[i, 1] - p[i - 1, 1]) ** 2)
@@ -303,7 +335,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
         if s[i] <= 0 and not np.isnan(v[i]):
             any_inside = True
     if not any_inside:
-        return False, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0
     if inset:
         vals = []
         i0 = -1
@@ -313,7 +345,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
                 if not np.isnan(v[i]):
                     vals.append(v[i])
         if i0 < 0 or len(vals) == 0:
-            return False, 0.0, 0.0
+            return False, 0.0, 0.0, 0.0
         depth = np.median(np.array(vals))
     else:
         i0 = -1
@@ -323,7 +355,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
                 depth = v[i]
                 i0 = i
     if not np.isfinite(depth) or depth >= -1e-3:
-        return False, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0
     half = 0.5 * depth
     j = -1
     for m in range(i0 + 1, cnt):
@@ -333,7 +365,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
             j = m
             break
     if j < 1:
-        return False, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0
     f = (half - v[j - 1]) / (v[j] - v[j - 1])
     s_end = s[j - 1] + f * (s[j] - s[j - 1])
     # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
@@ -345,14 +377,14 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray):
             if v[i] > mx:
                 mx = v[i]
     if not seen or mx < 0.25 * depth:
-        return False, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0
     if inset and has_gray:
         cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
         hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
         if not np.isnan(hw):
             s_end -= hw
     x, y = _path_xy(p, arc, tx, ty, s_end)
-    return True, x, y
+    return True, s_end, x, y
 
 
 class Tracker:
@@ -558,7 +590,8 @@ class Tracker:
             new = pts
             for end in (0, -1):
                 q = refine_end(new, Ps[k], c.sigma, origin=origins[k], end=end, gray=gray,
-                               gray_origin=gorigin, inset=c.ends == "centre")
+                               gray_origin=gorigin, inset=c.ends == "centre",
+                               fan=45.0 if c.ends == "corner" else 0.0)
                 if q is None:
                     continue
                 e = new[0] if end == 0 else new[-1]
