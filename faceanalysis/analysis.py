@@ -39,7 +39,7 @@ from faceanalysis.video import MIN_FACE_SIZE, open_video
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Analysis", "analyze", "analyze_to_folder", "ESTIMATORS"]
+__all__ = ["Analysis", "analyze", "analyze_to_folder", "reestimate", "ESTIMATORS"]
 
 
 @dataclass
@@ -272,13 +272,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     for j, name in enumerate(FIDUCIALS):
         table[f"fid_{name}_x"] = fid[:, j, 0]
         table[f"fid_{name}_y"] = fid[:, j, 1]
-    # muscles the fiducials do not observe are reported at rest (listed in analysis.json)
-    estimated = [m for j, m in enumerate(response.muscles) if np.isfinite(values[:, j]).any()]
-    for col in (*MUSCLES, JAW):
-        table[col] = np.where(success, 0.0, np.nan)
-    for j, name in enumerate(response.muscles):
-        if name in estimated:
-            table[name] = np.where(success, values[:, j], np.nan)
+    estimated = _fill_contractions(table, values, response, success)
     table = with_au_columns(table)
 
     from faceanalysis.report import analysis_metadata
@@ -297,6 +291,45 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}
     return Analysis(table=table, contours=contours, metadata=metadata, calibration=cal,
                     response=response, timings=timings)
+
+
+def _fill_contractions(table: pd.DataFrame, values: np.ndarray, response: FiducialResponse,
+                       success: np.ndarray) -> list[str]:
+    """Write estimated controls into ``table`` in place; returns the estimated names.
+
+    Muscles the fiducials do not observe are reported at rest (0) on tracked frames
+    and listed in ``analysis.json``; lost frames are NaN.
+    """
+    estimated = [m for j, m in enumerate(response.muscles) if np.isfinite(values[:, j]).any()]
+    for col in (*MUSCLES, JAW):
+        table[col] = np.where(success, 0.0, np.nan)
+    for j, name in enumerate(response.muscles):
+        if name in estimated:
+            table[name] = np.where(success, values[:, j], np.nan)
+    return estimated
+
+
+def reestimate(analysis: Analysis, estimator: str) -> Analysis:
+    """The same tracking and calibration, another estimator: a new :class:`Analysis`.
+
+    Tracking dominates the cost of an analysis, so comparing estimators this way
+    costs only the estimation.
+    """
+    if analysis.calibration is None or analysis.response is None:
+        raise ValueError("this analysis has no calibration/response to re-estimate from")
+    table = analysis.table.copy()
+    success = table["success"].to_numpy() == 1
+    heads = table[list(HEAD_COLUMNS)].to_numpy(float)
+    disp = analysis.calibration.model_displacements(analysis.fiducials, heads)
+    values = estimate(disp, analysis.response, estimator=estimator)
+    estimated = _fill_contractions(table, values, analysis.response, success)
+    table = with_au_columns(table)
+    metadata = dict(analysis.metadata)
+    metadata["parameters"] = {**metadata.get("parameters", {}), "estimator": estimator,
+                              "estimated_controls": estimated}
+    return Analysis(table=table, contours=analysis.contours, metadata=metadata,
+                    calibration=analysis.calibration, response=analysis.response,
+                    timings=dict(analysis.timings))
 
 
 def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,
