@@ -19,6 +19,7 @@ from faceanalysis.errors import FaceAnalysisError
 # Subcommand name -> module under faceanalysis.cli. Order is the order of --help.
 SUBCOMMANDS: dict[str, str] = {
     "analyze": "analyze",
+    "demo": "demo",
     "evaluate": "evaluate",
     "info": "info",
     "batch": "batch",
