@@ -1,6 +1,7 @@
 """Tracking: frames per second of the nine-contour face layout on 640x480 video (decode excluded).
 
-Per frame the tracker computes the image potentials (edge + two valley widths, inside
+Single-threaded (``cv2.setNumThreads(1)``; the Numba kernels are serial). Per frame
+the tracker computes the image potentials (edge + two valley widths, inside
 the region the contours occupy), relaxes the nine contours from the previous
 equilibrium to a movement threshold, relocates the feature ends, checks each
 contour's quality, and computes the head frame and the 11 fiducials: everything
@@ -132,6 +133,15 @@ def _real_frames(path, n):
 
 
 def run(quick: bool = False) -> list[Figure]:
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # "on one core": OpenCV's blur would otherwise use a pool
+    try:
+        return _run(quick)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _run(quick: bool) -> list[Figure]:
     n = 60 if quick else 200
     repeat = 3 if quick else 5
     rng = np.random.default_rng(0)

@@ -24,10 +24,12 @@ from trackers.layout import (
     refine_layout,
 )
 from trackers.potentials import (
+    dark_below_potential,
     force_field,
     gaussian_potential,
     paper_potential,
     potential_from_gray,
+    potentials_in_boxes,
     sample_bilinear,
     to_gray,
     valley_potential,
@@ -41,7 +43,7 @@ from trackers.snakes import (
     paper_equivalent_strength,
     resample_polyline,
 )
-from trackers.tracking import ContourQuality, Tracker, TrackResult
+from trackers.tracking import ContourQuality, Tracker, TrackResult, refine_end
 
 __all__ = [
     "CONTOUR_NAMES", "FIDUCIAL_NAMES", "Contour", "ContourQuality", "ContourSystem",
@@ -49,6 +51,7 @@ __all__ = [
     "Tracker", "detect_layout", "draw_contours", "draw_fiducials", "draw_head_frame",
     "factorization_count", "fiducials", "force_field", "gaussian_potential", "head_frame",
     "layout_from_eyes", "paper_equivalent_strength", "paper_potential",
-    "potential_from_gray", "refine_layout", "resample_polyline", "sample_bilinear",
-    "to_gray", "valley_potential",
+    "potential_from_gray", "potentials_in_boxes", "refine_end", "refine_layout",
+    "resample_polyline", "sample_bilinear", "to_gray", "valley_potential",
+    "dark_below_potential",
 ]

@@ -11,7 +11,7 @@ Sign convention. A potential ``P`` is low (negative) on the features to be track
 therefore ``-p * grad P``; eq. 12 of 004 writes ``p * grad P`` and leaves the sign
 of ``P`` implicit. :func:`force_field` returns ``-p * grad P``.
 
-Three potentials are offered:
+Four potentials are offered:
 
 ``gaussian_potential``
     Eq. 13, ``P = -||grad(G_sigma * I)||``: ravines on intensity *edges* (step
@@ -30,6 +30,10 @@ Three potentials are offered:
     a step edge gives a ravine on its dark side, about ``sigma`` from the edge. Use it
     where a feature's centre line is what is tracked (the face layout does so for the
     brows, furrows, nose, lips and chin); use an edge potential for boundaries.
+
+``dark_below_potential``
+    ``P = min(d(G_sigma * I)/dy, 0)``: a polarised edge, bright above and dark below
+    (e.g. the lower border of the upper lip over a dark mouth line or cavity).
 
 Every potential accepts ``roi=(x0, y0, x1, y1)`` (half-open pixel bounds) and then
 computes only inside it (with an internal margin so the borders are exact) and
@@ -170,7 +174,7 @@ def _blur(img, sigma):
                             borderType=cv2.BORDER_REFLECT)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _edge_nb(g, P):
     H, W = g.shape
     for y in range(H):
@@ -184,7 +188,7 @@ def _edge_nb(g, P):
             P[y, x] = -np.sqrt(gx * gx + gy * gy)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _dark_below_nb(g, P):
     H, W = g.shape
     for y in range(H):
@@ -195,7 +199,7 @@ def _dark_below_nb(g, P):
             P[y, x] = gy if gy < 0.0 else 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _valley_nb(g, s2, P):
     H, W = g.shape
     gx = np.empty_like(g)
@@ -220,7 +224,7 @@ def _valley_nb(g, s2, P):
             P[y, x] = -s2 * lam if lam > 0.0 else 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _force_nb(P, p, F):
     H, W = P.shape
     for y in range(H):
@@ -233,7 +237,7 @@ def _force_nb(P, p, F):
             F[y, x, 1] = -p * (P[y1, x] - P[y0, x]) / (y1 - y0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _sample_nb(P, pts, ox, oy, out):
     """Bilinear samples of P at (x, y) - (ox, oy); NaN outside."""
     H, W = P.shape

@@ -21,13 +21,17 @@ system separated by ``a_i = b_i = 0``: no spring joins them and no rigidity sten
 straddles the break, so they are exactly decoupled and the matrix stays
 block-pentadiagonal. Ends of an open contour are *free* (natural boundary: no
 stencil is centred on an end node) or *fixed* (a stiff anchor on the end nodes).
-A *closed* contour adds two stencils that wrap around; they are kept out of the
-banded factor and applied by a rank-2 Sherman-Morrison-Woodbury correction
-precomputed at factorisation time, so a closed contour costs the same O(n) per step.
+A *closed* contour adds two stencils that wrap around (and, with
+``tension='split'``, one wrapping spring); they are kept out of the banded factor and
+applied by a rank-2 (rank-3) Sherman-Morrison-Woodbury correction precomputed at
+factorisation time, so a closed contour costs the same O(n) per step.
 
 The relaxation loop (force sampling, tension, rest-length update, banded solve,
 cyclic correction, movement test) runs inside one Numba kernel. Equilibrium is
-declared when no node moved more than ``tol`` pixels in the last step.
+declared when no node moved more than ``tol`` pixels in the last step (or when the
+root-mean-square move is below ``tol``, ``criterion='rms'``). Forces are either given
+as fields ``-grad P`` or computed from the potentials at the four pixels around each
+node; each contour can have its own field (and field box) and its own ``p``.
 
 Default parameters are the paper's (004 V-E): ``gamma/dt = 0.5``, ``a = 1``,
 ``b = 0.5``, ``nu = 0.2``, ``p = 0.001`` for potentials in 8-bit intensity units
@@ -282,7 +286,7 @@ def _per_node(value, default, n, what, name):
 
 # --------------------------------------------------------------------------- kernel
 
-@numba.njit(cache=True, fastmath=False)
+@numba.njit(cache=True, error_model="numpy")
 def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange):
     """Solve A X = R in place for the two columns of R (banded Cholesky + cyclic fix)."""
     n = R.shape[0]
@@ -319,7 +323,7 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange):
                 R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1 + zc[i, 2] * h2
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _pgrad(P, k, y, x, h, w):
     """-grad P at pixel (y, x) of field k: central differences, one-sided at borders."""
     x0 = x - 1 if x > 0 else 0
@@ -331,7 +335,7 @@ def _pgrad(P, k, y, x, h, w):
     return -gx, -gy
 
 
-@numba.njit(cache=True, fastmath=False)
+@numba.njit(cache=True, error_model="numpy")
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, fgeom, from_potential, gdt, dt,
                   tol, min_iter, max_iter, outside, split, max_step, prv, normal_only,

@@ -205,7 +205,7 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     return np.array([x, y]) if ok else None
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _bil(P, x, y, ox, oy):
     H, W = P.shape
     xf = x - ox
@@ -220,7 +220,7 @@ def _bil(P, x, y, ox, oy):
             + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _path_xy(p, arc, tx, ty, s):
     if s >= 0.0:
         return p[0, 0] + s * tx, p[0, 1] + s * ty
@@ -236,7 +236,7 @@ def _path_xy(p, arc, tx, ty, s):
     return p[i, 0] + f * (p[i + 1, 0] - p[i, 0]), p[i, 1] + f * (p[i + 1, 1] - p[i, 1])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
     """Half width at half depth of the dark line through (cx, cy), normal to (tx, ty)."""
     nx, ny = -ty, tx
@@ -274,10 +274,11 @@ def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
         return np.nan
     right = r[hi - 1] + (half - v[hi - 1]) / (v[hi] - v[hi - 1]) * (r[hi] - r[hi - 1])
     left = r[lo + 1] + (half - v[lo + 1]) / (v[lo] - v[lo + 1]) * (r[lo] - r[lo + 1])
-    return 0.5 * (right - left)
+    hw = 0.5 * (right - left)
+    return hw if np.isfinite(hw) else np.nan
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
     n = p.shape[0]
     k = min(3, n - 1)
@@ -313,7 +314,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
     return found, bx, by
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty):
     n = p.shape[0]
     arc = np.zeros(n)
@@ -359,15 +360,17 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
     half = 0.5 * depth
     j = -1
     for m in range(i0 + 1, cnt):
-        if np.isnan(v[m]):
+        if np.isnan(v[m]) or np.isnan(v[m - 1]):
             break
-        if v[m] > half:
+        if v[m] > half and v[m - 1] <= half:
             j = m
             break
     if j < 1:
         return False, 0.0, 0.0, 0.0
     f = (half - v[j - 1]) / (v[j] - v[j - 1])
     s_end = s[j - 1] + f * (s[j] - s[j - 1])
+    if not np.isfinite(s_end):
+        return False, 0.0, 0.0, 0.0
     # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
     mx = -np.inf
     seen = False
