@@ -40,6 +40,10 @@ __all__ = ["FLOW_METHODS", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales"
            "stabilize", "face_flow", "rigid_basis", "remove_rigid", "track_heads",
            "heads_from_table", "video_face_flow", "flow_to_colour"]
 
+_FIDUCIAL_NAMES = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
+                   "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
+                   "furrow_top_r", "chin")
+
 #: Optical-flow methods, first = default.
 FLOW_METHODS = ("dis", "farneback", "tvl1")
 
@@ -584,11 +588,12 @@ def heads_from_table(table: pd.DataFrame) -> np.ndarray:
 
 def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: int = 0,
                 end: int | None = None, layout=None) -> pd.DataFrame:
-    """Head frames of a video from the contour tracker (no muscle estimation).
+    """Head frames and fiducials of a video from the contour tracker (no muscle estimation).
 
     Returns
     -------
-    DataFrame with ``frame, timestamp, success, head_x, head_y, head_scale, head_roll``.
+    DataFrame with ``frame, timestamp, success, head_x, head_y, head_scale, head_roll`` and
+    ``fid_<name>_x, fid_<name>_y`` for the 11 fiducials (NaN where the face is lost).
     """
     from faceanalysis.video import MIN_FACE_SIZE, open_video
     from trackers import Tracker, detect_layout
@@ -601,6 +606,7 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
             rec = {"frame": frame.index, "timestamp": frame.timestamp, "success": 0,
                    "head_x": np.nan, "head_y": np.nan, "head_scale": np.nan,
                    "head_roll": np.nan}
+            rec.update({f"fid_{n}_{k}": np.nan for n in _FIDUCIAL_NAMES for k in "xy"})
             if frame.ok:
                 if tracker is None:
                     lay = layout if layout is not None else detect_layout(
@@ -610,6 +616,9 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
                 if res.success:
                     rec.update(success=1, head_x=res.head.x, head_y=res.head.y,
                                head_scale=res.head.scale, head_roll=res.head.roll)
+                    for n in _FIDUCIAL_NAMES:
+                        x, y = res.fiducials[n]
+                        rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = float(x), float(y)
             rows.append(rec)
     if not rows:
         raise ValueError(f"{video}: no frames in the requested range")

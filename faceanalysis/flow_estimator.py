@@ -25,7 +25,7 @@ import pandas as pd
 
 from faceanalysis.templates import FlowTemplates
 
-__all__ = ["estimate_contractions", "estimate_flow", "FlowDesign", "personalised_templates"]
+__all__ = ["estimate_contractions", "estimate_flow", "FlowDesign"]
 
 
 class FlowDesign:
@@ -175,6 +175,7 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         for lost frames.
     """
     from faceanalysis.flow import heads_from_table, video_face_flow
+    from faceanalysis.templates import personalize_from_table
 
     if templates is None:
         from faceanalysis.templates import default_templates
@@ -187,7 +188,7 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         raise ValueError(f"{video}: no tracked frame to estimate from")
     ref = int(frames[np.argmax(ok)]) if neutral is None else int(neutral)
     if personalised:
-        templates = personalised_templates(templates, table, ref)
+        templates = personalize_from_table(templates, table, ref)
     ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
                          fps=fps, start=start, end=end)
     values = estimate_contractions(ff.displacement, templates, regularization=regularization)
@@ -198,24 +199,3 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         if j is not None:
             out[i] = values[j]
     return pd.DataFrame(out, columns=list(templates.controls), index=table.index)
-
-
-def personalised_templates(templates: FlowTemplates, table: pd.DataFrame, neutral: int
-                           ) -> FlowTemplates:
-    """Templates warped onto the subject's neutral fiducials of ``table`` (frame ``neutral``);
-    the generic ones when the fiducials are missing."""
-    from faceanalysis.calibration import to_head_frame
-    from faceanalysis.flow import heads_from_table
-    from faceanalysis.templates import _FIDUCIALS, personalize
-
-    cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
-    if any(c not in table.columns for c in cols):
-        return templates
-    row = np.flatnonzero(table["frame"].to_numpy(int) == neutral)
-    if row.size == 0:
-        raise ValueError(f"neutral frame {neutral} is not in the table")
-    fid = table[cols].to_numpy(float)[row[0]].reshape(len(_FIDUCIALS), 2)
-    head = heads_from_table(table)[row[0]]
-    if not (np.isfinite(fid).all() and np.isfinite(head).all()):
-        return templates
-    return personalize(templates, to_head_frame(fid, head))

@@ -17,10 +17,12 @@ templates of :mod:`faceanalysis.templates`:
    (segment start to apex) is resampled to the template's instants, and each expression is
    scored by the normalised correlation (cosine) of the spatio-temporal displacement
    template with the observation, combined with the cosine of the motion-energy maps
-   (weights :data:`WEIGHTS`). The best score names the segment.
+   (weights :data:`WEIGHTS`). The best score names the segment; a segment whose best
+   score is below :data:`MIN_SCORE` matches no expression and is dropped (neutral).
 
-Scores per class are reported for the six expressions and for ``neutral`` (``1 - peak /
-threshold``, clipped at 0: positive only for sequences called neutral).
+Scores per class are reported for the six expressions and for ``neutral`` (0 for a
+sequence with an expression; for a neutral one ``1 -`` the best expression score of its
+strongest unmatched segment, or ``1 - 0.5 peak / threshold`` without any).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from faceanalysis.templates import EXPRESSION_NAMES, FlowTemplates
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "WEIGHTS", "Segment", "Recognition",
+__all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "Segment", "Recognition",
            "nuisance_free", "motion_energy", "find_segments", "score_segment",
            "classify_flow", "classify_video", "calibrate_threshold"]
 
@@ -45,7 +47,10 @@ __all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "WEIGHTS", "Segment", "Recognition",
 CLASSES = (*EXPRESSION_NAMES, "neutral")
 #: RMS displacement on the face mask (head units) above which a frame shows an expression.
 #: Calibrated with :func:`calibrate_threshold` (see the module docstring).
-NEUTRAL_THRESHOLD = 0.0035
+NEUTRAL_THRESHOLD = 0.003
+#: Smallest best-class score of a segment; motion that matches no expression template
+#: (noise, talking, residual head motion) below it is neutral.
+MIN_SCORE = 0.4
 #: Weights of the spatio-temporal displacement correlation and of the motion-energy map
 #: correlation in a class score.
 WEIGHTS = (0.8, 0.2)
@@ -217,8 +222,8 @@ def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex:
 
 
 def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
-                  threshold: float | None = None, min_length: int = 3, min_gap: int = 5,
-                  frames=None) -> Recognition:
+                  threshold: float | None = None, min_score: float = MIN_SCORE,
+                  min_length: int = 3, min_gap: int = 5, frames=None) -> Recognition:
     """Name the expression of each segment of a sequence from its face flow.
 
     Parameters
@@ -228,6 +233,8 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     templates : FlowTemplates
     threshold : float, optional
         Motion energy of an expression (default :data:`NEUTRAL_THRESHOLD`).
+    min_score : float
+        Smallest best score of an expression segment (:data:`MIN_SCORE`).
     min_length, min_gap : int
         See :func:`find_segments`.
     frames : array_like, optional
@@ -256,21 +263,29 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     clean = nuisance_free(disp, templates)
     energy = motion_energy(clean, templates.mask)
     segments = []
+    dropped = []                       # (peak energy, scores) of segments matching nothing
     for a, b in find_segments(energy, thr, min_length=min_length, min_gap=min_gap):
         apex = a + int(np.nanargmax(energy[a:b + 1]))
         scores = score_segment(clean, templates, a, apex)
         scores["neutral"] = 0.0
         label = max(templates.expressions, key=scores.get)
+        if scores[label] < min_score:
+            dropped.append((float(energy[apex]), scores))
+            continue
         segments.append(Segment(int(fr[a]), int(fr[apex]), int(fr[b]), label, scores,
                                 float(energy[apex])))
     if segments:
         best = max(segments, key=lambda s: s.peak_energy)
         label, scores = best.label, dict(best.scores)
     else:
-        peak = float(np.nanmax(energy)) if np.isfinite(energy).any() else 0.0
-        scores = {name: 0.0 for name in templates.expressions}
-        scores["neutral"] = max(0.0, 1.0 - peak / thr)
         label = "neutral"
+        if dropped:
+            scores = dict(max(dropped, key=lambda s: s[0])[1])
+            scores["neutral"] = 1.0 - max(scores[n] for n in templates.expressions)
+        else:
+            peak = float(np.nanmax(energy)) if np.isfinite(energy).any() else 0.0
+            scores = {name: 0.0 for name in templates.expressions}
+            scores["neutral"] = 1.0 - 0.5 * min(peak / thr, 1.0)
     return Recognition(label=label, scores=scores, segments=segments, energy=energy,
                        frames=np.asarray(fr), threshold=thr)
 
@@ -278,7 +293,8 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
 def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None = None,
                    table: pd.DataFrame | None = None, neutral: int | None = None,
                    method: str = "dis", fps: float | None = None, start: int = 0,
-                   end: int | None = None, **kwargs) -> Recognition:
+                   end: int | None = None, personalised: bool = True,
+                   **kwargs) -> Recognition:
     """Recognise the expressions of a video (flow from its neutral frame, then
     :func:`classify_flow`).
 
@@ -293,17 +309,25 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         Neutral frame number (default: the first tracked frame).
     method, fps, start, end
         See :func:`faceanalysis.flow.video_face_flow`.
+    personalised : bool
+        Warp the templates onto the subject's neutral fiducials
+        (:func:`faceanalysis.templates.personalize_from_table`).
     **kwargs
         Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
     """
-    from faceanalysis.flow import video_face_flow
+    from faceanalysis.flow import track_heads, video_face_flow
+    from faceanalysis.templates import personalize_from_table
 
     if templates is None:
         from faceanalysis.templates import default_templates
 
         templates = default_templates()
+    if table is None:
+        table = track_heads(video, fps=fps, start=start, end=end)
     ff = video_face_flow(video, table=table, neutral=neutral, method=method,
                          grid=templates.grid, fps=fps, start=start, end=end)
+    if personalised:
+        templates = personalize_from_table(templates, table, ff.reference)
     return classify_flow(ff, templates, **kwargs)
 
 
@@ -345,7 +369,8 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
 
     Returns
     -------
-    FaceFlow, heads (T, 4)
+    FaceFlow, table
+        The table has the tracker's ``frame, success, head_*, fid_*`` columns.
     """
     import cv2
 
@@ -354,26 +379,34 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
 
     imgs = seq.images
     bgr = [cv2.cvtColor(im, cv2.COLOR_RGB2BGR) if im.ndim == 3 else im for im in imgs]
+    from faceanalysis.flow import _FIDUCIAL_NAMES, heads_from_table
+
     tracker = Tracker(detect_layout(bgr[0], channel_order="bgr"), channel_order="bgr")
-    heads = np.full((len(bgr), 4), np.nan)
+    rows = []
     for t, im in enumerate(bgr):
         r = tracker.track(im)
-        if r.success:
-            heads[t] = (r.head.x, r.head.y, r.head.scale, r.head.roll)
-    return face_flow(bgr, heads, grid=grid, method=method), heads
+        rec = {"frame": t, "success": int(bool(r.success)), "head_x": r.head.x,
+               "head_y": r.head.y, "head_scale": r.head.scale, "head_roll": r.head.roll}
+        for n in _FIDUCIAL_NAMES:
+            rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = (float(v) for v in r.fiducials[n])
+        rows.append(rec)
+    table = pd.DataFrame(rows)
+    return face_flow(bgr, heads_from_table(table), grid=grid, method=method), table
 
 
 def evaluate_recognition(identities=range(100, 110), *, templates: FlowTemplates | None = None,
                          frames: int = 30, size: int = 256, head_motion: float = 1.0,
                          illumination: float = 1.0, noise: float = 2.0,
                          emphasis: tuple = (0.7, 1.0), method: str = "dis",
-                         threshold: float | None = None, progress=None) -> dict:
+                         threshold: float | None = None, personalised: bool = True,
+                         progress=None) -> dict:
     """Recognition accuracy on synthetic sequences of unseen identities.
 
     For every identity seed (``FaceShape.random(seed)``, its own texture) and every class of
     :data:`CLASSES`, a sequence is rendered (expression at a random emphasis in
     ``emphasis``, or neutral) with head motion, light change and sensor noise, tracked and
-    classified.
+    classified (with the templates personalised on the tracked neutral fiducials unless
+    ``personalised`` is false).
 
     Returns
     -------
@@ -381,6 +414,7 @@ def evaluate_recognition(identities=range(100, 110), *, templates: FlowTemplates
     ``results`` (DataFrame: identity, truth, predicted, peak_energy, scores) and the
     settings.
     """
+    from faceanalysis.templates import personalize_from_table
     from synth.render import synthesize
 
     if templates is None:
@@ -400,8 +434,9 @@ def evaluate_recognition(identities=range(100, 110), *, templates: FlowTemplates
                              size=size, seed=i, head_motion=head_motion,
                              illumination=illumination, noise=noise, flow=False,
                              intensity=emph)
-            ff, _ = synthetic_face_flow(seq, templates.grid, method=method)
-            rec = classify_flow(ff, templates, threshold=threshold)
+            ff, table = synthetic_face_flow(seq, templates.grid, method=method)
+            tpl = personalize_from_table(templates, table, 0) if personalised else templates
+            rec = classify_flow(ff, tpl, threshold=threshold)
             rows.append({"identity": i, "truth": cls, "predicted": rec.label,
                          "emphasis": emph if cls != "neutral" else 0.0,
                          "peak_energy": float(np.nanmax(rec.energy)),

@@ -48,8 +48,8 @@ from faceanalysis.flow import FaceGrid, grid_image_points, image_flow_to_grid, r
 log = logging.getLogger(__name__)
 
 __all__ = ["FlowTemplates", "ModelView", "SubjectWarp", "make_templates", "personalize",
-           "default_templates", "write_templates", "preview_templates", "JAW_MAX",
-           "JAW_TEMPLATE", "REGION_GROUPS", "EXPRESSION_NAMES"]
+           "personalize_from_table", "default_templates", "write_templates",
+           "preview_templates", "JAW_MAX", "JAW_TEMPLATE", "REGION_GROUPS", "EXPRESSION_NAMES"]
 
 #: Upper bound of the jaw rotation (radians), that of :data:`synth.facs.MAX_JAW_ROTATION`.
 JAW_MAX = 0.5
@@ -536,6 +536,25 @@ def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
     meta = dict(templates.meta, personalised=True)
     return replace(templates, control=control, nuisance=nuis, mask=mask_w, region=region,
                    expression=expr, energy=energy, fiducials=q.copy(), meta=meta)
+
+
+def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> FlowTemplates:
+    """Templates warped onto the subject's neutral fiducials of ``table`` (frame ``neutral``);
+    the generic ones when the fiducials are missing."""
+    from faceanalysis.calibration import to_head_frame
+    from faceanalysis.flow import heads_from_table
+
+    cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
+    if any(c not in table.columns for c in cols):
+        return templates
+    row = np.flatnonzero(table["frame"].to_numpy(int) == neutral)
+    if row.size == 0:
+        raise ValueError(f"neutral frame {neutral} is not in the table")
+    fid = table[cols].to_numpy(float)[row[0]].reshape(len(_FIDUCIALS), 2)
+    head = heads_from_table(table)[row[0]]
+    if not (np.isfinite(fid).all() and np.isfinite(head).all()):
+        return templates
+    return personalize(templates, to_head_frame(fid, head))
 
 
 # ---------------------------------------------------------------------------- cache + files
