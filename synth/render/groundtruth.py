@@ -23,7 +23,9 @@ reference frame from the average position of the hairline contour"), but measure
 *rigid* head (the rest mesh moved by the head pose, so expressions never move the frame):
 
 - ``head_x, head_y``: the arc-length centroid of the projected hairline curve (the
-  ``hairline`` feature curve lifted from uv onto the rest surface);
+  ``hairline`` feature curve lifted from uv onto the rest surface), over its central part
+  within +-0.76 inter-eye distances of the midline (:data:`HAIRLINE_HALF_SPAN`: the span
+  of the trackers' hairline template; the painted hairline runs on down to the temples);
 - ``head_scale``: the distance in px from that origin to the projected midpoint of the two
   nostril centroids (the trackers' nose-tip contour follows the dark nostrils); a length
   in pixels, not a physical unit (``px_per_cm`` is given separately);
@@ -214,6 +216,17 @@ def surface_points_from_uv(mesh, uv_points) -> np.ndarray:
 
 
 _FRAME_CACHE: dict = {}
+#: Half-width of the hairline part that defines the head frame, in inter-eye distances (the
+#: span of the trackers' hairline template, trackers.layout.TEMPLATE['hairline']).
+HAIRLINE_HALF_SPAN = 0.76
+
+
+def _dense(poly: np.ndarray, step: float = 0.002) -> np.ndarray:
+    """Resample a uv polyline every ``step`` (uv units) so that clipping it is precise."""
+    seg = np.hypot(*np.diff(poly, axis=0).T)
+    s = np.r_[0.0, np.cumsum(seg)]
+    t = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / step)) + 1))
+    return np.stack([np.interp(t, s, poly[:, 0]), np.interp(t, s, poly[:, 1])], axis=1)
 
 
 def _frame_points(mesh):
@@ -227,8 +240,13 @@ def _frame_points(mesh):
     V = np.asarray(mesh.vertices, dtype=np.float64)
     hair = None
     if "hairline" in curves:
-        h = surface_points_from_uv(mesh, curves["hairline"])
+        h = surface_points_from_uv(mesh, _dense(np.asarray(curves["hairline"], float)))
         h = h[np.all(np.isfinite(h), axis=1)]
+        if "eye_centre_l" in lm and "eye_centre_r" in lm and len(h) >= 2:
+            # the central part that the trackers' hairline contour spans
+            el, er = V[lm["eye_centre_l"]], V[lm["eye_centre_r"]]
+            half = HAIRLINE_HALF_SPAN * abs(el[0] - er[0])
+            h = h[np.abs(h[:, 0] - 0.5 * (el[0] + er[0])) <= half]
         if len(h) >= 2:
             hair = h
     if hair is None:
