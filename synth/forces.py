@@ -9,8 +9,12 @@ use the forces.
   at the elongation threshold ``e^c``; Fig. 2 of 004 puts ``e^c`` at the intersection of the
   two lines, so the force is read as continuous and piecewise linear::
 
-      |s| = alpha * e                          e <= e^c
+      |s| = alpha * e                          |e| <= e^c
       |s| = alpha * e^c + beta * (e - e^c)     e >  e^c
+      |s| = -alpha * e^c + beta * (e + e^c)    e < -e^c
+
+  The compressive branch plays the role of the compression penalty of 000 (section 4): a
+  strongly compressed spring stiffens too, which keeps elements from collapsing.
 
 * Volume preservation, the ``Q`` term of 004 III-A: ``bulk / 2 * V0 * ((V - V0) / V0)**2``
   per prism (three tetrahedra, 000 section 6), force ``-dQ/dx``.
@@ -27,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .lattice import PRISM_TETS, Lattice, rotate_about_jaw
+from .lattice import PRISM_FACET_WEIGHTS, PRISM_FACETS, Lattice, rotate_about_jaw
 
 __all__ = [
     "TissueSystem",
@@ -51,13 +55,17 @@ def _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out):  # prag
         e = l - rest_length[s]
         kl = k_low[s]
         ec = switch[s]
-        if e <= ec:
-            fm = kl * e
-            energy += 0.5 * kl * e * e
-        else:
+        if e > ec:
             d = e - ec
             fm = kl * ec + k_high[s] * d
             energy += 0.5 * kl * ec * ec + kl * ec * d + 0.5 * k_high[s] * d * d
+        elif e < -ec:
+            d = e + ec
+            fm = -kl * ec + k_high[s] * d
+            energy += 0.5 * kl * ec * ec - kl * ec * d + 0.5 * k_high[s] * d * d
+        else:
+            fm = kl * e
+            energy += 0.5 * kl * e * e
         if l > 1e-12:
             c = fm / l
         else:
@@ -75,70 +83,56 @@ def _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out):  # prag
 
 
 @numba.njit(cache=True, nogil=True)
-def _tet(p0, p1, p2, p3):  # pragma: no cover
-    ax = p1[0] - p0[0]
-    ay = p1[1] - p0[1]
-    az = p1[2] - p0[2]
-    bx = p2[0] - p0[0]
-    by = p2[1] - p0[1]
-    bz = p2[2] - p0[2]
-    cx = p3[0] - p0[0]
-    cy = p3[1] - p0[1]
-    cz = p3[2] - p0[2]
-    return (ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)) / 6.0
-
-
-@numba.njit(cache=True, nogil=True)
-def _volume_kernel(x, prisms, tets, rest_volume, bulk, out):  # pragma: no cover
+def _volume_kernel(x, prisms, facets, weights, rest_volume, bulk, out):  # pragma: no cover
     energy = 0.0
     grad = np.zeros((6, 3))
+    q = np.zeros((6, 3))
     for e in range(prisms.shape[0]):
-        vol = 0.0
+        cx = 0.0
+        cy = 0.0
+        cz = 0.0
         for a in range(6):
+            n = prisms[e, a]
+            cx += x[n, 0]
+            cy += x[n, 1]
+            cz += x[n, 2]
+        cx /= 6.0
+        cy /= 6.0
+        cz /= 6.0
+        for a in range(6):
+            n = prisms[e, a]
+            q[a, 0] = x[n, 0] - cx
+            q[a, 1] = x[n, 1] - cy
+            q[a, 2] = x[n, 2] - cz
             grad[a, 0] = 0.0
             grad[a, 1] = 0.0
             grad[a, 2] = 0.0
-        for t in range(3):
-            i0 = tets[t, 0]
-            i1 = tets[t, 1]
-            i2 = tets[t, 2]
-            i3 = tets[t, 3]
-            p0 = x[prisms[e, i0]]
-            p1 = x[prisms[e, i1]]
-            p2 = x[prisms[e, i2]]
-            p3 = x[prisms[e, i3]]
-            vol += _tet(p0, p1, p2, p3)
-            # gradients of the signed tet volume (1/6 of the cross products)
-            ax = p1[0] - p0[0]
-            ay = p1[1] - p0[1]
-            az = p1[2] - p0[2]
-            bx = p2[0] - p0[0]
-            by = p2[1] - p0[1]
-            bz = p2[2] - p0[2]
-            cx = p3[0] - p0[0]
-            cy = p3[1] - p0[1]
-            cz = p3[2] - p0[2]
-            g1x = (by * cz - bz * cy) / 6.0
-            g1y = (bz * cx - bx * cz) / 6.0
-            g1z = (bx * cy - by * cx) / 6.0
-            g2x = (cy * az - cz * ay) / 6.0
-            g2y = (cz * ax - cx * az) / 6.0
-            g2z = (cx * ay - cy * ax) / 6.0
-            g3x = (ay * bz - az * by) / 6.0
-            g3y = (az * bx - ax * bz) / 6.0
-            g3z = (ax * by - ay * bx) / 6.0
-            grad[i1, 0] += g1x
-            grad[i1, 1] += g1y
-            grad[i1, 2] += g1z
-            grad[i2, 0] += g2x
-            grad[i2, 1] += g2y
-            grad[i2, 2] += g2z
-            grad[i3, 0] += g3x
-            grad[i3, 1] += g3y
-            grad[i3, 2] += g3z
-            grad[i0, 0] -= g1x + g2x + g3x
-            grad[i0, 1] -= g1y + g2y + g3y
-            grad[i0, 2] -= g1z + g2z + g3z
+        vol = 0.0
+        for f in range(facets.shape[0]):
+            i = facets[f, 0]
+            j = facets[f, 1]
+            k = facets[f, 2]
+            w = weights[f] / 6.0
+            # det(qi, qj, qk) = qi . (qj x qk); d/dqi = qj x qk, d/dqj = qk x qi, d/dqk = qi x qj
+            jxk0 = q[j, 1] * q[k, 2] - q[j, 2] * q[k, 1]
+            jxk1 = q[j, 2] * q[k, 0] - q[j, 0] * q[k, 2]
+            jxk2 = q[j, 0] * q[k, 1] - q[j, 1] * q[k, 0]
+            kxi0 = q[k, 1] * q[i, 2] - q[k, 2] * q[i, 1]
+            kxi1 = q[k, 2] * q[i, 0] - q[k, 0] * q[i, 2]
+            kxi2 = q[k, 0] * q[i, 1] - q[k, 1] * q[i, 0]
+            ixj0 = q[i, 1] * q[j, 2] - q[i, 2] * q[j, 1]
+            ixj1 = q[i, 2] * q[j, 0] - q[i, 0] * q[j, 2]
+            ixj2 = q[i, 0] * q[j, 1] - q[i, 1] * q[j, 0]
+            vol += w * (q[i, 0] * jxk0 + q[i, 1] * jxk1 + q[i, 2] * jxk2)
+            grad[i, 0] += w * jxk0
+            grad[i, 1] += w * jxk1
+            grad[i, 2] += w * jxk2
+            grad[j, 0] += w * kxi0
+            grad[j, 1] += w * kxi1
+            grad[j, 2] += w * kxi2
+            grad[k, 0] += w * ixj0
+            grad[k, 1] += w * ixj1
+            grad[k, 2] += w * ixj2
         v0 = rest_volume[e]
         strain = (vol - v0) / v0
         energy += 0.5 * bulk[e] * v0 * strain * strain
@@ -245,9 +239,8 @@ def spring_forces_numpy(x: np.ndarray, lattice: Lattice):
     e = l - lattice.rest_length
     ec = lattice.switch
     kl, kh = lattice.k_low, lattice.k_high
-    high = e > ec
-    d = np.where(high, e - ec, 0.0)
-    el = np.where(high, ec, e)
+    el = np.clip(e, -ec, ec)            # the small-strain part
+    d = e - el                          # beyond the threshold (either sign)
     fm = kl * el + kh * d
     energy = float(np.sum(0.5 * kl * el * el + kl * el * d + 0.5 * kh * d * d))
     f = r * (fm / np.maximum(l, 1e-12))[:, None]
@@ -264,7 +257,8 @@ def volume_forces(x: np.ndarray, lattice: Lattice, out: np.ndarray | None = None
     x = np.ascontiguousarray(x, dtype=np.float64)
     if out is None:
         out = np.zeros_like(x)
-    e = _volume_kernel(x, lattice.prisms, PRISM_TETS, lattice.rest_volume, lattice.bulk, out)
+    e = _volume_kernel(x, lattice.prisms, PRISM_FACETS, PRISM_FACET_WEIGHTS,
+                       lattice.rest_volume, lattice.bulk, out)
     return out, e
 
 
@@ -284,13 +278,14 @@ def skull_forces(x: np.ndarray, lattice: Lattice, normals: np.ndarray | None = N
 
 
 @numba.njit(cache=True, nogil=True)
-def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, tets, rest_volume,
+def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, facets, fweights,
+                  rest_volume,
                   bulk, use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs,
                   c_normal, c_k, f_ext, fixed, out):  # pragma: no cover
     out[:] = 0.0
     energy = _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out)
     if use_volume:
-        energy += _volume_kernel(x, prisms, tets, rest_volume, bulk, out)
+        energy += _volume_kernel(x, prisms, facets, fweights, rest_volume, bulk, out)
     energy += _skull_kernel(x, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, out)
     energy += _contact_kernel(x, c_pairs, c_normal, c_k, out)
     for i in range(x.shape[0]):
@@ -379,7 +374,8 @@ class TissueSystem:
         nodes = lat.skull_nodes if skull else lat.skull_nodes[:0]
         pairs = self.contact_pairs if skull else self.contact_pairs[:0]
         e = _total_kernel(x, lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch,
-                          lat.prisms, PRISM_TETS, lat.rest_volume, lat.bulk,
+                          lat.prisms, PRISM_FACETS, PRISM_FACET_WEIGHTS, lat.rest_volume,
+                          lat.bulk,
                           self.volume_preservation, nodes, lat.skull_bone,
                           self.skull_normal, lat.skull_margin, lat.skull_k, pairs,
                           self.contact_normal, lat.contact_k, self.f_ext, self.fixed, out)

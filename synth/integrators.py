@@ -56,20 +56,17 @@ class DynamicState:
 
 def _volume_gradients(lattice, x=None) -> np.ndarray:
     """(e, 6, 3) gradients of the prism volumes at ``x`` (rest when omitted)."""
-    from .lattice import PRISM_TETS
+    from .lattice import PRISM_FACET_WEIGHTS, PRISM_FACETS
 
     x = lattice.rest if x is None else x
     p = x[lattice.prisms]
+    p = p - p.mean(axis=1, keepdims=True)
     grad = np.zeros_like(p)
-    for t in PRISM_TETS:
-        p0, p1, p2, p3 = (p[:, t[c]] for c in range(4))
-        g1 = np.cross(p2 - p0, p3 - p0) / 6.0
-        g2 = np.cross(p3 - p0, p1 - p0) / 6.0
-        g3 = np.cross(p1 - p0, p2 - p0) / 6.0
-        grad[:, t[1]] += g1
-        grad[:, t[2]] += g2
-        grad[:, t[3]] += g3
-        grad[:, t[0]] -= g1 + g2 + g3
+    for f, w in zip(PRISM_FACETS, PRISM_FACET_WEIGHTS):
+        qi, qj, qk = p[:, f[0]], p[:, f[1]], p[:, f[2]]
+        grad[:, f[0]] += w / 6.0 * np.cross(qj, qk)
+        grad[:, f[1]] += w / 6.0 * np.cross(qk, qi)
+        grad[:, f[2]] += w / 6.0 * np.cross(qi, qj)
     return grad
 
 

@@ -166,19 +166,28 @@ def tet_signed_volumes(p0, p1, p2, p3) -> np.ndarray:
     return np.einsum("...i,...i->...", np.cross(p1 - p0, p2 - p0), p3 - p0) / 6.0
 
 
-# The prism (a, b, c, a', b', c') = local (0..5) split into three tetrahedra whose signed
-# volumes are positive when (a, b, c) is counter-clockwise seen from outside and the primed
-# nodes lie inward (checked on a right prism in the tests).
-PRISM_TETS = np.array([[0, 2, 1, 3], [1, 3, 2, 4], [2, 5, 4, 3]], dtype=np.int64)
+# Boundary of the prism (a, b, c, a', b', c') = local (0..5) as weighted triangles with
+# outward orientation: the top and bottom triangles, and each (generally non-planar) side
+# quadrilateral as a bilinear patch, whose flux integral is exactly the average of its two
+# triangulations.  The enclosed volume (divergence theorem) is therefore independent of any
+# vertex labelling, so mirror-image elements have identical volume functions.
+PRISM_FACETS = np.array([
+    [0, 1, 2], [3, 5, 4],
+    [0, 3, 4], [0, 4, 1], [0, 3, 1], [3, 4, 1],      # side a-b: quad (a, a', b', b)
+    [1, 4, 5], [1, 5, 2], [1, 4, 2], [4, 5, 2],      # side b-c
+    [2, 5, 3], [2, 3, 0], [2, 5, 0], [5, 3, 0],      # side c-a
+], dtype=np.int64)
+PRISM_FACET_WEIGHTS = np.array([1.0, 1.0] + [0.5] * 12)
 
 
 def prism_volumes(x: np.ndarray, prisms: np.ndarray) -> np.ndarray:
-    """Volumes of prism elements at positions ``x`` (sum of their three tetrahedra)."""
+    """Volumes of prism elements (bilinear side faces) at node positions ``x``."""
     p = x[prisms]                      # (e, 6, 3)
+    p = p - p.mean(axis=1, keepdims=True)
     vol = np.zeros(prisms.shape[0])
-    for t in PRISM_TETS:
-        vol += tet_signed_volumes(p[:, t[0]], p[:, t[1]], p[:, t[2]], p[:, t[3]])
-    return vol
+    for f, w in zip(PRISM_FACETS, PRISM_FACET_WEIGHTS):
+        vol += w * np.einsum("ij,ij->i", p[:, f[0]], np.cross(p[:, f[1]], p[:, f[2]]))
+    return vol / 6.0
 
 
 def _fix_extrusion_directions(vertices, triangles, normals, seam, min_dot=0.25, n_iter=50):

@@ -122,6 +122,8 @@ class FaceModel:
         self._x = np.array(self.lattice.rest)
         self._v = np.zeros_like(self._x)
         self._t = 0.0
+        if self._solver is not None:
+            self._solver.reset_history()
         self._apply_controls(previous_jaw=0.0)
 
     @property
