@@ -13,10 +13,12 @@ Per frame and per contour the tracker reports a quality:
 * ``depth``: mean depth ``-P`` of the potential under the nodes, relative to the
   depth on the first frame (1 = as well anchored as at the start);
 * ``stretch``: contour length relative to the first frame;
-* ``lost``: depth below ``lost_depth``, stretch outside ``stretch_range``, or nodes
-  that left the image. A lost contour is re-initialised from the layout (moved with
-  the head frame) and relaxed again within the same frame; it stays flagged lost only
-  if that fails too.
+* ``shape``: change of shape since the first frame (similarity-invariant residual
+  over the length);
+* ``lost``: depth below ``lost_depth``, stretch outside ``stretch_range``, shape
+  change above ``max_shape_change``, or nodes that left the image. A lost contour
+  is re-initialised from the layout (moved with the head frame) and relaxed again
+  within the same frame; it stays flagged lost only if that fails too.
 
 Ends. A free end of a contour on a dark line creeps inward, to where the ravine
 stops deepening, which leaves it short of the feature's true end by about
@@ -70,12 +72,53 @@ __all__ = ["ContourQuality", "TrackResult", "Tracker", "refine_end"]
 
 @dataclass(frozen=True)
 class ContourQuality:
-    """Per-frame quality of one contour (see the module docstring)."""
+    """Per-frame quality of one contour (see the module docstring).
+
+    Attributes
+    ----------
+    depth : float
+        Mean potential depth under the nodes relative to the first frame.
+    stretch : float
+        Length relative to the first frame.
+    lost : bool
+    reinitialised : bool
+        Re-placed from the layout in this frame.
+    shape : float
+        Change of shape since the first frame: RMS residual of the best similarity
+        fit (translation, rotation, scale) of the first frame's contour onto this
+        one, over the contour's length (0 = same shape).
+    """
 
     depth: float
     stretch: float
     lost: bool
     reinitialised: bool = False
+    shape: float = 0.0
+
+
+def _resample_for_shape(points, closed, n=32):
+    from trackers.snakes import resample_polyline as _rs
+
+    try:
+        return _rs(points, n, closed=closed)
+    except ValueError:
+        return np.repeat(np.asarray(points, float)[:1], n, axis=0)
+
+
+def _shape_change(points, ref, closed):
+    """Similarity-invariant RMS shape difference over the reference length."""
+    cur = _resample_for_shape(points, closed, len(ref))
+    z = cur[:, 0] + 1j * cur[:, 1]
+    w = ref[:, 0] + 1j * ref[:, 1]
+    z = z - z.mean()
+    w = w - w.mean()
+    ww = float(np.vdot(w, w).real)
+    if ww <= 1e-12:
+        return 0.0
+    a = np.vdot(w, z) / ww  # z ~ a w (rotation + scale)
+    rms = float(np.sqrt(np.mean(np.abs(z - a * w) ** 2)))
+    length = _polyline_length(ref, closed) * max(abs(a), 1e-9)
+    return rms / max(length, 1e-9)
 
 
 @dataclass
@@ -420,6 +463,8 @@ class Tracker:
     max_step : float
         Cap on a node's move per step, pixels (a guard against a too strong image
         force; it does not change equilibria).
+    max_shape_change : float
+        Largest change of shape (see :class:`ContourQuality`) before a contour is lost.
     brow_mid : 'apex' or float
         Where ``brow_mid_*`` sits along each eyebrow contour (arc-length fraction
         from the inner end). 'apex' (default) finds the top of the arch on the first
@@ -444,9 +489,10 @@ class Tracker:
 
     def __init__(self, layout: FaceLayout, *, params: SnakeParams | None = None,
                  strength="auto", descent_rate: float = 0.3, tol: float = 0.01,
-                 max_iter: int = 300, first_max_iter: int = 2000, lost_depth: float = 0.3,
+                 max_iter: int = 100, first_max_iter: int = 2000, lost_depth: float = 0.3,
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
-                 max_step: float = 1.0, brow_mid="apex", channel_order: str = "rgb"):
+                 max_step: float = 1.0, brow_mid="apex", max_shape_change: float = 0.15,
+                 channel_order: str = "rgb"):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -471,6 +517,9 @@ class Tracker:
             raise ValueError(f"brow_mid must be 'apex' or a fraction in [0, 1], got "
                              f"{brow_mid!r}")
         self.brow_mid = brow_mid
+        if not np.isfinite(max_shape_change) or max_shape_change <= 0:
+            raise ValueError(f"max_shape_change must be positive, got {max_shape_change}")
+        self.max_shape_change = float(max_shape_change)
         self.layout = layout
         self.params = params
         self.strength_mode = strength
@@ -497,6 +546,7 @@ class Tracker:
         self.index = 0
         self.ref_depth: dict[str, float] = {}
         self.ref_length: dict[str, float] = {}
+        self.ref_shape: dict[str, np.ndarray] = {}
         self.ref_head: HeadFrame | None = None
         self.brow_fraction: dict[str, float] | None = None
         self.last_head: HeadFrame | None = None
@@ -639,10 +689,14 @@ class Tracker:
             depth = depths[name] / max(self.ref_depth.get(name, depths[name]), 1e-9)
             stretch = _polyline_length(pts, closed) / max(self.ref_length.get(
                 name, _polyline_length(pts, closed)), 1e-9)
+            shape = _shape_change(pts, self.ref_shape[name], closed) \
+                if name in self.ref_shape else 0.0
             lost = (not np.isfinite(pts).all() or depth < self.lost_depth
                     or not self.stretch_range[0] <= stretch <= self.stretch_range[1]
+                    or shape > self.max_shape_change
                     or bool(outside[k]) or k in self._clipped)
-            q[name] = ContourQuality(float(depth), float(stretch), bool(lost), name in reinit)
+            q[name] = ContourQuality(float(depth), float(stretch), bool(lost), name in reinit,
+                                     float(shape))
         return q
 
     def _head(self):
@@ -692,6 +746,8 @@ class Tracker:
             for k, name in enumerate(self.names):
                 self.ref_depth[name] = depths[name]
                 self.ref_length[name] = _polyline_length(
+                    self.system.contour_points(k), self.layout.contours[name].closed)
+                self.ref_shape[name] = _resample_for_shape(
                     self.system.contour_points(k), self.layout.contours[name].closed)
         quality = self._quality(depths, outside)
         head = self._head()
