@@ -220,11 +220,24 @@ def expected_outputs(options: Mapping | None = None) -> tuple[str, ...]:
     ('contractions.csv', 'analysis.json', 'contractions.png')
     >>> expected_outputs({"overlay": True})[-1]
     'overlay.mp4'
+
+    ``overlay.mp4`` may be ``overlay.avi`` where OpenCV has no MP4 encoder (the video
+    writer falls back to Motion-JPEG); either counts.
     """
     files = ("contractions.csv", "analysis.json", "contractions.png")
     if options and options.get("overlay"):
         files += ("overlay.mp4",)
     return files
+
+
+# an expected output and the names it may have (codec fallbacks of the video writer)
+_ALTERNATIVES = {"overlay.mp4": ("overlay.mp4", "overlay.avi")}
+
+
+def _missing_outputs(present, options: Mapping | None) -> list[str]:
+    """Expected outputs of which no acceptable name is in ``present`` (a set of names)."""
+    return [name for name in expected_outputs(options)
+            if not any(alt in present for alt in _ALTERNATIVES.get(name, (name,)))]
 
 
 def _canonical_options(options: Mapping | None) -> dict:
@@ -283,9 +296,8 @@ def completion_problem(out_dir: str | os.PathLike, input_path: str | os.PathLike
                 f"(size/modification time differ)")
     if options is not None and _canonical_options(options) != recorded_options:
         return f"{out_dir} was made with other options ({json.dumps(recorded_options)})"
-    for name in expected_outputs(recorded_options):
-        if name not in outputs:
-            return f"{marker_path} lists no {name}"
+    for name in _missing_outputs(set(outputs), recorded_options):
+        return f"{marker_path} lists no {name}"
     for name, size in outputs.items():
         f = out_dir / name
         if not f.is_file():
@@ -410,7 +422,8 @@ def _process_video(input_path: str, out_root: str, name: str, options: dict,
         try:
             signature = _input_signature(path)
             (task or _default_task)(path, tmp, **options)
-            missing = [f for f in expected_outputs(options) if not (tmp / f).is_file()]
+            missing = _missing_outputs({f.name for f in tmp.iterdir() if f.is_file()},
+                                       options)
             if missing:
                 raise RuntimeError(f"the analysis wrote no {', '.join(missing)}")
             row.update(_summarise(tmp))

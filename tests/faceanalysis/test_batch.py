@@ -229,6 +229,28 @@ def test_process_video_bad_input_is_a_failed_row_without_leftovers(corpus, tmp_p
     assert list(out.iterdir()) == []
 
 
+def overlay_task(path, output, *, overlay=False, suffix=".avi"):
+    intensity_task(path, output)
+    if overlay and suffix:
+        (Path(output) / f"overlay{suffix}").write_bytes(b"frames")
+
+
+def test_overlay_is_expected_when_asked_for_under_either_codec_name(corpus, tmp_path):
+    video = corpus["good"][0]
+    for i, (suffix, status) in enumerate([(".mp4", "ok"), (".avi", "ok"), (None, "failed")]):
+        out = tmp_path / f"out{i}"
+        out.mkdir()
+        task = functools.partial(overlay_task, suffix=suffix)
+        row = batch._process_video(str(video), str(out), "a", {"overlay": True}, task, False)
+        assert row["status"] == status, row["error"]
+        if status == "ok":
+            assert is_complete(out / "a", video, options={"overlay": True})
+            (out / "a" / f"overlay{suffix}").unlink()
+            assert not is_complete(out / "a", video)
+        else:
+            assert row["error"] == "RuntimeError: the analysis wrote no overlay.mp4"
+
+
 # --------------------------------------------------------------------------- real clusters
 
 def test_cluster_run_isolates_failures_and_resumes(corpus, tmp_path, caplog):
