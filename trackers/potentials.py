@@ -457,10 +457,11 @@ def potential_from_gray(gray, kind: str, sigma: float = 2.0, *, roi=None) -> np.
 def potentials_in_boxes(gray, specs, boxes):
     """Potentials of several (kind, sigma) pairs, each inside its own box.
 
-    One Gaussian blur per distinct ``sigma`` is shared by all boxes (the blur sees
-    the whole ``gray`` array, so box borders are exact as long as ``gray`` extends
-    ``3 * sigma`` beyond them); the potential is then evaluated in each box only.
-    This is what the tracker uses: one small box per contour.
+    Each box is blurred with a margin of ``3 * sigma`` (so box borders are exact as
+    long as ``gray`` extends that far beyond them), or, when the boxes of one
+    ``sigma`` would cover more than the whole image, one blur of the whole image is
+    shared; the potential is then evaluated in each box only. This is what the
+    tracker uses: one small box per contour.
 
     Parameters
     ----------
@@ -491,14 +492,26 @@ def potentials_in_boxes(gray, specs, boxes):
         raise ValueError(f"need one box per spec, got {len(specs)} specs and {len(boxes)} boxes")
     blurred = {}
     out = []
+    checked = []
+    area = {}
     for (kind, sigma), box in zip(specs, boxes):
         sigma = _check_sigma(sigma)
         if kind not in ("edge", "valley", "dark_below"):
             raise ValueError(f"kind must be 'edge', 'valley' or 'dark_below', got {kind!r}")
-        x0, y0, x1, y1 = _check_roi(box, gray.shape)
-        if sigma not in blurred:
-            blurred[sigma] = _blur(gray, sigma)
-        g = blurred[sigma][y0:y1, x0:x1]
+        b = _check_roi(box, gray.shape)
+        checked.append((kind, sigma, b))
+        m = int(np.ceil(3 * sigma)) + 2
+        area[sigma] = area.get(sigma, 0) + (b[2] - b[0] + 2 * m) * (b[3] - b[1] + 2 * m)
+    for kind, sigma, (x0, y0, x1, y1) in checked:
+        if area[sigma] < gray.size:
+            # small boxes: blur each (with its margin) rather than the whole image
+            sub, (ox, oy, w, h) = _crop_with_margin(gray, (x0, y0, x1, y1),
+                                                    int(np.ceil(3 * sigma)) + 2)
+            g = _blur(sub, sigma)[oy:oy + h, ox:ox + w]
+        else:
+            if sigma not in blurred:
+                blurred[sigma] = _blur(gray, sigma)
+            g = blurred[sigma][y0:y1, x0:x1]
         P = np.empty((y1 - y0, x1 - x0), np.float32)
         if kind == "edge":
             _edge_nb(g, P)

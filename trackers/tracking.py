@@ -106,19 +106,16 @@ def _resample_for_shape(points, closed, n=32):
 
 
 def _shape_change(points, ref, closed):
-    """Similarity-invariant RMS shape difference over the reference length."""
-    cur = _resample_for_shape(points, closed, len(ref))
-    z = cur[:, 0] + 1j * cur[:, 1]
-    w = ref[:, 0] + 1j * ref[:, 1]
-    z = z - z.mean()
-    w = w - w.mean()
-    ww = float(np.vdot(w, w).real)
-    if ww <= 1e-12:
-        return 0.0
-    a = np.vdot(w, z) / ww  # z ~ a w (rotation + scale)
-    rms = float(np.sqrt(np.mean(np.abs(z - a * w) ** 2)))
-    length = _polyline_length(ref, closed) * max(abs(a), 1e-9)
-    return rms / max(length, 1e-9)
+    """Similarity-invariant RMS shape difference over the reference length.
+
+    Node to node: a contour keeps its number of nodes and (tension, end relocation)
+    their even spacing, so no resampling is needed.
+    """
+    cur = np.asarray(points, float)
+    if cur.shape != ref.shape:
+        cur = _resample_for_shape(cur, closed, len(ref))
+    return float(_shape_nb(np.ascontiguousarray(cur), np.ascontiguousarray(ref, dtype=float),
+                           bool(closed)))
 
 
 @dataclass
@@ -161,8 +158,100 @@ class TrackResult:
 
 
 def _polyline_length(p, closed=False):
-    d = np.diff(np.vstack([p, p[:1]]) if closed else p, axis=0)
-    return float(np.hypot(*d.T).sum())
+    return float(_length_nb(np.ascontiguousarray(p, dtype=np.float64), bool(closed)))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _length_nb(p, closed):
+    n = p.shape[0]
+    total = 0.0
+    for i in range(n - 1):
+        total += np.sqrt((p[i + 1, 0] - p[i, 0]) ** 2 + (p[i + 1, 1] - p[i, 1]) ** 2)
+    if closed and n > 1:
+        total += np.sqrt((p[0, 0] - p[n - 1, 0]) ** 2 + (p[0, 1] - p[n - 1, 1]) ** 2)
+    return total
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shape_nb(cur, ref, closed):
+    n = cur.shape[0]
+    cx = 0.0
+    cy = 0.0
+    rx = 0.0
+    ry = 0.0
+    for i in range(n):
+        cx += cur[i, 0]
+        cy += cur[i, 1]
+        rx += ref[i, 0]
+        ry += ref[i, 1]
+    cx /= n
+    cy /= n
+    rx /= n
+    ry /= n
+    ww = 0.0
+    ar = 0.0
+    ai = 0.0
+    for i in range(n):
+        wx = ref[i, 0] - rx
+        wy = ref[i, 1] - ry
+        zx = cur[i, 0] - cx
+        zy = cur[i, 1] - cy
+        ww += wx * wx + wy * wy
+        # conj(w) * z
+        ar += wx * zx + wy * zy
+        ai += wx * zy - wy * zx
+    if ww <= 1e-12:
+        return 0.0
+    ar /= ww
+    ai /= ww
+    res = 0.0
+    for i in range(n):
+        wx = ref[i, 0] - rx
+        wy = ref[i, 1] - ry
+        ex = (cur[i, 0] - cx) - (ar * wx - ai * wy)
+        ey = (cur[i, 1] - cy) - (ar * wy + ai * wx)
+        res += ex * ex + ey * ey
+    scale = np.sqrt(ar * ar + ai * ai)
+    length = _length_nb(ref, closed) * max(scale, 1e-9)
+    return np.sqrt(res / n) / max(length, 1e-9)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _mean_depth_nb(P, pts, ox, oy):
+    H, W = P.shape
+    total = 0.0
+    cnt = 0
+    for i in range(pts.shape[0]):
+        xf = pts[i, 0] - ox
+        yf = pts[i, 1] - oy
+        if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+            continue
+        x0 = min(int(xf), W - 2)
+        y0 = min(int(yf), H - 2)
+        tx = xf - x0
+        ty = yf - y0
+        total += ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
+                  + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
+        cnt += 1
+    return -total / cnt if cnt else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _boxes_nb(X, starts, m, X0, Y0, gw, gh, out):
+    for k in range(starts.shape[0] - 1):
+        xmin = np.inf
+        ymin = np.inf
+        xmax = -np.inf
+        ymax = -np.inf
+        for i in range(starts[k], starts[k + 1]):
+            xmin = min(xmin, X[i, 0])
+            xmax = max(xmax, X[i, 0])
+            ymin = min(ymin, X[i, 1])
+            ymax = max(ymax, X[i, 1])
+        out[k, 0] = max(int(np.floor(xmin - m)) - X0, 0)
+        out[k, 1] = max(int(np.floor(ymin - m)) - Y0, 0)
+        out[k, 2] = min(int(np.ceil(xmax + m)) + 1 - X0, gw)
+        out[k, 3] = min(int(np.ceil(ymax + m)) + 1 - Y0, gh)
 
 
 def _trim_start(p, s):
@@ -585,26 +674,20 @@ class Tracker:
             gray = to_gray(img[Y0:Y1, X0:X1], channel_order=self.channel_order)
         except ValueError as exc:
             raise ValueError(f"frame {self.index}: {exc}") from None
-        boxes, origins = [], []
         gh, gw = gray.shape
-        for k in range(len(self.names)):
-            pts = X[self.system.contour_slice(k)]
-            bx0 = int(max(np.floor(pts[:, 0].min() - m) - X0, 0))
-            by0 = int(max(np.floor(pts[:, 1].min() - m) - Y0, 0))
-            bx1 = int(min(np.ceil(pts[:, 0].max() + m) + 1 - X0, gw))
-            by1 = int(min(np.ceil(pts[:, 1].max() + m) + 1 - Y0, gh))
-            boxes.append((bx0, by0, bx1, by1))
-            origins.append((float(X0 + bx0), float(Y0 + by0)))
-        specs = [self.specs[k] for k in range(len(self.names))]
-        Ps = potentials_in_boxes(gray, specs, boxes)
-        return Ps, np.asarray(origins), gray, (float(X0), float(Y0))
+        bx = np.empty((len(self.names), 4), np.int64)
+        _boxes_nb(X, self.system.starts, float(m), int(X0), int(Y0), gw, gh, bx)
+        boxes = [tuple(int(v) for v in b) for b in bx]
+        origins = np.c_[bx[:, 0] + X0, bx[:, 1] + Y0].astype(np.float64)
+        Ps = potentials_in_boxes(gray, self.specs, boxes)
+        return Ps, origins, gray, (float(X0), float(Y0))
 
     def _depths(self, Ps, origins):
         out = {}
         for k, name in enumerate(self.names):
             pts = self.system.X[self.system.contour_slice(k)]
-            v = _sample_safe(Ps[k], pts, origins[k])
-            out[name] = float(-np.nanmean(v)) if np.isfinite(v).any() else 0.0
+            out[name] = float(_mean_depth_nb(Ps[k], pts, float(origins[k][0]),
+                                             float(origins[k][1])))
         return out
 
     def _auto_strength(self, Ps, origins):
@@ -747,8 +830,7 @@ class Tracker:
                 self.ref_depth[name] = depths[name]
                 self.ref_length[name] = _polyline_length(
                     self.system.contour_points(k), self.layout.contours[name].closed)
-                self.ref_shape[name] = _resample_for_shape(
-                    self.system.contour_points(k), self.layout.contours[name].closed)
+                self.ref_shape[name] = self.system.contour_points(k)
         quality = self._quality(depths, outside)
         head = self._head()
         lost = [k for k, n in enumerate(self.names) if quality[n].lost]
