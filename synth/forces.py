@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .lattice import PRISM_FACET_WEIGHTS, PRISM_FACETS, Lattice, rotate_about_jaw
+from .lattice import PRISM_QUADS, Lattice, rotate_about_jaw
 
 __all__ = [
     "TissueSystem",
@@ -82,10 +82,15 @@ def _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out):  # prag
     return energy
 
 
-@numba.njit(cache=True, nogil=True)
-def _volume_kernel(x, prisms, facets, weights, rest_volume, bulk, out):  # pragma: no cover
+@numba.njit(cache=True, nogil=True, inline="always", fastmath=True)
+def _cross(ax, ay, az, bx, by, bz):  # pragma: no cover
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cover
     energy = 0.0
-    grad = np.zeros((6, 3))
+    g = np.zeros((6, 3))
     q = np.zeros((6, 3))
     for e in range(prisms.shape[0]):
         cx = 0.0
@@ -104,44 +109,53 @@ def _volume_kernel(x, prisms, facets, weights, rest_volume, bulk, out):  # pragm
             q[a, 0] = x[n, 0] - cx
             q[a, 1] = x[n, 1] - cy
             q[a, 2] = x[n, 2] - cz
-            grad[a, 0] = 0.0
-            grad[a, 1] = 0.0
-            grad[a, 2] = 0.0
+        # triangles (0, 1, 2) and (3, 5, 4): det(i, j, k) / 6
         vol = 0.0
-        for f in range(facets.shape[0]):
-            i = facets[f, 0]
-            j = facets[f, 1]
-            k = facets[f, 2]
-            w = weights[f] / 6.0
-            # det(qi, qj, qk) = qi . (qj x qk); d/dqi = qj x qk, d/dqj = qk x qi, d/dqk = qi x qj
-            jxk0 = q[j, 1] * q[k, 2] - q[j, 2] * q[k, 1]
-            jxk1 = q[j, 2] * q[k, 0] - q[j, 0] * q[k, 2]
-            jxk2 = q[j, 0] * q[k, 1] - q[j, 1] * q[k, 0]
-            kxi0 = q[k, 1] * q[i, 2] - q[k, 2] * q[i, 1]
-            kxi1 = q[k, 2] * q[i, 0] - q[k, 0] * q[i, 2]
-            kxi2 = q[k, 0] * q[i, 1] - q[k, 1] * q[i, 0]
-            ixj0 = q[i, 1] * q[j, 2] - q[i, 2] * q[j, 1]
-            ixj1 = q[i, 2] * q[j, 0] - q[i, 0] * q[j, 2]
-            ixj2 = q[i, 0] * q[j, 1] - q[i, 1] * q[j, 0]
-            vol += w * (q[i, 0] * jxk0 + q[i, 1] * jxk1 + q[i, 2] * jxk2)
-            grad[i, 0] += w * jxk0
-            grad[i, 1] += w * jxk1
-            grad[i, 2] += w * jxk2
-            grad[j, 0] += w * kxi0
-            grad[j, 1] += w * kxi1
-            grad[j, 2] += w * kxi2
-            grad[k, 0] += w * ixj0
-            grad[k, 1] += w * ixj1
-            grad[k, 2] += w * ixj2
+        for t in range(2):
+            i = 0 if t == 0 else 3
+            j = 1 if t == 0 else 5
+            k = 2 if t == 0 else 4
+            jk = _cross(q[j, 0], q[j, 1], q[j, 2], q[k, 0], q[k, 1], q[k, 2])
+            ki = _cross(q[k, 0], q[k, 1], q[k, 2], q[i, 0], q[i, 1], q[i, 2])
+            ij = _cross(q[i, 0], q[i, 1], q[i, 2], q[j, 0], q[j, 1], q[j, 2])
+            vol += (q[i, 0] * jk[0] + q[i, 1] * jk[1] + q[i, 2] * jk[2]) / 6.0
+            for c in range(3):
+                g[i, c] = jk[c] / 6.0
+                g[j, c] = ki[c] / 6.0
+                g[k, c] = ij[c] / 6.0
+        # bilinear quads: s . (d1 x d2) / 24
+        for f in range(3):
+            i0 = quads[f, 0]
+            i1 = quads[f, 1]
+            i2 = quads[f, 2]
+            i3 = quads[f, 3]
+            sx = q[i0, 0] + q[i1, 0] + q[i2, 0] + q[i3, 0]
+            sy = q[i0, 1] + q[i1, 1] + q[i2, 1] + q[i3, 1]
+            sz = q[i0, 2] + q[i1, 2] + q[i2, 2] + q[i3, 2]
+            d1x = q[i2, 0] - q[i0, 0]
+            d1y = q[i2, 1] - q[i0, 1]
+            d1z = q[i2, 2] - q[i0, 2]
+            d2x = q[i3, 0] - q[i1, 0]
+            d2y = q[i3, 1] - q[i1, 1]
+            d2z = q[i3, 2] - q[i1, 2]
+            c12 = _cross(d1x, d1y, d1z, d2x, d2y, d2z)
+            c2s = _cross(d2x, d2y, d2z, sx, sy, sz)
+            cs1 = _cross(sx, sy, sz, d1x, d1y, d1z)
+            vol += (sx * c12[0] + sy * c12[1] + sz * c12[2]) / 24.0
+            for c in range(3):
+                g[i0, c] += (c12[c] - c2s[c]) / 24.0
+                g[i2, c] += (c12[c] + c2s[c]) / 24.0
+                g[i1, c] += (c12[c] - cs1[c]) / 24.0
+                g[i3, c] += (c12[c] + cs1[c]) / 24.0
         v0 = rest_volume[e]
         strain = (vol - v0) / v0
         energy += 0.5 * bulk[e] * v0 * strain * strain
-        c = bulk[e] * strain
+        cf = bulk[e] * strain
         for a in range(6):
             n = prisms[e, a]
-            out[n, 0] -= c * grad[a, 0]
-            out[n, 1] -= c * grad[a, 1]
-            out[n, 2] -= c * grad[a, 2]
+            out[n, 0] -= cf * g[a, 0]
+            out[n, 1] -= cf * g[a, 1]
+            out[n, 2] -= cf * g[a, 2]
     return energy
 
 
@@ -257,8 +271,7 @@ def volume_forces(x: np.ndarray, lattice: Lattice, out: np.ndarray | None = None
     x = np.ascontiguousarray(x, dtype=np.float64)
     if out is None:
         out = np.zeros_like(x)
-    e = _volume_kernel(x, lattice.prisms, PRISM_FACETS, PRISM_FACET_WEIGHTS,
-                       lattice.rest_volume, lattice.bulk, out)
+    e = _volume_kernel(x, lattice.prisms, PRISM_QUADS, lattice.rest_volume, lattice.bulk, out)
     return out, e
 
 
@@ -278,14 +291,13 @@ def skull_forces(x: np.ndarray, lattice: Lattice, normals: np.ndarray | None = N
 
 
 @numba.njit(cache=True, nogil=True)
-def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, facets, fweights,
-                  rest_volume,
+def _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, quads, rest_volume,
                   bulk, use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs,
                   c_normal, c_k, f_ext, fixed, out):  # pragma: no cover
     out[:] = 0.0
     energy = _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out)
     if use_volume:
-        energy += _volume_kernel(x, prisms, facets, fweights, rest_volume, bulk, out)
+        energy += _volume_kernel(x, prisms, quads, rest_volume, bulk, out)
     energy += _skull_kernel(x, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, out)
     energy += _contact_kernel(x, c_pairs, c_normal, c_k, out)
     for i in range(x.shape[0]):
@@ -374,8 +386,7 @@ class TissueSystem:
         nodes = lat.skull_nodes if skull else lat.skull_nodes[:0]
         pairs = self.contact_pairs if skull else self.contact_pairs[:0]
         e = _total_kernel(x, lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch,
-                          lat.prisms, PRISM_FACETS, PRISM_FACET_WEIGHTS, lat.rest_volume,
-                          lat.bulk,
+                          lat.prisms, PRISM_QUADS, lat.rest_volume, lat.bulk,
                           self.volume_preservation, nodes, lat.skull_bone,
                           self.skull_normal, lat.skull_margin, lat.skull_k, pairs,
                           self.contact_normal, lat.contact_k, self.f_ext, self.fixed, out)
@@ -409,3 +420,181 @@ class TissueSystem:
         lat = self.lattice
         d = x[lat.skull_nodes] - x[lat.skull_bone]
         return np.einsum("ij,ij->i", d, self.skull_normal)
+
+
+# ---------------------------------------------------------------------------------------------
+# Numba L-BFGS loop (the whole iteration runs compiled; Python only sets it up)
+# ---------------------------------------------------------------------------------------------
+
+@numba.njit(cache=True, nogil=True)
+def _lu_solve3(q, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, out):  # pragma: no cover
+    """Solve A z = q for 3 right-hand sides (rows of q are nodes) with SuperLU factors
+    ``Pr A Pc = L U`` (L unit lower, U upper, both CSC)."""
+    n = q.shape[0]
+    for i in range(n):
+        r = perm_r[i]
+        work[r, 0] = q[i, 0]
+        work[r, 1] = q[i, 1]
+        work[r, 2] = q[i, 2]
+    for j in range(n):
+        y0 = work[j, 0]
+        y1 = work[j, 1]
+        y2 = work[j, 2]
+        for k in range(lp[j], lp[j + 1]):
+            i = li[k]
+            if i > j:
+                v = lx[k]
+                work[i, 0] -= v * y0
+                work[i, 1] -= v * y1
+                work[i, 2] -= v * y2
+    for j in range(n - 1, -1, -1):
+        d = udiag[j]
+        y0 = work[j, 0] / d
+        y1 = work[j, 1] / d
+        y2 = work[j, 2] / d
+        work[j, 0] = y0
+        work[j, 1] = y1
+        work[j, 2] = y2
+        for k in range(up[j], up[j + 1]):
+            i = ui[k]
+            if i < j:
+                v = ux[k]
+                work[i, 0] -= v * y0
+                work[i, 1] -= v * y1
+                work[i, 2] -= v * y2
+    for i in range(n):
+        c = perm_c[i]
+        out[i, 0] = work[c, 0]
+        out[i, 1] = work[c, 1]
+        out[i, 2] = work[c, 2]
+
+
+@numba.njit(cache=True, nogil=True)
+def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
+                  max_iter):  # pragma: no cover
+    """Minimise the lattice energy over the free nodes, in place on ``x``.
+
+    ``state`` = [n_pairs, head] of the ring buffer of curvature pairs (updated).
+    Returns (iterations, last step, energy, status) with status 0 = converged,
+    1 = iteration cap, 2 = non-finite energy / line search failure."""
+    (springs, rest_length, k_low, k_high, switch, prisms, quads, rest_volume, bulk,
+     use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs, c_normal, c_k,
+     f_ext, fixed) = forces_args
+    lp, li, lx, up, ui, ux, udiag, perm_r, perm_c = factor
+    nf = free.shape[0]
+    m = s_hist.shape[0]
+    fbuf = np.empty_like(x)
+    g = np.empty((nf, 3))
+    gn = np.empty((nf, 3))
+    q = np.empty((nf, 3))
+    z = np.empty((nf, 3))
+    work = np.empty((nf, 3))
+    xf = np.empty((nf, 3))
+    alphas = np.empty(m)
+    energy = _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, quads,
+                           rest_volume, bulk, use_volume, sk_nodes, sk_bone, sk_normal,
+                           sk_margin, sk_k, c_pairs, c_normal, c_k, f_ext, fixed, fbuf)
+    for a in range(nf):
+        for c in range(3):
+            g[a, c] = -fbuf[free[a], c]
+    it = 0
+    step = np.inf
+    status = 0
+    while True:
+        n_pairs = state[0]
+        head = state[1]
+        # two-loop recursion, newest pair first; H0 = A^{-1}
+        for a in range(nf):
+            for c in range(3):
+                q[a, c] = g[a, c]
+        for t in range(n_pairs):
+            k = (head - 1 - t) % m
+            dot = 0.0
+            for a in range(nf):
+                for c in range(3):
+                    dot += s_hist[k, a, c] * q[a, c]
+            ak = rho[k] * dot
+            alphas[t] = ak
+            for a in range(nf):
+                for c in range(3):
+                    q[a, c] -= ak * y_hist[k, a, c]
+        _lu_solve3(q, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, z)
+        for t in range(n_pairs - 1, -1, -1):
+            k = (head - 1 - t) % m
+            dot = 0.0
+            for a in range(nf):
+                for c in range(3):
+                    dot += y_hist[k, a, c] * z[a, c]
+            bk = rho[k] * dot
+            coef = alphas[t] - bk
+            for a in range(nf):
+                for c in range(3):
+                    z[a, c] += coef * s_hist[k, a, c]
+        slope = 0.0
+        for a in range(nf):
+            for c in range(3):
+                slope -= g[a, c] * z[a, c]           # p = -z
+        if slope >= 0.0:
+            state[0] = 0
+            _lu_solve3(g, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, z)
+            slope = 0.0
+            for a in range(nf):
+                for c in range(3):
+                    slope -= g[a, c] * z[a, c]
+        step = 0.0
+        for a in range(nf):
+            for c in range(3):
+                v = abs(z[a, c])
+                if v > step:
+                    step = v
+        if step <= tol:
+            break
+        it += 1
+        if it > max_iter:
+            status = 1
+            break
+        for a in range(nf):
+            for c in range(3):
+                xf[a, c] = x[free[a], c]
+        alpha = 1.0
+        ok = False
+        en = energy
+        for _ in range(30):
+            for a in range(nf):
+                for c in range(3):
+                    x[free[a], c] = xf[a, c] - alpha * z[a, c]
+            en = _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, quads,
+                               rest_volume, bulk, use_volume, sk_nodes, sk_bone, sk_normal,
+                               sk_margin, sk_k, c_pairs, c_normal, c_k, f_ext, fixed, fbuf)
+            if np.isfinite(en) and en <= energy + 1e-4 * alpha * slope:
+                ok = True
+                break
+            alpha *= 0.5
+        if not ok:
+            status = 2
+            break
+        for a in range(nf):
+            for c in range(3):
+                gn[a, c] = -fbuf[free[a], c]
+        # curvature pair s = alpha p = -alpha z, y = gn - g
+        k = state[1]
+        sy = 0.0
+        yy = 0.0
+        for a in range(nf):
+            for c in range(3):
+                sv = -alpha * z[a, c]
+                yv = gn[a, c] - g[a, c]
+                s_hist[k, a, c] = sv
+                y_hist[k, a, c] = yv
+                sy += sv * yv
+                yy += yv * yv
+        if m > 0 and sy > 1e-12 * yy:
+            rho[k] = 1.0 / sy
+            state[1] = (k + 1) % m
+            if state[0] < m:
+                state[0] += 1
+        for a in range(nf):
+            for c in range(3):
+                g[a, c] = gn[a, c]
+        energy = en
+    return it, step, energy, status

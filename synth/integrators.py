@@ -56,17 +56,25 @@ class DynamicState:
 
 def _volume_gradients(lattice, x=None) -> np.ndarray:
     """(e, 6, 3) gradients of the prism volumes at ``x`` (rest when omitted)."""
-    from .lattice import PRISM_FACET_WEIGHTS, PRISM_FACETS
+    from .lattice import PRISM_QUADS
 
     x = lattice.rest if x is None else x
     p = x[lattice.prisms]
     p = p - p.mean(axis=1, keepdims=True)
     grad = np.zeros_like(p)
-    for f, w in zip(PRISM_FACETS, PRISM_FACET_WEIGHTS):
-        qi, qj, qk = p[:, f[0]], p[:, f[1]], p[:, f[2]]
-        grad[:, f[0]] += w / 6.0 * np.cross(qj, qk)
-        grad[:, f[1]] += w / 6.0 * np.cross(qk, qi)
-        grad[:, f[2]] += w / 6.0 * np.cross(qi, qj)
+    for (i, j, k) in ((0, 1, 2), (3, 5, 4)):
+        grad[:, i] += np.cross(p[:, j], p[:, k]) / 6.0
+        grad[:, j] += np.cross(p[:, k], p[:, i]) / 6.0
+        grad[:, k] += np.cross(p[:, i], p[:, j]) / 6.0
+    for q in PRISM_QUADS:
+        s = p[:, q].sum(axis=1)
+        d1 = p[:, q[2]] - p[:, q[0]]
+        d2 = p[:, q[3]] - p[:, q[1]]
+        c12, c2s, cs1 = np.cross(d1, d2), np.cross(d2, s), np.cross(s, d1)
+        grad[:, q[0]] += (c12 - c2s) / 24.0
+        grad[:, q[2]] += (c12 + c2s) / 24.0
+        grad[:, q[1]] += (c12 - cs1) / 24.0
+        grad[:, q[3]] += (c12 + cs1) / 24.0
     return grad
 
 
@@ -368,6 +376,19 @@ class EquilibriumSolver:
         self.matrix = a.tocsc()
         self._lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
+        lf, uf = self._lu.L.tocsc(), self._lu.U.tocsc()
+        lf.sort_indices()
+        uf.sort_indices()
+        self._factor = (lf.indptr.astype(np.int64), lf.indices.astype(np.int64), lf.data,
+                        uf.indptr.astype(np.int64), uf.indices.astype(np.int64), uf.data,
+                        uf.diagonal().copy(), self._lu.perm_r.astype(np.int64),
+                        self._lu.perm_c.astype(np.int64))
+        nf = len(free)
+        m = max(self.history, 1)
+        self._s = np.zeros((m, nf, 3))
+        self._y = np.zeros((m, nf, 3))
+        self._rho = np.zeros(m)
+        self._state = np.zeros(2, dtype=np.int64)
         self.last_iterations = 0
         self.last_step = np.inf
         self.total_iterations = 0
@@ -377,6 +398,7 @@ class EquilibriumSolver:
 
     def reset_history(self) -> None:
         """Forget the L-BFGS curvature pairs (e.g. after a large jump in the load)."""
+        self._state[:] = 0
         self._s_hist.clear()
         self._y_hist.clear()
         self._rho_hist.clear()
@@ -385,6 +407,64 @@ class EquilibriumSolver:
         return self._lu.solve(np.ascontiguousarray(g_flat.reshape(-1, 3))).ravel()
 
     def solve(self, x0: np.ndarray, *, tol: float = 3e-4, max_iter: int = 1000) -> np.ndarray:
+        """Relax the lattice to equilibrium, starting from ``x0`` (not modified).
+
+        The iteration runs in one compiled (Numba) loop; :meth:`solve_python` is the same
+        algorithm in NumPy/SciPy.
+
+        Parameters
+        ----------
+        x0 : (n, 3) array
+            Starting positions (e.g. the previous frame's equilibrium).
+        tol : float
+            Stop when the largest nodal component of the quasi-Newton step is below ``tol`` cm.
+        max_iter : int
+            Iteration cap; reaching it raises :class:`SimulationError`.
+
+        Returns
+        -------
+        x : (n, 3) array
+            Equilibrium positions.
+        """
+        from .forces import _lbfgs_kernel
+        from .lattice import PRISM_QUADS
+
+        if not (np.isfinite(tol) and tol > 0):
+            raise ValueError(f"tol must be finite and > 0, got {tol}")
+        sysm = self.system
+        lat = sysm.lattice
+        x = np.array(x0, dtype=np.float64)
+        sysm.apply_boundary(x)
+        sysm.project_skull(x)
+        args = (lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch, lat.prisms,
+                PRISM_QUADS, lat.rest_volume, lat.bulk, sysm.volume_preservation,
+                lat.skull_nodes, lat.skull_bone, sysm.skull_normal, lat.skull_margin,
+                lat.skull_k, sysm.contact_pairs, sysm.contact_normal, lat.contact_k,
+                sysm.f_ext, sysm.fixed)
+        if self.history == 0:
+            self._state[:] = 0
+        it, step, _, status = _lbfgs_kernel(x, sysm.free.astype(np.int64), args, self._factor,
+                                            self._s[: max(self.history, 1)],
+                                            self._y[: max(self.history, 1)], self._rho,
+                                            self._state, float(tol), int(max_iter))
+        if self.history == 0:
+            self._state[:] = 0
+        if status == 1:
+            raise SimulationError(
+                f"EquilibriumSolver did not converge in max_iter={max_iter} iterations "
+                f"(last update {step:.3g} cm > tol={tol:.3g} cm; jaw_rotation="
+                f"{sysm.jaw_rotation:.3g} rad, max |f_ext|={np.abs(sysm.f_ext).max():.3g})")
+        if status == 2:
+            _check(x + np.nan, None, sysm, where="EquilibriumSolver (line search)")
+        sysm.project_skull(x)
+        self.last_iterations = int(it)
+        self.total_iterations += int(it)
+        self.last_step = float(step)
+        _check(x, None, sysm, where="EquilibriumSolver")
+        return x
+
+    def solve_python(self, x0: np.ndarray, *, tol: float = 3e-4,
+                     max_iter: int = 1000) -> np.ndarray:
         """Relax the lattice to equilibrium, starting from ``x0`` (not modified).
 
         Parameters

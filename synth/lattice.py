@@ -166,27 +166,24 @@ def tet_signed_volumes(p0, p1, p2, p3) -> np.ndarray:
     return np.einsum("...i,...i->...", np.cross(p1 - p0, p2 - p0), p3 - p0) / 6.0
 
 
-# Boundary of the prism (a, b, c, a', b', c') = local (0..5) as weighted triangles with
-# outward orientation: the top and bottom triangles, and each (generally non-planar) side
-# quadrilateral as a bilinear patch, whose flux integral is exactly the average of its two
-# triangulations.  The enclosed volume (divergence theorem) is therefore independent of any
-# vertex labelling, so mirror-image elements have identical volume functions.
-PRISM_FACETS = np.array([
-    [0, 1, 2], [3, 5, 4],
-    [0, 3, 4], [0, 4, 1], [0, 3, 1], [3, 4, 1],      # side a-b: quad (a, a', b', b)
-    [1, 4, 5], [1, 5, 2], [1, 4, 2], [4, 5, 2],      # side b-c
-    [2, 5, 3], [2, 3, 0], [2, 5, 0], [5, 3, 0],      # side c-a
-], dtype=np.int64)
-PRISM_FACET_WEIGHTS = np.array([1.0, 1.0] + [0.5] * 12)
+# Volume of the prism (a, b, c, a', b', c') = local (0..5) with bilinear side faces, by the
+# divergence theorem: the top and bottom triangles contribute det/6, and the flux integral of a
+# bilinear quadrilateral (p0, p1, p2, p3) is exactly (p0 + p1 + p2 + p3) . (d1 x d2) / 8 with
+# diagonals d1 = p2 - p0, d2 = p3 - p1.  The result is independent of the vertex labelling,
+# so mirror-image elements have identical volume functions.
+PRISM_QUADS = np.array([[0, 3, 4, 1], [1, 4, 5, 2], [2, 5, 3, 0]], dtype=np.int64)
 
 
 def prism_volumes(x: np.ndarray, prisms: np.ndarray) -> np.ndarray:
     """Volumes of prism elements (bilinear side faces) at node positions ``x``."""
     p = x[prisms]                      # (e, 6, 3)
     p = p - p.mean(axis=1, keepdims=True)
-    vol = np.zeros(prisms.shape[0])
-    for f, w in zip(PRISM_FACETS, PRISM_FACET_WEIGHTS):
-        vol += w * np.einsum("ij,ij->i", p[:, f[0]], np.cross(p[:, f[1]], p[:, f[2]]))
+    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
+    vol += np.einsum("ij,ij->i", p[:, 3], np.cross(p[:, 5], p[:, 4]))
+    for q in PRISM_QUADS:
+        s = p[:, q].sum(axis=1)
+        vol += 0.25 * np.einsum("ij,ij->i", s, np.cross(p[:, q[2]] - p[:, q[0]],
+                                                        p[:, q[3]] - p[:, q[1]]))
     return vol / 6.0
 
 

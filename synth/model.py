@@ -122,6 +122,7 @@ class FaceModel:
         self._x = np.array(self.lattice.rest)
         self._v = np.zeros_like(self._x)
         self._t = 0.0
+        self._history: list = []          # recent (controls, equilibrium) for the predictor
         if self._solver is not None:
             self._solver.reset_history()
         self._apply_controls(previous_jaw=0.0)
@@ -243,7 +244,7 @@ class FaceModel:
         self.set_contractions(aus_to_contractions(expression_aus(name, emphasis=emphasis)))
 
     def _apply_controls(self, previous_jaw: float) -> None:
-        f = np.zeros_like(self.lattice.rest)
+        f = np.zeros(self.lattice.rest.shape)
         if len(self._force_nodes):
             f[self._force_nodes] = np.tensordot(self._contractions, self._basis, axes=1)
         self.system.set_external(f)
@@ -309,8 +310,11 @@ class FaceModel:
         if not (np.isfinite(tol) and tol > 0):
             raise ValueError(f"tol must be finite and > 0, got {tol}")
         if method == "implicit":
-            self._x = self.solver.solve(self._x, tol=tol, max_iter=max_iter)
+            controls = np.append(self._contractions, 3.0 * self._jaw)
+            x0 = self._predict(controls)
+            self._x = self.solver.solve(x0, tol=tol, max_iter=max_iter)
             self._v[:] = 0.0
+            self._history = (self._history + [(controls, self._x.copy())])[-2:]
         else:
             dt = self.stable_dt
             stepper = rk2_step if method == "rk2" else verlet_step
@@ -333,6 +337,23 @@ class FaceModel:
                     f"equilibrate(method={method!r}) did not settle within max_time={max_time}"
                     f" s of simulated time (dt={dt:.3g} s, tol={tol:g} cm)")
         return self.surface_vertices
+
+    def _predict(self, controls: np.ndarray) -> np.ndarray:
+        """Starting point for the solver: the previous equilibrium, extrapolated along the
+        last change when the controls keep moving in (nearly) the same direction, as they do
+        in a smooth time series."""
+        x0 = self._x
+        if len(self._history) == 2:
+            (c_prev, x_prev), (c_last, x_last) = self._history
+            u = controls - c_last
+            w = c_last - c_prev
+            ww = float(w @ w)
+            if ww > 0 and float(u @ u) > 0:
+                alpha = float(u @ w) / ww
+                if 0.0 < alpha <= 2.0 and np.linalg.norm(u - alpha * w) <= 0.2 * np.linalg.norm(u):
+                    x0 = x_last + alpha * (x_last - x_prev)
+                    self.system.apply_boundary(x0)
+        return x0
 
     def step(self, dt: float | None = None, *, method: str = "rk2", n_steps: int = 1
              ) -> np.ndarray:
@@ -365,6 +386,7 @@ class FaceModel:
             raise ValueError(f"dt must be finite and > 0, got {dt}")
         stepper = rk2_step if method == "rk2" else verlet_step
         state = DynamicState(self._x, self._v, self._t)
+        self._history = []
         try:
             for _ in range(n_steps):
                 stepper(self.system, state, dt, self.damping)
