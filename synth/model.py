@@ -246,7 +246,12 @@ class FaceModel:
     def _apply_controls(self, previous_jaw: float) -> None:
         f = np.zeros(self.lattice.rest.shape)
         if len(self._force_nodes):
-            f[self._force_nodes] = np.tensordot(self._contractions, self._basis, axes=1)
+            nodal = np.tensordot(self._contractions, self._basis, axes=1)
+            if self._jaw != 0.0:
+                # muscle geometry over the mandible turns with it
+                w = self.lattice.jaw_weight[self._force_nodes]
+                nodal = rotate_about_jaw(nodal, w, np.zeros(3), self._jaw)
+            f[self._force_nodes] = nodal
         self.system.set_external(f)
         if previous_jaw != self._jaw or self.system.jaw_rotation != self._jaw:
             self.system.set_jaw(self._jaw)
@@ -279,7 +284,7 @@ class FaceModel:
         return self._dt
 
     def equilibrate(self, *, method: str = "implicit", tol: float = 3e-4,
-                    max_iter: int = 1000, max_time: float = 2.0) -> np.ndarray:
+                    max_iter: int = 5000, max_time: float = 2.0) -> np.ndarray:
         """Relax to the equilibrium of the current contractions and jaw; returns the skin.
 
         Parameters
