@@ -27,6 +27,7 @@ head_roll`` columns of ``contractions.csv``) or :class:`~trackers.fiducials.Head
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from dataclasses import dataclass, field
@@ -35,7 +36,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-__all__ = ["FLOW_METHODS", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales",
+log = logging.getLogger(__name__)
+
+__all__ = ["FLOW_METHODS", "STABILIZATION", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales",
            "head_array", "grid_image_points", "vectors_to_head", "image_flow_to_grid",
            "stabilize", "face_flow", "rigid_basis", "remove_rigid", "track_heads",
            "heads_from_table", "video_face_flow", "flow_to_colour"]
@@ -434,33 +437,89 @@ def _crop_scale(ref_scale: float, px_per_unit) -> float:
     return float(np.clip(ref_scale, 64.0, 160.0))
 
 
+#: Ways of putting a frame into the reference's head frame (see :func:`face_flow`).
+STABILIZATION = ("flow", "head")
+
+
 class _FlowStep:
     """Reference crop + per-frame flow to it (shared by :func:`face_flow` and videos)."""
 
-    def __init__(self, ref_image, ref_head, grid, method, px_per_unit, normalize, pad=0.2):
+    def __init__(self, ref_image, ref_head, grid, method, px_per_unit, normalize, pad=0.2,
+                 stabilization="flow"):
         if method not in FLOW_METHODS:
             raise ValueError(f"unknown flow method {method!r}; choose from "
                              f"{', '.join(FLOW_METHODS)}")
+        if stabilization not in STABILIZATION:
+            raise ValueError(f"unknown stabilization {stabilization!r}; choose from "
+                             f"{', '.join(STABILIZATION)}")
         h = head_array(ref_head)
         if not np.isfinite(h).all() or h[2] <= 0:
             raise ValueError("the reference frame needs a finite head frame with positive scale")
         self.grid = grid
         self.method = method
+        self.stabilization = stabilization
         self.crop = _Crop(grid, _crop_scale(h[2], px_per_unit), pad)
         self.normalize = bool(normalize)
         self.sigma = max(0.8, 0.01 * self.crop.px_per_unit)
-        self.ref = self._prep(ref_image, h)
+        self.ref = self._prep(ref_image, self.crop.matrix(h))
         self.gpx = self.crop.grid_px()
         self.blur = _smooth_sigma(grid, self.crop.px_per_unit)
         self.max_motion = 0.25 * self.crop.px_per_unit
+        self.prev = None                              # last crop->image matrix (3x3)
+        self.inliers = np.nan
+        # points of the face (an ellipse inside the grid) for the rigid fit
+        cx = 0.5 * (grid.u[0] + grid.u[1])
+        cy = 0.5 * (grid.v[0] + grid.v[1])
+        ax, ay = 0.45 * (grid.u[1] - grid.u[0]), 0.45 * (grid.v[1] - grid.v[0])
+        step = max(3, int(round(0.03 * self.crop.px_per_unit)))
+        w, hgt = self.crop.size
+        X, Y = np.meshgrid(np.arange(0, w, step), np.arange(0, hgt, step))
+        u0, v0 = self.crop.origin
+        U = u0 + X / self.crop.px_per_unit
+        V = v0 + Y / self.crop.px_per_unit
+        inside = ((U - cx) / ax) ** 2 + ((V - cy) / ay) ** 2 <= 1.0
+        self.fit_pts = np.c_[X[inside], Y[inside]].astype(np.float32)
 
-    def _prep(self, image, head):
-        g = _warp(_grey_u8(image), self.crop, head)
+    def _prep(self, image, matrix):
+        g = cv2.warpAffine(_grey_u8(image), np.asarray(matrix, dtype=np.float64)[:2],
+                           self.crop.size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                           borderMode=cv2.BORDER_REPLICATE)
         return _normalise(g, self.sigma) if self.normalize else g
 
+    def _flow(self, cur):
+        return compute_flow(self.ref, cur, self.method, max_motion=self.max_motion)
+
+    def _rigid(self, fl):
+        """Similarity (3x3, reference crop -> current crop) fitted robustly to the flow."""
+        p = self.fit_pts
+        d = fl[p[:, 1].astype(int), p[:, 0].astype(int)]
+        S, inl = cv2.estimateAffinePartial2D(p, p + d, method=cv2.RANSAC,
+                                             ransacReprojThreshold=1.5, maxIters=500,
+                                             confidence=0.99, refineIters=10)
+        if S is None:
+            return None, 0.0
+        return np.vstack([S, [0.0, 0.0, 1.0]]), float(np.mean(inl))
+
     def __call__(self, image, head) -> np.ndarray:
-        cur = self._prep(image, head)
-        fl = compute_flow(self.ref, cur, self.method, max_motion=self.max_motion)
+        h = head_array(head)
+        have_head = bool(np.isfinite(h).all() and h[2] > 0)
+        if self.stabilization == "head" or self.prev is None:
+            if not have_head:
+                return np.full((*self.grid.shape, 2), np.nan)
+            M = np.vstack([self.crop.matrix(h), [0.0, 0.0, 1.0]])
+        else:
+            M = self.prev                     # continuity: last frame's alignment
+        cur = self._prep(image, M)
+        fl = self._flow(cur)
+        if self.stabilization == "flow":
+            S, frac = self._rigid(fl)
+            self.inliers = frac
+            if S is None or frac < 0.1:
+                self.prev = None if not have_head else self.prev
+                return np.full((*self.grid.shape, 2), np.nan)
+            M = M @ S
+            self.prev = M
+            fl = self._flow(self._prep(image, M))
         if self.blur > 0.3:
             fl = cv2.GaussianBlur(fl, (0, 0), self.blur)
         out = np.stack([cv2.remap(np.ascontiguousarray(fl[..., k]), self.gpx[..., 0],
@@ -471,7 +530,7 @@ class _FlowStep:
 
 def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis",
               reference: int = 0, px_per_unit: float | None = None, normalize: bool = True,
-              frame_numbers=None) -> FaceFlow:
+              stabilization: str = "flow", frame_numbers=None) -> FaceFlow:
     """Face displacement from a reference frame to every frame, on the face grid.
 
     Parameters
@@ -489,6 +548,14 @@ def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis
         Scale of the stabilised crop (default: the reference head scale, within 64-160).
     normalize : bool
         Local contrast normalisation of the crops (robust to illumination change).
+    stabilization : {'flow', 'head'}
+        ``head``: every frame is warped by its own head frame. ``flow`` (default): the
+        first frame after the reference starts from its head frame, every later one from
+        the previous frame's alignment; a similarity fitted robustly (RANSAC) to a first
+        flow on the face then corrects the alignment, and the flow is measured again. It
+        corrects head-frame jitter and bridges frames where the tracker lost the face;
+        frames where fewer than a tenth of the face points fit a common rigid motion
+        are lost.
     frame_numbers : array_like, optional
         Frame numbers to record (default ``0..T-1``).
 
@@ -506,12 +573,15 @@ def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis
     if not 0 <= reference < T:
         raise ValueError(f"reference={reference} is outside 0..{T - 1}")
     t0 = time.perf_counter()
-    step = _FlowStep(frames[reference], H[reference], grid, method, px_per_unit, normalize)
+    step = _FlowStep(frames[reference], H[reference], grid, method, px_per_unit, normalize,
+                     stabilization=stabilization)
     disp = np.full((T, *grid.shape, 2), np.nan)
-    valid = np.isfinite(H).all(axis=1) & (np.nan_to_num(H[:, 2]) > 0)
-    for t in range(T):
-        if valid[t]:
-            disp[t] = 0.0 if t == reference else step(frames[t], H[t])
+    for t in range(reference, T):
+        disp[t] = 0.0 if t == reference else step(frames[t], H[t])
+    step.prev = None
+    for t in range(reference - 1, -1, -1):        # frames before the reference, backwards
+        disp[t] = step(frames[t], H[t])
+    valid = np.isfinite(disp).all(axis=(1, 2, 3))
     fn = np.arange(T) if frame_numbers is None else np.asarray(frame_numbers, dtype=int)
     return FaceFlow(disp, valid, fn, int(fn[reference]), grid, method, step.crop.px_per_unit,
                     timings={"flow_s": time.perf_counter() - t0})
@@ -608,12 +678,23 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
                    "head_roll": np.nan}
             rec.update({f"fid_{n}_{k}": np.nan for n in _FIDUCIAL_NAMES for k in "xy"})
             if frame.ok:
-                if tracker is None:
-                    lay = layout if layout is not None else detect_layout(
-                        frame.image, frame_index=frame.index, channel_order="bgr")
-                    tracker = Tracker(lay, channel_order="bgr")
-                res = tracker.track(frame.image)
-                if res.success:
+                res = None
+                try:
+                    fresh = tracker is None
+                    if fresh:
+                        lay = layout if layout is not None else detect_layout(
+                            frame.image, frame_index=frame.index, channel_order="bgr")
+                        tracker = Tracker(lay, channel_order="bgr")
+                    res = tracker.track(frame.image)
+                    for _ in range(2 if fresh else 0):   # let fresh contours settle
+                        if res.success:
+                            break
+                        res = tracker.track(frame.image)
+                except ValueError as exc:     # no face / contours off the image: lost
+                    log.warning("%s: frame %d lost (%s)", video, frame.index, exc)
+                    if layout is None:
+                        tracker = None          # look for the face again on the next frame
+                if res is not None and res.success:
                     rec.update(success=1, head_x=res.head.x, head_y=res.head.y,
                                head_scale=res.head.scale, head_roll=res.head.roll)
                     for n in _FIDUCIAL_NAMES:
@@ -629,7 +710,7 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
                     neutral: int | None = None, method: str = "dis",
                     grid: FaceGrid | None = None, fps: float | None = None, start: int = 0,
                     end: int | None = None, px_per_unit: float | None = None,
-                    normalize: bool = True) -> FaceFlow:
+                    normalize: bool = True, stabilization: str = "flow") -> FaceFlow:
     """Face flow of a video file, streamed (frames are not kept in memory).
 
     Parameters
@@ -640,8 +721,9 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
         ``contractions.csv``); default: tracked with :func:`track_heads`.
     neutral : int, optional
         Frame number of the reference (neutral) frame; default the first tracked frame.
-    method, grid, px_per_unit, normalize
-        See :func:`face_flow`.
+    method, grid, px_per_unit, normalize, stabilization
+        See :func:`face_flow` (frames before the neutral one are aligned from the head
+        frame only, as the video is streamed forward).
     fps, start, end
         Input options, as for ``analyze``.
 
@@ -679,17 +761,24 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     if ref_img is None:
         raise ValueError(f"{video}: reference frame {ref_frame} cannot be decoded")
     t0 = time.perf_counter()
-    step = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize)
+    step = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
+                     stabilization=stabilization)
+    back = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
+                     stabilization="head")
     pos = {int(f): i for i, f in enumerate(frames)}
     disp = np.full((len(frames), *grid.shape, 2), np.nan)
-    seen = np.zeros(len(frames), bool)
     with open_video(video, fps=fps, start=int(frames.min()), end=int(frames.max()) + 1) as src:
         for f in src:
             i = pos.get(f.index)
-            if i is None or not f.ok or not ok[i]:
+            if i is None or not f.ok:
                 continue
-            disp[i] = step(f.image, heads[i])
-            seen[i] = True
+            if i == ref_pos:
+                disp[i] = 0.0
+            elif i > ref_pos:
+                disp[i] = step(f.image, heads[i])
+            elif ok[i]:
+                disp[i] = back(f.image, heads[i])
+    seen = np.isfinite(disp).all(axis=(1, 2, 3))
     return FaceFlow(disp, seen, frames, ref_frame, grid, method, step.crop.px_per_unit,
                     timings={"flow_s": time.perf_counter() - t0})
 

@@ -16,9 +16,15 @@ templates of :mod:`faceanalysis.templates`:
 3. **Matching.** In a segment, the apex is the frame of largest energy; the observed onset
    (segment start to apex) is resampled to the template's instants, and each expression is
    scored by the normalised correlation (cosine) of the spatio-temporal displacement
-   template with the observation, combined with the cosine of the motion-energy maps
-   (weights :data:`WEIGHTS`). The best score names the segment; a segment whose best
-   score is below :data:`MIN_SCORE` matches no expression and is dropped (neutral).
+   template with the observation and the cosine of the motion-energy maps (weights
+   :data:`WEIGHTS`); the whole segment votes too: the energy-weighted mean, over its
+   frames, of the cosine between the frame's displacement and the expression's apex
+   template. The *similarity* of a class is the mean of the onset score and that mean
+   cosine; its *share* is the fraction of the segment's frames whose nearest apex template
+   it is (a majority vote, robust to a few frames of head motion or occlusion). The class
+   score is ``(2 similarity + share) / 3``; the best score names the segment. A segment
+   whose named class has a similarity below :data:`MIN_SCORE` matches no expression and is
+   dropped (neutral).
 
 Scores per class are reported for the six expressions and for ``neutral`` (0 for a
 sequence with an expression; for a neutral one ``1 -`` the best expression score of its
@@ -29,7 +35,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -48,9 +54,9 @@ CLASSES = (*EXPRESSION_NAMES, "neutral")
 #: RMS displacement on the face mask (head units) above which a frame shows an expression.
 #: Calibrated with :func:`calibrate_threshold` (see the module docstring).
 NEUTRAL_THRESHOLD = 0.003
-#: Smallest best-class score of a segment; motion that matches no expression template
+#: Smallest similarity of a segment's class; motion that matches no expression template
 #: (noise, talking, residual head motion) below it is neutral.
-MIN_SCORE = 0.4
+MIN_SCORE = 0.2
 #: Weights of the spatio-temporal displacement correlation and of the motion-energy map
 #: correlation in a class score.
 WEIGHTS = (0.8, 0.2)
@@ -177,6 +183,8 @@ class _Prepared:
         # motion energy of the nuisance-free onset
         prev = np.concatenate([np.zeros_like(expr[:, :1]), expr[:, :-1]], axis=1)
         self.energy = np.sum((expr - prev) ** 2, axis=(1, -1))[:, m]   # (E, n)
+        apex = expr[:, -1][:, m, :].reshape(len(expr), -1)
+        self.apex = apex / np.maximum(np.linalg.norm(apex, axis=1, keepdims=True), 1e-12)
 
 
 _PREP_CACHE: dict = {}
@@ -192,19 +200,20 @@ def _prepared(templates: FlowTemplates) -> _Prepared:
     return hit
 
 
-def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex: int
-                  ) -> dict[str, float]:
-    """Scores of the expressions for the onset ``clean[start..apex]``.
+def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex: int,
+                  end: int | None = None) -> dict[str, float]:
+    """Scores of the expressions for the segment ``clean[start..end]`` with its apex.
 
     Parameters
     ----------
     clean : (T, rows, cols, 2)
         Nuisance-free displacement from neutral (:func:`nuisance_free`).
     templates : FlowTemplates
-    start, apex : int
-        Positions in ``clean``.
+    start, apex, end : int
+        Positions in ``clean`` (``end`` inclusive; default ``apex``).
     """
     p = _prepared(templates)
+    end = apex if end is None else int(end)
     m = templates.mask
     s0 = max(0, start - 1)                     # the frame before the onset as its zero
     idx = np.linspace(s0, apex, p.steps + 1)[1:]
@@ -217,8 +226,23 @@ def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex:
     prev = np.concatenate([obs[s0][None], onset[:-1]], axis=0)
     energy = np.sum((onset - prev) ** 2, axis=(0, -1))
     wd, we = WEIGHTS
-    return {name: wd * _cos(onset_flat, p.expr[e]) + we * _cos(energy, p.energy[e])
-            for e, name in enumerate(templates.expressions)}
+    onset_score = np.array([wd * _cos(onset_flat, p.expr[e]) + we * _cos(energy, p.energy[e])
+                            for e in range(len(templates.expressions))])
+    # the whole segment votes: energy-weighted cosine of each frame with the apex templates
+    seg = obs[start:end + 1].reshape(end + 1 - start, -1)
+    norms = np.linalg.norm(seg, axis=1)
+    w = norms / max(norms.sum(), 1e-12)
+    cos = (seg @ p.apex.T) / np.maximum(norms, 1e-12)[:, None]
+    mean_cos = w @ cos
+    similarity = 0.5 * (onset_score + mean_cos)
+    moving = norms > 0
+    share = (np.bincount(np.argmax(cos[moving], axis=1), minlength=len(onset_score))
+             / max(int(moving.sum()), 1))
+    out = {name: float((2.0 * similarity[e] + share[e]) / 3.0)
+           for e, name in enumerate(templates.expressions)}
+    out["_similarity"] = {name: float(similarity[e])
+                          for e, name in enumerate(templates.expressions)}
+    return out
 
 
 def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
@@ -266,10 +290,11 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     dropped = []                       # (peak energy, scores) of segments matching nothing
     for a, b in find_segments(energy, thr, min_length=min_length, min_gap=min_gap):
         apex = a + int(np.nanargmax(energy[a:b + 1]))
-        scores = score_segment(clean, templates, a, apex)
+        scores = score_segment(clean, templates, a, apex, b)
+        similarity = scores.pop("_similarity")
         scores["neutral"] = 0.0
         label = max(templates.expressions, key=scores.get)
-        if scores[label] < min_score:
+        if similarity[label] < min_score:
             dropped.append((float(energy[apex]), scores))
             continue
         segments.append(Segment(int(fr[a]), int(fr[apex]), int(fr[b]), label, scores,
@@ -306,7 +331,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     table : DataFrame, optional
         Head frames (e.g. an analysis's ``contractions.csv``); default: tracked.
     neutral : int, optional
-        Neutral frame number (default: the first tracked frame).
+        Neutral frame number (default: the first tracked frame); it may precede ``start``
+        (the frames between are tracked, not classified).
     method, fps, start, end
         See :func:`faceanalysis.flow.video_face_flow`.
     personalised : bool
@@ -322,12 +348,21 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         from faceanalysis.templates import default_templates
 
         templates = default_templates()
+    if neutral is not None and neutral < 0:
+        raise ValueError(f"neutral frame {neutral} must be >= 0")
+    first = start if neutral is None else min(start, int(neutral))
+    if end is not None and neutral is not None and neutral >= end:
+        raise ValueError(f"neutral frame {neutral} lies after the range end {end}")
     if table is None:
-        table = track_heads(video, fps=fps, start=start, end=end)
+        table = track_heads(video, fps=fps, start=first, end=end)
     ff = video_face_flow(video, table=table, neutral=neutral, method=method,
-                         grid=templates.grid, fps=fps, start=start, end=end)
+                         grid=templates.grid, fps=fps, start=first, end=end)
     if personalised:
         templates = personalize_from_table(templates, table, ff.reference)
+    if first < start:                      # the neutral frame precedes the range: drop it
+        keep = ff.frames >= start
+        ff = replace(ff, displacement=ff.displacement[keep], valid=ff.valid[keep],
+                     frames=ff.frames[keep])
     return classify_flow(ff, templates, **kwargs)
 
 

@@ -48,7 +48,7 @@ def _controls_table(contractions: pd.DataFrame, muscles) -> tuple[np.ndarray, np
     for j, m in enumerate(muscles):
         if m in contractions.columns:
             vals[:, j] = pd.to_numeric(contractions[m], errors="coerce").to_numpy(float)
-    jaw = (pd.to_numeric(contractions["jaw_rotation"], errors="coerce").to_numpy(float)
+    jaw = (np.array(pd.to_numeric(contractions["jaw_rotation"], errors="coerce"), dtype=float)
            if "jaw_rotation" in contractions.columns else np.zeros(T))
     bad = ~(np.isfinite(vals).all(axis=1) & np.isfinite(jaw))
     if "success" in contractions.columns:

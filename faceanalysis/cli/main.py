@@ -25,6 +25,9 @@ SUBCOMMANDS: dict[str, str] = {
     "batch": "batch",
     "probe": "probe",
     "synth": "synth",
+    "templates": "templates",
+    "validate": "validate",
+    "classify": "classify",
 }
 
 
