@@ -461,12 +461,23 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
     s = np.empty(cnt)
     v = np.empty(cnt)
     any_inside = False
+    nx = -ty
+    ny = tx
+    off = 1.5 * sigma
     for i in range(cnt):
         s[i] = (i_first + i) * 0.25
         x, y = _path_xy(p, arc, tx, ty, s[i])
         v[i] = _bil(P, x, y, ox, oy)
         if s[i] <= 0 and not np.isnan(v[i]):
             any_inside = True
+        elif s[i] > 0 and v[i] < 0 and not inset:
+            # (thin lines) beyond the end only a ravine running along the tangent counts: its
+            # flanks across are shallow; a line crossing the path (a furrow next to a
+            # mouth corner) is as deep on both flanks and is not a continuation
+            a = _bil(P, x + off * nx, y + off * ny, ox, oy)
+            b = _bil(P, x - off * nx, y - off * ny, ox, oy)
+            if not (a > 0.7 * v[i] and b > 0.7 * v[i]):
+                v[i] = 0.0
     if not any_inside:
         return False, 0.0, 0.0, 0.0
     if inset:
@@ -490,28 +501,35 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
     if not np.isfinite(depth) or depth >= -1e-3:
         return False, 0.0, 0.0, 0.0
     half = 0.5 * depth
-    j = -1
+    # the end: the first rise above half depth after which the ravine does not come
+    # back within 3 sigma (a gap, a highlight on a lip, is no end) and that rises on
+    # to a quarter of the depth (a line that merely weakens has no end there)
+    s_end = np.nan
     for m in range(i0 + 1, cnt):
         if np.isnan(v[m]) or np.isnan(v[m - 1]):
             break
-        if v[m] > half and v[m - 1] <= half:
-            j = m
-            break
-    if j < 1:
-        return False, 0.0, 0.0, 0.0
-    f = (half - v[j - 1]) / (v[j] - v[j - 1])
-    s_end = s[j - 1] + f * (s[j] - s[j - 1])
+        if not (v[m] > half and v[m - 1] <= half):
+            continue
+        f = (half - v[m - 1]) / (v[m] - v[m - 1])
+        cand = s[m - 1] + f * (s[m] - s[m - 1])
+        resumes = False
+        fades = False
+        for i in range(m, cnt):
+            if s[i] > cand + 3.0 * sigma:
+                break
+            if np.isnan(v[i]):
+                continue
+            if v[i] <= half:
+                resumes = True
+                break
+            if v[i] >= 0.25 * depth:
+                fades = True
+        if resumes:
+            continue
+        if fades:
+            s_end = cand
+        break
     if not np.isfinite(s_end):
-        return False, 0.0, 0.0, 0.0
-    # a real end: the ravine must fade out (not just weaken) within 3 sigma beyond
-    mx = -np.inf
-    seen = False
-    for i in range(cnt):
-        if s[i] > s_end and s[i] <= s_end + 3.0 * sigma and not np.isnan(v[i]):
-            seen = True
-            if v[i] > mx:
-                mx = v[i]
-    if not seen or mx < 0.25 * depth:
         return False, 0.0, 0.0, 0.0
     if inset and has_gray:
         cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
@@ -714,7 +732,7 @@ class Tracker:
                 p = float(np.clip(p, 0.1 * p_paper, 100 * p_paper))
             self.system.set_strength(k, p)
 
-    def _refine(self, Ps, origins, gray, gorigin):
+    def _refine(self, Ps, origins, gray, gorigin, settle=False):
         if not self.refine_ends:
             return
         for k, name in enumerate(self.names):
@@ -744,7 +762,14 @@ class Tracker:
                     cut = arc[np.argmin(np.hypot(*(ref - q).T))]
                     if cut > 0.45 * arc[-1]:
                         continue
-                    ref = np.vstack([q, _trim_start(ref, cut)[1:]]) if cut > 0 else ref
+                    if cut > 2.0 * c.sigma and not settle:
+                        # features shorten slowly: at most 2 sigma per frame, so that
+                        # a transient gap (a highlight) cannot cut a contour in half
+                        # (the first frame, where the layout may be far off, excepted)
+                        cut = 2.0 * c.sigma
+                        ref = _trim_start(ref, cut)
+                    else:
+                        ref = np.vstack([q, _trim_start(ref, cut)[1:]]) if cut > 0 else ref
                 else:
                     ref = np.vstack([q, ref])
                 if len(ref) < 2 or _polyline_length(ref) < 2.0:
@@ -816,13 +841,13 @@ class Tracker:
             self._auto_strength(Ps, origins)
             res = relax()
             iters += res.iterations
-        self._refine(Ps, origins, gray, gorigin)
+        self._refine(Ps, origins, gray, gorigin, settle=first)
         if first and self.refine_ends:
             # the first frame moves the ends farthest: settle and relocate once more
             # (on fields around the relocated contours)
             Ps, origins, gray, gorigin = self._fields(frame)
             iters += relax().iterations
-            self._refine(Ps, origins, gray, gorigin)
+            self._refine(Ps, origins, gray, gorigin, settle=True)
         outside = res.outside
         depths = self._depths(Ps, origins)
         if first:
@@ -845,7 +870,7 @@ class Tracker:
             Ps, origins, gray, gorigin = self._fields(frame)
             r3 = relax()
             iters += r3.iterations
-            self._refine(Ps, origins, gray, gorigin)
+            self._refine(Ps, origins, gray, gorigin, settle=True)
             outside = r3.outside
             depths = self._depths(Ps, origins)
             quality = self._quality(depths, outside, reinit)
