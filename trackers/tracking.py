@@ -532,7 +532,7 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
     if not np.isfinite(s_end):
         return False, 0.0, 0.0, 0.0
     if inset and has_gray:
-        cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
+        cx, cy = _path_xy(p, arc, tx, ty, s_end - 1.0 * sigma)
         hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
         if not np.isnan(hw):
             s_end -= hw
