@@ -64,7 +64,7 @@ def _equilibrium_figures(model, label: str, quick: bool) -> list[Figure]:
     ref = FaceModel(model.mesh)
     errs = []
     model.reset()
-    step = 4 if quick else 3
+    step = (4 if quick else 3) if model.lattice.n_springs < 15000 else 12
     for k, row in enumerate(rows):
         model.set_contractions(row.to_dict())
         if k % step == 0:
