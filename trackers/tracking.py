@@ -532,9 +532,17 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
     if not np.isfinite(s_end):
         return False, 0.0, 0.0, 0.0
     if inset and has_gray:
-        cx, cy = _path_xy(p, arc, tx, ty, s_end - 1.0 * sigma)
+        # measure the width just behind the rounded cap of the band (whose radius is
+        # the half-width itself): first 2 sigma inside, then half a sigma behind
+        # the cap that this first estimate implies (a tapering band is narrower
+        # near its end than 2 sigma inside)
+        cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
         hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
         if not np.isnan(hw):
+            cx, cy = _path_xy(p, arc, tx, ty, s_end - hw - 0.5 * sigma)
+            hw2 = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
+            if not np.isnan(hw2):
+                hw = hw2
             s_end -= hw
     x, y = _path_xy(p, arc, tx, ty, s_end)
     return True, s_end, x, y
