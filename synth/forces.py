@@ -228,9 +228,11 @@ def spring_forces(x: np.ndarray, lattice: Lattice, out: np.ndarray | None = None
 
     Examples
     --------
-    >>> from synth.lattice import build_lattice            # doctest: +SKIP
-    >>> f, e = spring_forces(lat.rest, lat)                 # doctest: +SKIP
-    >>> float(abs(f).max()), e                              # doctest: +SKIP
+    >>> from synth.lattice import build_lattice
+    >>> from synth.mesh import generate_face_mesh
+    >>> lat = build_lattice(generate_face_mesh(resolution=0.35))
+    >>> f, e = spring_forces(lat.rest, lat)
+    >>> float(abs(f).max()), float(e)
     (0.0, 0.0)
     """
     x = np.ascontiguousarray(x, dtype=np.float64)

@@ -282,9 +282,9 @@ def build_lattice(mesh, *, layer_depths=DEFAULT_LAYER_DEPTHS, stiffness=None,
 
     Examples
     --------
-    >>> from synth.mesh import generate_face_mesh          # doctest: +SKIP
-    >>> lat = build_lattice(generate_face_mesh())          # doctest: +SKIP
-    >>> lat.n_springs > 6000                               # doctest: +SKIP
+    >>> from synth.mesh import generate_face_mesh
+    >>> lat = build_lattice(generate_face_mesh(resolution=0.4))
+    >>> lat.n_elements > 960 and lat.n_springs > 6500
     True
     """
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
