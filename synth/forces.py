@@ -20,7 +20,10 @@ use the forces.
   per prism (three tetrahedra, 000 section 6), force ``-dQ/dx``.
 * Skull non-penetration (000 section 7): a fascia node whose height above the (jaw-rotated)
   skull plane under it drops below the margin is pushed back out along the skull normal by
-  a stiff penalty.  The integrators also project such nodes out exactly.
+  a stiff penalty.  As a fail-safe, a node that still ends up below the bone surface itself
+  is projected back onto it.
+* Lip contact: the two rows of the mouth seam are not joined (the mouth opens), so the upper
+  lip is kept from passing through the lower one by the same kind of one-sided penalty.
 
 The hot loops are Numba kernels (``cache=True``); :func:`spring_forces_numpy` is the
 vectorised NumPy reference used by the tests and the benchmark.

@@ -23,7 +23,9 @@ approximates that of a continuum: a spring that shares the volume ``V_s`` of its
 elements has stiffness ``k = E V_s / l0**2``; the epidermis and the fascia add a thin membrane
 (``k += E_m t_m A_s / l0**2``).  Finer meshes therefore give the same deformation.
 
-Node index of vertex ``v`` in layer ``l`` is ``l * n_vertices + v``.
+Node index of vertex ``v`` in layer ``l`` is ``l * n_vertices + v``.  The outline of the mesh
+is glued to the skull (all its layers fixed); the mouth seam is not joined, and its vertex
+pairs become one-sided lip contacts (the upper lip stays above the lower one).
 
 Units: centimetres, kPa for moduli, forces in kPa·cm² (0.1 N), masses such that time is in
 seconds (``density=1e-4`` is 1 g/cm³ in these units).
@@ -159,11 +161,6 @@ def _unique_edges(triangles: np.ndarray) -> np.ndarray:
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     e = np.sort(e, axis=1)
     return np.unique(e, axis=0)
-
-
-def tet_signed_volumes(p0, p1, p2, p3) -> np.ndarray:
-    """Signed volumes of tetrahedra given their corner arrays (..., 3)."""
-    return np.einsum("...i,...i->...", np.cross(p1 - p0, p2 - p0), p3 - p0) / 6.0
 
 
 # Volume of the prism (a, b, c, a', b', c') = local (0..5) with bilinear side faces, by the
