@@ -481,7 +481,8 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
 
     ``state`` = [n_pairs, head] of the ring buffer of curvature pairs (updated).
     Returns (iterations, last step, energy, status) with status 0 = converged,
-    1 = iteration cap, 2 = non-finite energy / line search failure."""
+    1 = iteration cap, 2 = non-finite energy / line search failure, 3 = stopped at the
+    floating-point floor of the energy (converged as far as arithmetic allows)."""
     (springs, rest_length, k_low, k_high, switch, prisms, quads, rest_volume, bulk,
      use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs, c_normal, c_k,
      f_ext, fixed) = forces_args
@@ -576,7 +577,15 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                 break
             alpha *= 0.5
         if not ok:
-            status = 2
+            for a in range(nf):
+                for c in range(3):
+                    x[free[a], c] = xf[a, c]
+            # no decrease found: either the energy is at its floating-point floor (the
+            # expected decrease is below round-off; converged) or something went wrong
+            if -slope <= 1e-11 * (abs(energy) + 1.0) and np.isfinite(energy):
+                status = 3
+            else:
+                status = 2
             break
         for a in range(nf):
             for c in range(3):
