@@ -25,7 +25,7 @@ import pandas as pd
 
 from faceanalysis.templates import FlowTemplates
 
-__all__ = ["estimate_contractions", "estimate_flow", "FlowDesign"]
+__all__ = ["estimate_contractions", "estimate_flow", "reestimate_flow", "FlowDesign"]
 
 
 class FlowDesign:
@@ -199,3 +199,41 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         if j is not None:
             out[i] = values[j]
     return pd.DataFrame(out, columns=list(templates.controls), index=table.index)
+
+
+def reestimate_flow(analysis, video: str | os.PathLike, *,
+                    templates: FlowTemplates | None = None, method: str = "dis",
+                    fps: float | None = None, **kwargs):
+    """The same tracking, the ``flow`` estimator: a new :class:`~faceanalysis.analysis.
+    Analysis` whose muscle, jaw and AU columns come from :func:`estimate_flow`.
+
+    Parameters
+    ----------
+    analysis : Analysis
+        A finished analysis of ``video`` (its table gives the head frames, fiducials and
+        neutral frame).
+    video : path-like
+        The analysed video, read again for its flow.
+    templates, method, fps, **kwargs
+        Passed to :func:`estimate_flow`.
+    """
+    from dataclasses import replace
+
+    from faceanalysis.table import JAW, MUSCLES, with_au_columns
+
+    table = analysis.table.copy()
+    params = analysis.metadata.get("parameters", {})
+    est = estimate_flow(video, table, neutral=params.get("neutral_frame"), templates=templates,
+                        method=method, fps=fps if fps is not None else params.get("fps"),
+                        start=params.get("start") or 0, end=params.get("end"), **kwargs)
+    success = table["success"].to_numpy() == 1
+    for col in (*MUSCLES, JAW):
+        v = est[col].to_numpy(float) if col in est.columns else np.zeros(len(table))
+        table[col] = np.where(success, v, np.nan)
+    table = with_au_columns(table)
+    metadata = dict(analysis.metadata)
+    metadata["parameters"] = {**params, "estimator": "flow",
+                              "estimated_controls": [c for c in est.columns
+                                                     if np.isfinite(est[c]).any()],
+                              "flow_method": method}
+    return replace(analysis, table=table, metadata=metadata)

@@ -120,3 +120,24 @@ def test_validate_scores_the_true_resynthesis_above_a_shuffled_one(tmp_path, mod
     assert meta["validation"]["active_frames"] == res.summary["active_frames"]
     assert (tmp_path / "out" / "validation.png").stat().st_size > 1000
     assert len(pd.read_csv(tmp_path / "out" / "validation.csv")) == len(a.table)
+
+
+@pytest.mark.slow
+def test_flow_estimator_on_an_analysed_video(tmp_path):
+    from faceanalysis.analysis import analyze
+    from faceanalysis.flow_estimator import reestimate_flow
+    from faceanalysis.templates import default_templates
+    from synth.render import render_sequence
+
+    paths = render_sequence(tmp_path / "seq", expression="happiness", frames=20, size=200,
+                            seed=108, head_motion=0.5, illumination=0.5, noise=1.0,
+                            flow=False)
+    a = analyze(paths["video"])
+    b = reestimate_flow(a, paths["video"], templates=default_templates())
+    assert b.metadata["parameters"]["estimator"] == "flow"
+    assert list(b.table.columns) == list(a.table.columns)
+    truth = pd.read_csv(tmp_path / "seq" / "truth.csv")
+    for m in ("zygomaticus_major_l", "zygomaticus_major_r"):
+        err = np.abs(b.table[m] - truth[m]).to_numpy()
+        assert np.nanmean(err) < 0.2, (m, np.nanmean(err))
+    assert b.table["AU12_r"].max() > 1.5            # AU intensities follow the muscles
