@@ -10,3 +10,12 @@ from faceanalysis._version import __version__
 from faceanalysis.errors import FaceAnalysisError
 
 __all__ = ["__version__", "FaceAnalysisError"]
+
+
+def __getattr__(name):
+    """Lazy exports (importing them pulls in the face model and the renderer)."""
+    if name == "resynthesize":
+        from faceanalysis.resynth import resynthesize
+
+        return resynthesize
+    raise AttributeError(f"module 'faceanalysis' has no attribute {name!r}")

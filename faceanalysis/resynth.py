@@ -523,10 +523,10 @@ class _PlotStrip:
         series = {MUSCLES[j]: controls[:, j] for j in range(controls.shape[1])}
         series[JAW + " (x2, rad)"] = 2 * jaw
         active = sorted(((float(np.nanmax(v)), k) for k, v in series.items()
-                         if np.nanmax(v) > 0.02), reverse=True)[:8]
+                         if np.nanmax(v) > 0.02), reverse=True)[:6]
         dpi = 100
         fig = plt.figure(figsize=(width / dpi, height / dpi), dpi=dpi)
-        ax = fig.add_axes((0.06, 0.22, 0.70, 0.72))
+        ax = fig.add_axes((0.06, 0.26, 0.68, 0.68))
         for _, k in active:
             ax.plot(times, series[k], lw=1.2, label=k)
         ax.set_xlim(times[0], times[-1] if times[-1] > times[0] else times[0] + 1)
@@ -534,7 +534,8 @@ class _PlotStrip:
         ax.tick_params(labelsize=6)
         ax.set_xlabel("time (s)", fontsize=7, labelpad=1)
         if active:
-            ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+            ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.05), frameon=False,
+                      labelspacing=0.2, handlelength=1.2)
         fig.canvas.draw()
         self.image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
         bbox = ax.get_window_extent()
@@ -565,6 +566,7 @@ class FrameState:
     inner: np.ndarray                 # (P, 3)
     fiducials: np.ndarray             # (11, 2) projected, output px
     seconds: float                    # equilibrium + rendering time
+    photometric_mae: float | None = None  # vs the input frame (personalised, side by side)
 
 
 class Resynthesis:
@@ -648,7 +650,7 @@ class Resynthesis:
 
         w, h = self.size
         cam = default_camera(w, h)
-        pose = HeadPose(yaw=VIEWS[self.view], centre=(0.0, -1.6, -4.0))
+        pose = HeadPose(yaw=VIEWS[self.view], centre=(0.0, -1.6, -1.5))
         return cam, pose
 
     def _camera_pose(self, row: int):
@@ -682,17 +684,17 @@ class Resynthesis:
         tex = paint_skin_texture(mesh, 0, size=512)
         return Renderer(mesh, texture=tex, camera=self._fixed_camera()[0], supersample=1)
 
-    def _render(self, skin, inner, row: int, contractions) -> tuple[np.ndarray, np.ndarray]:
-        """(image, projected skin xy) of one frame."""
+    def _render(self, skin, inner, row: int, contractions):
+        """(image, projected skin xy, skin mask or None) of one frame."""
         from synth.render.camera import project
 
         cam, pose = self._camera_pose(row)
         if self.shading == "wireframe":
             xy, _ = project(skin, cam, pose)
-            return self._wire.draw(xy, contractions, self.size), xy
+            return self._wire.draw(xy, contractions, self.size), xy, None
         self._renderer.camera = cam
         res = self._renderer.render(skin, inner, pose=pose)
-        return res.image, res.xy[: len(skin)]
+        return res.image, res.xy[: len(skin)], res.skin_mask
 
     def _personal_report(self) -> dict:
         """Landmark error and photometric comparison of the personalised neutral frame."""
@@ -760,6 +762,8 @@ class Resynthesis:
                        leave=False, dynamic_ncols=True)
         prev = None
         lm_idx = [m.mesh.landmarks[n] for n in FIDUCIALS]
+        compare = (self.subject is not None and self.shading == "textured"
+                   and self._framings is not None)
         try:
             for i in range(len(s.frames)):
                 t0 = time.perf_counter()
@@ -772,17 +776,21 @@ class Resynthesis:
                     prev = key
                 skin = m.surface_vertices
                 inner = m.inner_vertices()
-                image, xy = self._render(skin, inner, i, values)
+                image, xy, mask = self._render(skin, inner, i, values)
                 seconds = time.perf_counter() - t0
                 out = image
+                mae = None
                 if self.side_by_side:
-                    out = np.concatenate([np.concatenate([next(inputs), image], axis=1),
+                    frame_in = next(inputs)
+                    out = np.concatenate([np.concatenate([frame_in, image], axis=1),
                                           strip.frame(i)], axis=0)
+                    if compare and s.success[i]:
+                        mae = _masked_mae(frame_in, image, mask)
                 if bar is not None:
                     bar.update(1)
                 yield FrameState(row=i, frame=int(s.frames[i]), image=image, output=out,
                                  vertices=skin, inner=inner, fiducials=xy[lm_idx],
-                                 seconds=seconds)
+                                 seconds=seconds, photometric_mae=mae)
         finally:
             if bar is not None:
                 bar.close()
@@ -817,6 +825,7 @@ class Resynthesis:
             if export_meshes is not None else None
         t0 = time.perf_counter()
         times = []
+        maes = []
         writer = None
         try:
             for st in self.states(progress=progress):
@@ -825,6 +834,8 @@ class Resynthesis:
                     writer = VideoWriter(output, self.fps, (w, h))
                 writer.write(cv2.cvtColor(st.output, cv2.COLOR_RGB2BGR))
                 times.append(st.seconds)
+                if st.photometric_mae is not None:
+                    maes.append(st.photometric_mae)
                 if exporter is not None:
                     exporter.add(st, self.model)
             self.path = writer.close()
@@ -836,11 +847,31 @@ class Resynthesis:
                 writer.abort()
             if exporter is not None:
                 exporter.abort()
+        if maes:
+            self.report["frame_comparison"] = {
+                "what": "mean absolute grey-level difference between the input frame and the "
+                        "personalised resynthesis on the face mask, tracked frames",
+                "frames": len(maes), "mean_mae_grey": float(np.mean(maes)),
+                "max_mae_grey": float(np.max(maes))}
         self.report["timing"] = {"frames": len(times), "total_s": time.perf_counter() - t0,
                                  "median_frame_s": float(np.median(times)) if times else None,
                                  "frames_per_second": float(1.0 / np.median(times))
                                  if times else None}
         return self.path
+
+
+def _masked_mae(a: np.ndarray, b: np.ndarray, mask) -> float | None:
+    """Mean absolute grey difference of two RGB images on ``mask`` (eroded by one pixel)."""
+    import cv2
+
+    if mask is None:
+        return None
+    m = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    if not m.any():
+        return None
+    ga = cv2.cvtColor(a, cv2.COLOR_RGB2GRAY).astype(float)
+    gb = cv2.cvtColor(b, cv2.COLOR_RGB2GRAY).astype(float)
+    return float(np.abs(ga - gb)[m].mean())
 
 
 def _input_frames(path: Path, frames: np.ndarray, size):

@@ -28,6 +28,7 @@ SUBCOMMANDS: dict[str, str] = {
     "templates": "templates",
     "validate": "validate",
     "classify": "classify",
+    "resynth": "resynth",
 }
 
 
