@@ -60,6 +60,9 @@ class Analysis:
         The neutral-frame calibration.
     response : FiducialResponse
         The model response the estimate inverted.
+    measurements : ndarray, shape (T, P, 2)
+        Image positions of the response's measurement points (the 11 fiducials and
+        the lower lip's centre) per frame; NaN for lost frames.
     """
 
     table: pd.DataFrame
@@ -67,6 +70,7 @@ class Analysis:
     metadata: dict
     calibration: Calibration | None = None
     response: FiducialResponse | None = None
+    measurements: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
 
     @property
@@ -110,6 +114,33 @@ def _load_layout(layout, frame_size):
     return lay
 
 
+def _contour_midpoint(points: np.ndarray) -> np.ndarray:
+    """Point halfway along a polyline, by arc length."""
+    p = np.asarray(points, dtype=float)
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    half = 0.5 * s[-1]
+    k = min(int(np.searchsorted(s, half, side="right")) - 1, len(seg) - 1)
+    w = 0.0 if seg[k] == 0 else (half - s[k]) / seg[k]
+    return p[k] + w * (p[k + 1] - p[k])
+
+
+#: How a measurement point that is not one of the 11 fiducials is read off the contours.
+_CONTOUR_POINTS = {"lip_lower_centre": "lower_lip"}
+
+
+def _measure(result, names: tuple[str, ...]) -> np.ndarray:
+    out = np.empty((len(names), 2))
+    for j, name in enumerate(names):
+        if name in result.fiducials:
+            out[j] = result.fiducials[name]
+        elif name in _CONTOUR_POINTS:
+            out[j] = _contour_midpoint(result.contours[_CONTOUR_POINTS[name]])
+        else:
+            raise ValueError(f"the tracker cannot measure the point {name!r}")
+    return out
+
+
 def _progress(total, enabled: bool, desc: str):
     if not enabled:
         return None
@@ -121,7 +152,8 @@ def _progress(total, enabled: bool, desc: str):
 
 def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
-            layout=None, response: FiducialResponse | None = None,
+            layout=None, response: FiducialResponse | None = None, refine: bool = False,
+            tracker_options: dict | None = None,
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
@@ -145,6 +177,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         eye detectors on the first frame.
     response : FiducialResponse, optional
         Model response to invert (default: the generic face model's, cached).
+    refine : bool, keyword-only
+        With ``estimator='joint'``, refine every frame through the face model itself
+        (:func:`faceanalysis.refine.refine_through_model`): more accurate where muscles
+        interact, about ten times slower.
+    tracker_options : dict, optional
+        Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -180,9 +218,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ok: list[bool] = []
     conf: list[float] = []
     fid_rows: list[np.ndarray] = []
+    meas_rows: list[np.ndarray] = []
     head_rows: list[np.ndarray] = []
     contours: list = []
     nan_fid = np.full((len(FIDUCIALS), 2), np.nan)
+    nan_meas = np.full((len(response.fiducials), 2), np.nan)
     nan_head = np.full(4, np.nan)
     tracker = None
     writer = None
@@ -197,6 +237,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     ok.append(False)
                     conf.append(0.0)
                     fid_rows.append(nan_fid)
+                    meas_rows.append(nan_meas)
                     head_rows.append(nan_head)
                     contours.append(None)
                 else:
@@ -206,7 +247,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                         if lay is None:
                             lay = detect_layout(frame.image, frame_index=frame.index,
                                                 channel_order="bgr")
-                        tracker = Tracker(lay, channel_order="bgr")
+                        tracker = Tracker(lay, channel_order="bgr", **(tracker_options or {}))
                     res = tracker.track(frame.image)
                     t_track += time.perf_counter() - t0
                     good = bool(res.success)
@@ -214,6 +255,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     conf.append(float(res.confidence))
                     fid_rows.append(np.array([res.fiducials[n] for n in FIDUCIALS], float)
                                     if good else nan_fid)
+                    meas_rows.append(_measure(res, response.fiducials) if good else nan_meas)
                     head = res.head
                     head_rows.append(np.array([head.x, head.y, head.scale, head.roll])
                                      if good else nan_head)
@@ -242,6 +284,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     if n == 0:
         raise ValueError(f"{video}: no frames in the requested range")
     fid = np.stack(fid_rows)
+    meas = np.stack(meas_rows)
     heads = np.stack(head_rows)
     success = np.array(ok)
     if not success.any():
@@ -259,10 +302,10 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         if not success[k]:
             raise ValueError(f"neutral frame {neutral} was not tracked (face lost); "
                              "choose another with --neutral")
-    cal = calibrate(fid[k], heads[k], response.rest)
+    cal = calibrate(meas[k], heads[k], response.rest)
     t0 = time.perf_counter()
-    disp = cal.model_displacements(fid, heads)
-    values = estimate(disp, response, estimator=estimator)
+    disp = cal.model_displacements(meas, heads)
+    values = _estimate(disp, response, estimator, refine)
     t_estimate = time.perf_counter() - t0
 
     table = empty_table(n, frames=frames, timestamps=stamps)
@@ -281,6 +324,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
         "neutral_frame": int(frame_arr[k]), "layout": None if layout is None else str(layout),
+        "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
+        "measurement_points": list(response.fiducials),
         "estimated_controls": estimated,
         "controls_at_rest": [m for m in (*MUSCLES, JAW) if m not in estimated],
     }
@@ -290,7 +335,17 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                                  extra={"calibration": calib})
     timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}
     return Analysis(table=table, contours=contours, metadata=metadata, calibration=cal,
-                    response=response, timings=timings)
+                    response=response, measurements=meas, timings=timings)
+
+
+def _estimate(disp, response, estimator: str, refine: bool) -> np.ndarray:
+    values = estimate(disp, response, estimator=estimator)
+    if refine and estimator == "joint":
+        from faceanalysis.refine import refine_through_model
+        from synth import FaceModel
+
+        values = refine_through_model(disp, response, FaceModel.default(), values)
+    return values
 
 
 def _fill_contractions(table: pd.DataFrame, values: np.ndarray, response: FiducialResponse,
@@ -309,7 +364,7 @@ def _fill_contractions(table: pd.DataFrame, values: np.ndarray, response: Fiduci
     return estimated
 
 
-def reestimate(analysis: Analysis, estimator: str) -> Analysis:
+def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> Analysis:
     """The same tracking and calibration, another estimator: a new :class:`Analysis`.
 
     Tracking dominates the cost of an analysis, so comparing estimators this way
@@ -320,16 +375,17 @@ def reestimate(analysis: Analysis, estimator: str) -> Analysis:
     table = analysis.table.copy()
     success = table["success"].to_numpy() == 1
     heads = table[list(HEAD_COLUMNS)].to_numpy(float)
-    disp = analysis.calibration.model_displacements(analysis.fiducials, heads)
-    values = estimate(disp, analysis.response, estimator=estimator)
+    points = analysis.fiducials if analysis.measurements is None else analysis.measurements
+    disp = analysis.calibration.model_displacements(points, heads)
+    values = _estimate(disp, analysis.response, estimator, refine)
     estimated = _fill_contractions(table, values, analysis.response, success)
     table = with_au_columns(table)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = {**metadata.get("parameters", {}), "estimator": estimator,
-                              "estimated_controls": estimated}
+                              "refine": bool(refine), "estimated_controls": estimated}
     return Analysis(table=table, contours=analysis.contours, metadata=metadata,
                     calibration=analysis.calibration, response=analysis.response,
-                    timings=dict(analysis.timings))
+                    measurements=analysis.measurements, timings=dict(analysis.timings))
 
 
 def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,

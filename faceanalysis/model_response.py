@@ -21,16 +21,19 @@ from faceanalysis.table import FIDUCIALS
 
 log = logging.getLogger(__name__)
 
-#: Controls estimated by default: the muscles whose action the 11 fiducials observe
-#: (004 V-D reads frontalis, zygomaticus major, depressor labii, levator labii
-#: alaeque nasi and the jaw from them; corrugator and depressor anguli move the
-#: same points in directions no other muscle does).
+#: Controls estimated by default: every muscle whose action on the measurement points
+#: is distinct from the others' (their full-contraction signatures have cosine < 0.95
+#: with every other control's on the generic face). 004 (V-D) reads frontalis,
+#: zygomaticus major, depressor labii, levator labii alaeque nasi and the jaw; the
+#: others are added because leaving out a muscle that moves the points makes the
+#: estimator blame its motion on the muscles it does estimate. Near twins are left
+#: out: zygomaticus minor (cosine 0.98 with major) and buccinator (0.98 with risorius).
 OBSERVED_CONTROLS: tuple[str, ...] = (
     *(f"frontalis_{part}_{s}" for part in ("inner", "major", "outer") for s in "lr"),
-    *(f"corrugator_{s}" for s in "lr"),
-    *(f"zygomaticus_major_{s}" for s in "lr"),
-    *(f"depressor_anguli_{s}" for s in "lr"),
-    *(f"levator_labii_nasi_{s}" for s in "lr"),
+    *(f"{m}_{s}" for m in ("corrugator", "orbicularis_oculi", "zygomaticus_major",
+                           "levator_labii_nasi", "levator_labii", "depressor_anguli",
+                           "depressor_labii", "mentalis", "risorius") for s in "lr"),
+    "orbicularis_oris",
     "jaw_rotation",
 )
 
@@ -44,23 +47,47 @@ def cache_dir() -> Path:
     return Path(root) if root else Path.home() / ".cache" / "faceanalysis"
 
 
-def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float) -> str:
+def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
+               n_samples: int) -> str:
     h = hashlib.sha1()
     h.update(__version__.encode())
     h.update(np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(model.mesh.triangles).tobytes())
     h.update(repr(getattr(model, "parameters_digest", lambda: "")()).encode())
-    h.update(repr((controls, n_levels, jaw_max)).encode())
+    h.update(repr((controls, n_levels, jaw_max, n_samples)).encode())
     return h.hexdigest()[:16]
 
 
-def _fiducial_xy(model) -> np.ndarray:
+#: Measurement points: the 11 fiducials of 004 plus the centre of the lower lip's lower
+#: border, which the lower-lip snake tracks and which no fiducial observes (it is what
+#: tells depressor labii, mentalis and orbicularis oris apart from the jaw).
+MEASUREMENT_POINTS: tuple[str, ...] = (*FIDUCIALS, "lip_lower_centre")
+
+
+def _fiducial_xy(model, points=MEASUREMENT_POINTS) -> np.ndarray:
     positions = model.landmark_positions()
-    return np.array([positions[name][:2] for name in FIDUCIALS], dtype=float)
+    return np.array([positions[name][:2] for name in points], dtype=float)
+
+
+def _set(model, controls, values, jaw_max):
+    muscles = {n: float(v) for n, v in zip(controls, values) if n != "jaw_rotation"}
+    jaw = float(dict(zip(controls, values)).get("jaw_rotation", 0.0))
+    model.set_contractions(muscles or None, jaw_rotation=jaw)
+    model.equilibrate()
+    return _fiducial_xy(model)
+
+
+def _interaction_pairs(main: np.ndarray, threshold: float) -> np.ndarray:
+    """Pairs of controls whose full responses both move some fiducial by > threshold cm."""
+    moves = np.linalg.norm(main, axis=-1) > threshold          # (M, F)
+    m = main.shape[0]
+    return np.array([(a, b) for a in range(m) for b in range(a + 1, m)
+                     if np.any(moves[a] & moves[b])], dtype=np.intp).reshape(-1, 2)
 
 
 def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
-                      n_levels: int = 6, jaw_max: float = JAW_MAX) -> FiducialResponse:
+                      n_levels: int = 6, jaw_max: float = JAW_MAX,
+                      n_samples: int = 480, seed: int = 0) -> FiducialResponse:
     """Equilibrate ``model`` with one control at a time and record fiducial motion.
 
     Parameters
@@ -73,6 +100,11 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
         Number of uniform levels from 0 to full contraction (at least 2).
     jaw_max : float, keyword-only
         Jaw rotation (radians) at the top level.
+    n_samples : int, keyword-only
+        Random combinations of contractions at which the model is equilibrated to fit
+        the pairwise interaction terms (0: additive table only).
+    seed : int, keyword-only
+        Seed of those combinations.
 
     Returns
     -------
@@ -88,7 +120,7 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
     model.set_contractions(None)
     model.equilibrate()
     rest = _fiducial_xy(model)
-    disp = np.zeros((len(controls), n_levels, len(FIDUCIALS), 2))
+    disp = np.zeros((len(controls), n_levels, len(MEASUREMENT_POINTS), 2))
     upper = np.array([jaw_max if c == "jaw_rotation" else 1.0 for c in controls])
     for m, name in enumerate(controls):
         for k, level in enumerate(levels[1:], start=1):
@@ -98,26 +130,50 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
                 model.set_contractions({name: level})
             model.equilibrate()
             disp[m, k] = _fiducial_xy(model) - rest
+    additive = FiducialResponse(tuple(controls), MEASUREMENT_POINTS, rest, disp, upper, levels)
+    if n_samples <= 0:
+        model.reset()
+        return additive
+    # Interactions: equilibria at random sparse combinations (each control active with
+    # probability 0.35, uniform level), minus the additive prediction, regressed by
+    # ridge least squares on the products of normalised contractions of the pairs
+    # that share a fiducial.
+    pairs = _interaction_pairs(disp[:, -1], threshold=0.02)
+    rng = np.random.default_rng(seed)
+    active = rng.random((n_samples, len(controls))) < 0.35
+    c = np.where(active, rng.random((n_samples, len(controls))), 0.0) * upper
+    observed = np.empty((n_samples, len(MEASUREMENT_POINTS), 2))
     model.reset()
-    return FiducialResponse(tuple(controls), FIDUCIALS, rest, disp, upper, levels)
+    for i in range(n_samples):
+        observed[i] = _set(model, controls, c[i], jaw_max) - rest
+    model.reset()
+    residual = (observed - additive.predict(c)).reshape(n_samples, -1)
+    u = c / upper
+    features = u[:, pairs[:, 0]] * u[:, pairs[:, 1]]               # (S, P)
+    ridge = 1e-3 * n_samples
+    gram = features.T @ features + ridge * np.eye(len(pairs))
+    weights = np.linalg.solve(gram, features.T @ residual)         # (P, F*2)
+    return FiducialResponse(tuple(controls), MEASUREMENT_POINTS, rest, disp, upper, levels, pairs,
+                            weights.reshape(len(pairs), len(MEASUREMENT_POINTS), 2))
 
 
 def model_response(model=None, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
-                   n_levels: int = 6, jaw_max: float = JAW_MAX,
+                   n_levels: int = 6, jaw_max: float = JAW_MAX, n_samples: int = 480,
                    use_cache: bool = True) -> FiducialResponse:
     """The fiducial response of ``model`` (default: the generic face), cached on disk."""
     if model is None:
         from synth import FaceModel
 
         model = FaceModel.default()
-    key = _model_key(model, tuple(controls), n_levels, jaw_max)
+    key = _model_key(model, tuple(controls), n_levels, jaw_max, n_samples)
     path = cache_dir() / f"response-{key}.npz"
     if use_cache and path.is_file():
         try:
             return FiducialResponse.load(path)
         except (OSError, ValueError, KeyError) as exc:   # a damaged cache is rebuilt
             log.warning("ignoring unreadable response cache %s (%s)", path, exc)
-    response = tabulate_response(model, tuple(controls), n_levels=n_levels, jaw_max=jaw_max)
+    response = tabulate_response(model, tuple(controls), n_levels=n_levels, jaw_max=jaw_max,
+                                 n_samples=n_samples)
     if use_cache:
         try:
             with atomic_path(path) as tmp:

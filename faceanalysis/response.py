@@ -3,8 +3,15 @@
 Estimation inverts this response. It is tabulated once per face model by
 equilibrating the model with one muscle (or the jaw) at a time at a few contraction
 levels, and recording the orthographic x-y displacement of every fiducial. Between
-levels the response is piecewise linear; muscles combine additively, the
-assumption under which 004 (section V-D) inverts eq. 5 muscle by muscle.
+levels the response is piecewise linear.
+
+Muscles do not combine additively: sheets overlap, biphasic tissue stiffens, the
+jaw carries the lower lip away from the muscles that pull it. 004 (section V-D)
+ignores this and inverts eq. 5 muscle by muscle. The table therefore also holds
+pairwise interaction terms, fitted by least squares to the model's equilibria at
+random combinations of contractions::
+
+    D(c) = sum_m f_m(c_m) + sum_(a,b) W_ab * (c_a / u_a) * (c_b / u_b)
 """
 
 from __future__ import annotations
@@ -41,6 +48,8 @@ class FiducialResponse:
     displacement: np.ndarray
     upper: np.ndarray
     levels: np.ndarray
+    pairs: np.ndarray | None = None
+    interaction: np.ndarray | None = None
 
     def __post_init__(self):
         m, f = len(self.muscles), len(self.fiducials)
@@ -62,6 +71,18 @@ class FiducialResponse:
         object.__setattr__(self, "levels", levels)
         object.__setattr__(self, "upper", upper)
         object.__setattr__(self, "rest", np.asarray(self.rest, dtype=float).reshape(f, 2))
+        if (self.pairs is None) != (self.interaction is None):
+            raise ValueError("pairs and interaction go together")
+        if self.pairs is not None:
+            pairs = np.asarray(self.pairs, dtype=np.intp).reshape(-1, 2)
+            inter = np.asarray(self.interaction, dtype=float)
+            if inter.shape != (len(pairs), f, 2):
+                raise ValueError(f"interaction must have shape (P={len(pairs)}, F={f}, 2), "
+                                 f"got {inter.shape}")
+            if pairs.size and (pairs.min() < 0 or pairs.max() >= m):
+                raise ValueError("pairs index controls that do not exist")
+            object.__setattr__(self, "pairs", pairs)
+            object.__setattr__(self, "interaction", inter)
 
     @property
     def n_levels(self) -> int:
@@ -79,7 +100,12 @@ class FiducialResponse:
         m = np.arange(len(self.muscles))
         d0 = self.displacement[m, idx]            # (T, M, F, 2)
         d1 = self.displacement[m, idx + 1]
-        return np.einsum("tm,tmfk->tfk", 1.0 - frac, d0) + np.einsum("tm,tmfk->tfk", frac, d1)
+        out = np.einsum("tm,tmfk->tfk", 1.0 - frac, d0) + np.einsum("tm,tmfk->tfk", frac, d1)
+        if self.pairs is not None and len(self.pairs):
+            u = c / self.upper
+            prod = u[:, self.pairs[:, 0]] * u[:, self.pairs[:, 1]]     # (T, P)
+            out += np.einsum("tp,pfk->tfk", prod, self.interaction)
+        return out
 
     def jacobian(self, c: np.ndarray) -> np.ndarray:
         """Slope of the response (T, F*2, M) at ``c`` (right-hand slope at breakpoints)."""
@@ -89,7 +115,18 @@ class FiducialResponse:
         step = self.upper / (self.n_levels - 1)   # control units per level
         slope = (self.displacement[m, idx + 1] - self.displacement[m, idx]) / step[:, None, None]
         t, mm, f, _ = slope.shape
-        return slope.reshape(t, mm, f * 2).transpose(0, 2, 1)
+        jac = slope.reshape(t, mm, f * 2).transpose(0, 2, 1)
+        if self.pairs is not None and len(self.pairs):
+            u = c / self.upper
+            a, b = self.pairs[:, 0], self.pairs[:, 1]
+            w = self.interaction.reshape(len(self.pairs), f * 2)          # (P, K)
+            # d/dc_a of u_a u_b W = u_b W / upper_a, and symmetrically for b
+            ga = u[:, b] / self.upper[a]                                   # (T, P)
+            gb = u[:, a] / self.upper[b]
+            for p in range(len(self.pairs)):
+                jac[:, :, a[p]] += ga[:, p, None] * w[p]
+                jac[:, :, b[p]] += gb[:, p, None] * w[p]
+        return jac
 
     def full_displacement(self, muscle: str) -> np.ndarray:
         """Displacement (F, 2) of every fiducial at the muscle's full contraction."""
@@ -105,10 +142,15 @@ class FiducialResponse:
     def save(self, path) -> None:
         np.savez_compressed(path, muscles=np.array(self.muscles),
                             fiducials=np.array(self.fiducials), rest=self.rest,
-                            displacement=self.displacement, upper=self.upper, levels=self.levels)
+                            displacement=self.displacement, upper=self.upper, levels=self.levels,
+                            pairs=np.zeros((0, 2), np.intp) if self.pairs is None else self.pairs,
+                            interaction=(np.zeros((0, len(self.fiducials), 2))
+                                         if self.interaction is None else self.interaction))
 
     @classmethod
     def load(cls, path) -> FiducialResponse:
         with np.load(path) as z:
+            pairs = z["pairs"] if "pairs" in z and len(z["pairs"]) else None
+            inter = z["interaction"] if pairs is not None else None
             return cls(tuple(str(s) for s in z["muscles"]), tuple(str(s) for s in z["fiducials"]),
-                       z["rest"], z["displacement"], z["upper"], z["levels"])
+                       z["rest"], z["displacement"], z["upper"], z["levels"], pairs, inter)
