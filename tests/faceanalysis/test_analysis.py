@@ -1,0 +1,117 @@
+"""End-to-end analysis of rendered faces whose contractions are known."""
+
+import json
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from faceanalysis.analysis import analyze, analyze_to_folder, reestimate
+from faceanalysis.evaluation import compare, public
+from faceanalysis.table import FIDUCIALS, MUSCLES, contraction_columns
+
+
+@pytest.fixture(scope="module")
+def surprise(tmp_path_factory):
+    from synth.render.sequence import render_sequence
+
+    out = tmp_path_factory.mktemp("surprise")
+    files = render_sequence(out, expression="surprise", frames=24, size=256, seed=5,
+                            noise=1.0, flow=False)
+    return files
+
+
+@pytest.fixture(scope="module")
+def analysed(surprise):
+    return analyze(surprise["video"])
+
+
+def test_table_has_the_documented_columns_and_bounds(analysed):
+    t = analysed.table
+    assert list(t.columns) == contraction_columns()
+    assert len(t) == 24
+    assert t["success"].mean() > 0.9
+    ok = t["success"] == 1
+    values = t.loc[ok, list(MUSCLES)].to_numpy()
+    assert np.nanmin(values) >= 0.0 and np.nanmax(values) <= 1.0
+    assert analysed.fiducials.shape == (24, len(FIDUCIALS), 2)
+
+
+def test_surprise_raises_brows_and_drops_jaw(analysed, surprise):
+    truth = pd.read_csv(surprise["truth"])
+    est = analysed.table
+    for col in ("frontalis_inner_l", "frontalis_inner_r", "jaw_rotation"):
+        r = np.corrcoef(truth[col], est[col].fillna(0))[0, 1]
+        assert r > 0.9, (col, r)
+    apex = int(truth["frontalis_inner_l"].idxmax())
+    assert est.loc[apex, "frontalis_inner_l"] > 0.4
+    assert est.loc[0, "jaw_rotation"] < 0.02 < est.loc[apex, "jaw_rotation"]
+
+
+def test_joint_beats_tw93_on_the_brows(analysed, surprise):
+    truth = pd.read_csv(surprise["truth"])
+    tw = reestimate(analysed, "tw93")
+    assert tw.metadata["parameters"]["estimator"] == "tw93"
+    cols = ["frontalis_major_l", "frontalis_major_r"]
+    err_joint = np.sqrt(np.nanmean((analysed.table[cols] - truth[cols]) ** 2))
+    err_tw93 = np.sqrt(np.nanmean((tw.table[cols] - truth[cols]) ** 2))
+    assert err_joint < err_tw93
+
+
+def test_fiducials_land_near_the_projected_truth(analysed, surprise):
+    report = public(compare(surprise["truth"], analysed.table))
+    assert report["frames_compared"] >= 22
+    assert report["fiducial_error_px"] < 2.0
+
+
+def test_results_folder_and_refusal_to_overwrite(surprise, tmp_path):
+    out = tmp_path / "res"
+    analyze_to_folder(surprise["video"], out, overlay=True, end=6)
+    names = {p.name for p in out.iterdir()}
+    assert {"contractions.csv", "analysis.json", "contractions.png"} <= names
+    assert names & {"overlay.mp4", "overlay.avi"}
+    meta = json.loads((out / "analysis.json").read_text())
+    assert meta["quality"]["frames_total"] == 6
+    assert meta["parameters"]["estimator"] == "joint"
+    before = (out / "contractions.csv").read_bytes()
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        analyze_to_folder(surprise["video"], out, end=6)
+    assert (out / "contractions.csv").read_bytes() == before
+
+
+def test_neutral_frame_must_be_in_range(surprise):
+    with pytest.raises(ValueError, match="neutral frame 99"):
+        analyze(surprise["video"], end=4, neutral=99)
+
+
+def test_no_face_names_the_frame(tmp_path):
+    path = tmp_path / "wall.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    for _ in range(3):
+        writer.write(np.full((120, 160, 3), 128, np.uint8))
+    writer.release()
+    with pytest.raises(ValueError, match="no face found in frame 0"):
+        analyze(path)
+
+
+def test_unknown_estimator_lists_the_choices(surprise):
+    with pytest.raises(ValueError, match="choose from joint, tw93"):
+        analyze(surprise["video"], estimator="magic")
+
+
+def test_cli_missing_file_is_one_line_exit_1(run_cli, tmp_path):
+    code, _, err = run_cli("analyze", tmp_path / "nope.mp4", "-o", tmp_path / "out")
+    assert code == 1
+    assert err.count("\n") == 1 and "nope.mp4" in err
+
+
+def test_cli_evaluate_prints_scores(run_cli, surprise, tmp_path):
+    out = tmp_path / "res"
+    code, stdout, _ = run_cli("analyze", surprise["video"], "-o", out, "--end", "8", "-q")
+    assert code == 0
+    code, stdout, _ = run_cli("evaluate", "--truth", surprise["video"].parent,
+                              "--estimate", out, "--json")
+    assert code == 0
+    report = json.loads(stdout.strip().splitlines()[-1])
+    assert report["frames"] == 8 and "jaw_rotation" in report["controls"]
