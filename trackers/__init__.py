@@ -10,9 +10,12 @@
   detectors or loaded from JSON;
 - :mod:`trackers.tracking`: frame-to-frame tracking with quality and lost flags;
 - :mod:`trackers.fiducials`: head reference frame and the 11 fiducial points;
+- :mod:`trackers.anchors`: the irises as rigid anchors that keep the head frame
+  still under expressions;
 - :mod:`trackers.draw`: overlays.
 """
 
+from trackers.anchors import IrisAnchors, find_iris
 from trackers.draw import draw_contours, draw_fiducials, draw_head_frame
 from trackers.fiducials import FIDUCIAL_NAMES, HeadFrame, fiducials, head_frame
 from trackers.layout import (
@@ -53,5 +56,5 @@ __all__ = [
     "layout_from_eyes", "paper_equivalent_strength", "paper_potential",
     "potential_from_gray", "potentials_in_boxes", "refine_end", "refine_layout",
     "resample_polyline", "sample_bilinear", "to_gray", "valley_potential",
-    "dark_below_potential",
+    "dark_below_potential", "IrisAnchors", "find_iris",
 ]

@@ -50,10 +50,12 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from trackers.anchors import IrisAnchors
 from trackers.fiducials import (
     HeadFrame,
     apex_fraction,
     brow_axis_frame,
+    centroid,
     fiducials,
     head_frame,
 )
@@ -264,6 +266,26 @@ def _trim_start(p, s):
     t = (s - cum[i]) / max(seg[i], 1e-12)
     first = p[i] + t * (p[i + 1] - p[i])
     return np.vstack([first, p[i + 1:]])
+
+
+def _similarity_between(h0: HeadFrame, h1: HeadFrame):
+    """Similarity (complex a, b: z -> a z + b) carrying head frame ``h0`` onto ``h1``."""
+    a = (h1.scale / h0.scale) * np.exp(1j * (h1.roll - h0.roll))
+    return complex(a), complex((h1.x + 1j * h1.y) - a * (h0.x + 1j * h0.y))
+
+
+def _brow_angle(system, names):
+    """Image angle of the line from the right to the left eyebrow's centroid."""
+    cl = centroid(system.contour_points(names.index("brow_l")))
+    cr = centroid(system.contour_points(names.index("brow_r")))
+    return float(np.arctan2(cl[1] - cr[1], cl[0] - cr[0]))
+
+
+def _apply_similarity(h: HeadFrame, a, b) -> HeadFrame:
+    """Head frame ``h`` moved by the similarity z -> a z + b."""
+    z = a * (h.x + 1j * h.y) + b
+    return HeadFrame(float(z.real), float(z.imag), float(h.scale * abs(a)),
+                     float(h.roll + np.angle(a)))
 
 
 def _sample_safe(P, pts, origin):
@@ -588,6 +610,23 @@ class Tracker:
         of the brow's image arc length (five identities; the outer brow is
         foreshortened), where 'apex' is 1-2.5 px off.
     channel_order : {'rgb', 'bgr'}
+    head_anchor : {'auto', 'eyes', 'contours'}
+        How the head frame follows the head after the first frame. The first frame's
+        frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
+        hairline and nose). 'contours' recomputes it from the contours on every
+        frame, as 004 does; but expressions move the hairline and the nostrils (in
+        the face model the frontalis lifts the hairline ~2 mm in surprise, the
+        nostrils move ~3 mm), so that frame moves with the expression and biases
+        every fiducial displacement measured in it. 'eyes' moves the first frame's
+        frame by a similarity: scale and translation from the two irises
+        (:class:`~trackers.anchors.IrisAnchors`; eyeballs sit in the skull),
+        rotation from the turn of the line between the eyebrows' centroids (level
+        under symmetric expressions; the irises' own line when a brow is lost). On
+        frames where an iris is not found (closed eyes, occlusion) the contours'
+        frame-to-frame motion is chained on to the last frame the irises gave.
+        'auto' (default): 'eyes' when the layout has eye centres and both irises
+        are found on the first frame, else 'contours'. ``TrackResult.extra
+        ['head_source']`` says which was used per frame.
 
     Examples
     --------
@@ -607,7 +646,7 @@ class Tracker:
                  max_iter: int = 100, first_max_iter: int = 2000, lost_depth: float = 0.3,
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
                  max_step: float = 1.0, brow_mid="apex", max_shape_change: float = 0.15,
-                 channel_order: str = "rgb"):
+                 channel_order: str = "rgb", head_anchor: str = "auto"):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -632,6 +671,17 @@ class Tracker:
             raise ValueError(f"brow_mid must be 'apex' or a fraction in [0, 1], got "
                              f"{brow_mid!r}")
         self.brow_mid = brow_mid
+        if head_anchor not in ("auto", "eyes", "contours"):
+            raise ValueError(f"head_anchor must be 'auto', 'eyes' or 'contours', got "
+                             f"{head_anchor!r}")
+        if head_anchor == "eyes" and layout.eyes is None:
+            raise ValueError("head_anchor='eyes' needs a layout with eye centres")
+        self.head_anchor = head_anchor
+        self.anchors = None
+        self._anchor_base: tuple | None = None
+        self._ref_brow_angle: float | None = None
+        self._brows_lost = False
+        self.head_source = "contours"
         if not np.isfinite(max_shape_change) or max_shape_change <= 0:
             raise ValueError(f"max_shape_change must be positive, got {max_shape_change}")
         self.max_shape_change = float(max_shape_change)
@@ -815,12 +865,55 @@ class Tracker:
                                      float(shape))
         return q
 
-    def _head(self):
+    def _contour_head(self):
         cont = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
         try:
             return head_frame(cont)
         except ValueError:
+            return None
+
+    def _head(self, frame, first=False):
+        """Head frame of this frame (see the class docstring, ``head_anchor``)."""
+        hc = self._contour_head()
+        if first:
+            self.head_source = "contours"
+            if self.head_anchor != "contours" and self.layout.eyes is not None:
+                try:
+                    self.anchors = IrisAnchors(frame, self.layout.eyes,
+                                               channel_order=self.channel_order)
+                except ValueError:
+                    if self.head_anchor == "eyes":
+                        raise
+                    self.anchors = None
+            if hc is not None:
+                self._anchor_base = (hc, hc)
+            self._ref_brow_angle = _brow_angle(self.system, self.names)
+            return hc if hc is not None else self.last_head
+        if self.anchors is not None and self.ref_head is not None:
+            pred = None
+            if self.last_head is not None:
+                # where the irises are if the head moved like the last frame's frame
+                a, b = _similarity_between(self.ref_head, self.last_head)
+                z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
+                pred = np.c_[z.real, z.imag]
+            rot = None
+            if self._ref_brow_angle is not None and not self._brows_lost:
+                rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
+            sim = self.anchors.similarity(frame, pred, rotation=rot)
+            if sim is not None:
+                head = _apply_similarity(self.ref_head, *sim)
+                self.head_source = "eyes"
+                if hc is not None:
+                    self._anchor_base = (hc, head)
+                return head
+        self.head_source = "contours"
+        if hc is None:
             return self.last_head
+        if self._anchor_base is None:
+            return hc
+        # the contours' motion since the last frame whose frame the irises gave
+        hc0, h0 = self._anchor_base
+        return _apply_similarity(h0, *_similarity_between(hc0, hc))
 
     # ------------------------------------------------------------------ public
     def track(self, frame) -> TrackResult:
@@ -865,7 +958,8 @@ class Tracker:
                     self.system.contour_points(k), self.layout.contours[name].closed)
                 self.ref_shape[name] = self.system.contour_points(k)
         quality = self._quality(depths, outside)
-        head = self._head()
+        self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+        head = self._head(frame, first)
         lost = [k for k, n in enumerate(self.names) if quality[n].lost]
         reinit = set()
         if lost and not first:
@@ -882,7 +976,8 @@ class Tracker:
             outside = r3.outside
             depths = self._depths(Ps, origins)
             quality = self._quality(depths, outside, reinit)
-            head = self._head()
+            self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+            head = self._head(frame)
         if first and head is not None:
             self.ref_head = head
             self.brow_fraction = {}
@@ -900,7 +995,7 @@ class Tracker:
         contours = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
         fids = fiducials(contours, head, brow_mid_fraction=self.brow_fraction)
         out = TrackResult(self.index, contours, quality, int(iters), bool(res.converged),
-                          head, fids)
+                          head, fids, {"head_source": self.head_source})
         self.index += 1
         return out
 

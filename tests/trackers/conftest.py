@@ -40,12 +40,16 @@ def _polyline(img, pts, value, thickness, closed=False):
 
 
 def draw_face(size=(256, 256), eyes=((96.0, 105.0), (159.0, 105.0)), *, brow_raise=0.0,
-              jaw=0.0, noise=0.0, rng=None):
+              jaw=0.0, noise=0.0, rng=None, irises=False, hair_raise=0.0, nose_drop=0.0,
+              lid_open=0.0):
     """A cartoon face drawn from the layout template, and its true fiducials.
 
     Features: hair above the hairline (edge), brows (thick dark bands), furrows and the
     chin-boss outline (thin dark lines), nostrils, lips with a dark mouth line.
-    ``brow_raise`` and ``jaw`` are in inter-eye units.
+    ``brow_raise`` and ``jaw`` are in inter-eye units. With ``irises`` the eyes are drawn
+    (white almond, dark iris of radius 0.08, lids opened by ``lid_open``); ``hair_raise``
+    and ``nose_drop`` move the hairline up and the nostrils down (in inter-eye units),
+    as the face model's expressions do.
     """
     import cv2
 
@@ -63,7 +67,8 @@ def draw_face(size=(256, 256), eyes=((96.0, 105.0), (159.0, 105.0)), *, brow_rai
         return (np.asarray(p, float) + shift) @ R.T + o
 
     img = np.full((H, W), 190, np.uint8)
-    hair = np.vstack([tf(TEMPLATE["hairline"]), tf([[1.2, -2.5], [-1.2, -2.5]])])
+    hair = np.vstack([tf(TEMPLATE["hairline"], (0, -hair_raise)),
+                      tf([[1.2, -2.5], [-1.2, -2.5]])])
     cv2.fillPoly(img, [np.round(hair * 16).astype(np.int32)], 50, cv2.LINE_AA, shift=4)
     brows = {}
     for side in ("l", "r"):
@@ -72,7 +77,7 @@ def draw_face(size=(256, 256), eyes=((96.0, 105.0), (159.0, 105.0)), *, brow_rai
         _polyline(img, b, 60, max(3, int(round(0.08 * iod))))
         _polyline(img, tf(TEMPLATE[f"furrow_{side}"]), 120, 2)
         sx = 1 if side == "l" else -1
-        ctr = tf([[0.11 * sx, 1.0]])[0]
+        ctr = tf([[0.11 * sx, 1.0 + nose_drop]])[0]
         cv2.ellipse(img, (int(round(ctr[0] * 16)), int(round(ctr[1] * 16))),
                     (int(0.05 * iod * 16), int(0.025 * iod * 16)), 0, 0, 360, 45, -1,
                     cv2.LINE_AA, shift=4)
@@ -82,6 +87,22 @@ def draw_face(size=(256, 256), eyes=((96.0, 105.0), (159.0, 105.0)), *, brow_rai
     cv2.fillPoly(img, [np.round(lips * 16).astype(np.int32)], 120, cv2.LINE_AA, shift=4)
     _polyline(img, tf(mouth), 35, 2)
     _polyline(img, tf(TEMPLATE["chin_boss"] + [0, jaw]), 120, 2, closed=True)
+    if irises:
+        for e in (-0.5, 0.5):
+            t = np.linspace(0, 2 * np.pi, 60)
+            h = 0.07 + lid_open
+            almond = tf(np.c_[e + 0.2 * np.cos(t), h * np.sin(t) * (1 + 0.2 * np.cos(t))])
+            inside = np.zeros_like(img)
+            cv2.fillPoly(inside, [np.round(almond * 16).astype(np.int32)], 255, cv2.LINE_AA,
+                         shift=4)
+            eye = np.full_like(img, 235)
+            ctr = tf([[e, 0.0]])[0]
+            cv2.circle(eye, (int(round(ctr[0] * 16)), int(round(ctr[1] * 16))),
+                       int(round(0.08 * iod * 16)), 70, -1, cv2.LINE_AA, shift=4)
+            # the lids (the almond's outline) cover the top and bottom of the iris
+            w = inside.astype(np.float32) / 255
+            img = np.round(w * eye + (1 - w) * img).astype(np.uint8)
+            _polyline(img, almond, 90, 1, closed=True)
     img = cv2.GaussianBlur(img, (0, 0), 0.7)
     if noise:
         rng = rng or np.random.default_rng(0)
