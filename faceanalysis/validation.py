@@ -351,14 +351,14 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
 
 def evaluate_validation(identities=range(101, 104), expressions=("happiness", "surprise",
                                                                     "anger", "sadness"), *,
-                        frames: int = 40, size: int = 256, head_motion: float = 1.0,
-                        illumination: float = 1.0, noise: float = 2.0,
+                        frames: int = 40, size: int = 256, head_motion: float = 0.3,
+                        illumination: float = 0.3, noise: float = 2.0,
                         templates: FlowTemplates | None = None, workdir=None,
                         shuffle_seed: int = 0) -> dict:
     """Flow agreement on synthetic sequences analysed by the toolkit.
 
-    Every sequence (identity x expression, with head motion, light change and noise) is
-    rendered, analysed by :func:`faceanalysis.analysis.analyze` (``joint`` estimator) and
+    Every sequence (identity x expression, with head motion, light change and noise; by
+    default at the levels of the standard evaluation suite) is rendered, analysed by :func:`faceanalysis.analysis.analyze` (``joint`` estimator) and
     validated three ways: the resynthesis of the analysis itself, of the ``flow``
     estimator's contractions (:func:`faceanalysis.flow_estimator.estimate_flow`), and of the
     flow estimate shuffled in time (a deliberately wrong resynthesis).
