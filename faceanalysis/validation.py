@@ -358,10 +358,11 @@ def evaluate_validation(identities=range(101, 104), expressions=("happiness", "s
     """Flow agreement on synthetic sequences analysed by the toolkit.
 
     Every sequence (identity x expression, with head motion, light change and noise; by
-    default at the levels of the standard evaluation suite) is rendered, analysed by :func:`faceanalysis.analysis.analyze` (``joint`` estimator) and
-    validated three ways: the resynthesis of the analysis itself, of the ``flow``
-    estimator's contractions (:func:`faceanalysis.flow_estimator.estimate_flow`), and of the
-    flow estimate shuffled in time (a deliberately wrong resynthesis).
+    default at the levels of the standard evaluation suite) is rendered, analysed by
+    :func:`faceanalysis.analysis.analyze` (``joint`` estimator) and validated three ways:
+    the resynthesis of the analysis itself, of the ``flow`` estimator's contractions
+    (:func:`faceanalysis.flow_estimator.estimate_flow`), and of the flow estimate shuffled
+    in time (a deliberately wrong resynthesis).
 
     Returns
     -------
