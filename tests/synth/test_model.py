@@ -229,7 +229,21 @@ def test_equilibrium_does_not_depend_on_the_path(model):
     assert np.abs(a - b).max() < 1e-3
 
 
-def test_simulate_with_dynamics_lags_then_follows(model):
+def test_simulate_with_dynamics_lags_behind_the_equilibrium(model):
+    df = pd.DataFrame({"frontalis_major_l": [1.0] * 3})
+    traj = model.simulate(df, fps=240, method="rk2")
+    x, _ = _run(model, {"frontalis_major_l": 1.0})
+
+    def rms(a):
+        return float(np.sqrt(np.mean(np.sum((a - x) ** 2, axis=1))))
+
+    err = [rms(t) for t in traj]
+    # moving toward the equilibrium (the dominant mode is over-damped), not there yet
+    assert rms(model.mesh.vertices) > err[0] > err[1] > err[2] > 0.0
+
+
+@pytest.mark.slow
+def test_simulate_with_dynamics_settles_within_a_few_frames(model):
     df = pd.DataFrame({"frontalis_major_l": [1.0] * 4})
     traj = model.simulate(df, fps=30, method="rk2")
     x, _ = _run(model, {"frontalis_major_l": 1.0})
