@@ -952,7 +952,7 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
                  shading: str = "textured", fps: float | None = None,
                  side_by_side: bool = False, output=None, export_meshes=None,
                  mesh_format: str = "obj", input_video=None, overwrite: bool = False,
-                 tol: float = 1e-3, progress: bool = False) -> Resynthesis:
+                 tol: float = 2e-3, progress: bool = False) -> Resynthesis:
     """Drive the face model with a contraction time series and render it (004, Fig. 7c).
 
     Parameters
@@ -992,7 +992,8 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
     overwrite : bool
         Replace existing outputs.
     tol : float
-        Equilibrium tolerance in cm (1e-3 cm is 0.01 px at 10 px/cm).
+        Equilibrium tolerance in cm (largest solver update; at 2e-3 cm the vertices of the
+        256 px frontal view are within ~0.05 px of the converged equilibrium on average).
     progress : bool
         Progress bar on stderr.
 
