@@ -47,7 +47,8 @@ def _face_model():
         from tests.faceanalysis._kinematic_face import KinematicFace
 
         model = KinematicFace()
-        task = functools.partial(analyze_to_folder, response=tabulate_response(model))
+        response = tabulate_response(model, (*model.muscle_names, "jaw_rotation"))
+        task = functools.partial(analyze_to_folder, response=response)
         return model, "analysis (kinematic test face; no physics model yet)", task
     return FaceModel.default(), "analysis", None
 

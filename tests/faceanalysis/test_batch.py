@@ -435,7 +435,8 @@ def face_corpus(tmp_path_factory):
     corrupt = root / "corrupt.mp4"
     corrupt.write_bytes(rng.integers(0, 256, 5000, dtype=np.uint8).tobytes())
     return {"good": videos, "noface": noface, "corrupt": corrupt,
-            "all": [*videos, noface, corrupt], "response": tabulate_response(model)}
+            "all": [*videos, noface, corrupt],
+            "response": tabulate_response(model, (*model.muscle_names, "jaw_rotation"))}
 
 
 @pytest.mark.slow
