@@ -36,6 +36,9 @@ __all__ = [
     "rk2_step",
     "verlet_step",
     "EquilibriumSolver",
+    "isotropic_matrix",
+    "rest_stiffness_matrix",
+    "lowest_frequency",
 ]
 
 #: nodes farther than this from their rest positions (cm) mean the simulation has blown up

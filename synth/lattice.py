@@ -45,6 +45,8 @@ __all__ = [
     "Lattice",
     "build_lattice",
     "mesh_vertex_normals",
+    "prism_volumes",
+    "rotate_about_jaw",
 ]
 
 LAYER_NAMES = ("epidermis", "dermis", "fascia", "bone")
