@@ -47,6 +47,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numba
 import numpy as np
 
@@ -69,7 +70,7 @@ from trackers.snakes import (
     resample_polyline,
 )
 
-__all__ = ["ContourQuality", "TrackResult", "Tracker", "refine_end"]
+__all__ = ["ContourQuality", "TrackResult", "Tracker", "mouth_corners", "refine_end"]
 
 
 @dataclass(frozen=True)
@@ -266,6 +267,124 @@ def _trim_start(p, s):
     t = (s - cum[i]) / max(seg[i], 1e-12)
     first = p[i] + t * (p[i + 1] - p[i])
     return np.vstack([first, p[i + 1:]])
+
+
+def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
+                  half_height: float | None = None, width: float | None = None):
+    """Mouth corners as the lateral ends of the dark mouth line or cavity.
+
+    A contour on the mouth line gives the commissures by its ends while the mouth is
+    closed. When the jaw drops, the dark line becomes a cavity, the contour follows
+    one of its borders (often the upper edge of the lower teeth) and its ends fall
+    short of the corners, which lie higher, where the lips meet. Here the mouth is
+    scanned along the chord of the contour (``lip``): at each step the darkest grey
+    value (blurred by ``sigma``) across a window of ``+-half_height`` pixels around
+    the chord line is taken, whichever part of the window the cavity or line is in.
+    Going outward from the inner part of the mouth, the corner is where this profile
+    first rises to half-way between the mouth's darkness and the skin beyond it.
+    Its height is that of the darkest point of the window there.
+
+    Parameters
+    ----------
+    gray : ndarray (H, W)
+        Grey image (e.g. the tracker's crop).
+    lip : array_like (n, 2)
+        Mouth-line contour, image pixels, ordered either way.
+    origin : (x, y)
+        Image position of ``gray[0, 0]``.
+    sigma : float
+        Blur of the profile, pixels.
+    half_height : float, optional
+        Half-height of the window across the chord (default 15 % of ``width``).
+    width : float, optional
+        Expected mouth width, pixels (default: the chord's length). The scan
+        reaches 30 % of it beyond the ends, plus half of what the contour is short
+        of it (a contour on a cavity's border shrinks).
+
+    Returns
+    -------
+    list of two ndarray (2,) or None
+        The corners at the contour's first and last end (None where no clear end of
+        the dark region is found).
+
+    Examples
+    --------
+    >>> import numpy as np, cv2
+    >>> img = np.full((60, 100), 200, np.uint8)
+    >>> _ = cv2.line(img, (16, 30), (84, 30), 40, 2)  # where the lips meet (caps: 15..85)
+    >>> _ = cv2.ellipse(img, (50, 30), (24, 6), 0, 0, 360, 30, -1)  # the open mouth
+    >>> lip = np.c_[np.linspace(34, 66, 15), np.full(15, 34.0)]     # on its lower border
+    >>> [np.round(c).tolist() for c in mouth_corners(img, lip, width=68)]
+    [[15.0, 30.0], [85.0, 30.0]]
+    """
+    p = np.asarray(lip, float)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3:
+        raise ValueError(f"lip must have shape (n >= 3, 2), got {p.shape}")
+    g = np.asarray(gray, np.float32)
+    if g.ndim != 2:
+        raise ValueError(f"gray must be 2-D, got shape {g.shape}")
+    chord = p[-1] - p[0]
+    L = float(np.hypot(*chord))
+    if L < 4:
+        return [None, None]
+    u = chord / L
+    nrm = np.array([-u[1], u[0]])
+    wid = L if width is None else max(float(width), L)
+    h = 0.15 * wid if half_height is None else float(half_height)
+    # the window is centred on the chord line through the middle of the contour's
+    # height: an arched lip line or a cavity hangs below its chord
+    mid = p.mean(axis=0)
+    off = float((mid - p[0]) @ nrm)
+    step = 0.5
+    vs = np.arange(-h, h + 1e-9, step) + 0.5 * off
+    if sigma > 0:
+        g = cv2.GaussianBlur(g, (0, 0), float(sigma))
+    out = []
+    for end, direction in ((p[0], -u), (p[-1], u)):
+        ss = np.arange(-0.35 * L, 0.3 * wid + 0.5 * (wid - L) + 1e-9, step)
+        base = end + ss[:, None, None] * direction + vs[None, :, None] * nrm
+        mx = (base[..., 0] - origin[0]).astype(np.float32)
+        my = (base[..., 1] - origin[1]).astype(np.float32)
+        vals = cv2.remap(g, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=np.nan)
+        bad = np.isnan(vals).any(axis=1)
+        if bad.any():
+            # the scan left the image: keep what lies before
+            first_bad = int(np.argmax(bad))
+            if ss[first_bad] <= 0.05 * L:
+                out.append(None)
+                continue
+            ss, vals = ss[:first_bad], vals[:first_bad]
+        k = np.argmin(vals, axis=1)
+        prof = vals[np.arange(len(ss)), k]
+        inner = np.median(prof[ss <= -0.15 * L])
+        beyond = prof[ss >= min(0.15 * L + 0.5 * (wid - L), ss[-1] - 2.0)]
+        outer = np.median(beyond)
+        if outer - inner < 8.0:
+            out.append(None)
+            continue
+        half = 0.5 * (inner + outer)
+        i0 = int(np.searchsorted(ss, -0.15 * L))
+        found = None
+        for i in range(max(i0, 1), len(ss)):
+            if prof[i] > half >= prof[i - 1]:
+                # an end: the profile stays up for 2 sigma (a highlight is no end)
+                stay = prof[i:i + int(np.ceil(2 * max(sigma, 1.0) / step)) + 1]
+                if (stay > half).all():
+                    f = (half - prof[i - 1]) / (prof[i] - prof[i - 1])
+                    found = i - 1 + f
+                    break
+        if found is None:
+            out.append(None)
+            continue
+        i = int(found)
+        t = found - i
+        j = min(i + 1, len(ss) - 1)
+        # height: where the window is darkest, just inside the end
+        v = vs[k[max(i - 1, 0)]]
+        pt = end + ((1 - t) * ss[i] + t * ss[j]) * direction + v * nrm
+        out.append(pt)
+    return out
 
 
 def _similarity_between(h0: HeadFrame, h1: HeadFrame):
@@ -610,6 +729,12 @@ class Tracker:
         of the brow's image arc length (five identities; the outer brow is
         foreshortened), where 'apex' is 1-2.5 px off.
     channel_order : {'rgb', 'bgr'}
+    mouth_corner : {'profile', 'ends'}
+        'profile' (default): ``mouth_corner_*`` are the lateral ends of the dark
+        mouth line or cavity found by :func:`mouth_corners` around the upper-lip
+        contour (with the mouth open the contour follows a border of the cavity and
+        its ends fall short of the corners); where no clear end is found the last
+        corner is kept, moved with the head frame. 'ends': the contour's ends (004).
     head_anchor : {'auto', 'eyes', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -646,7 +771,8 @@ class Tracker:
                  max_iter: int = 100, first_max_iter: int = 2000, lost_depth: float = 0.3,
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
                  max_step: float = 1.0, brow_mid="apex", max_shape_change: float = 0.15,
-                 channel_order: str = "rgb", head_anchor: str = "auto"):
+                 channel_order: str = "rgb", head_anchor: str = "auto",
+                 mouth_corner: str = "profile"):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -677,6 +803,11 @@ class Tracker:
         if head_anchor == "eyes" and layout.eyes is None:
             raise ValueError("head_anchor='eyes' needs a layout with eye centres")
         self.head_anchor = head_anchor
+        if mouth_corner not in ("profile", "ends"):
+            raise ValueError(f"mouth_corner must be 'profile' or 'ends', got {mouth_corner!r}")
+        self.mouth_corner_mode = mouth_corner
+        self.mouth_width: float | None = None
+        self._corners_head: dict[str, np.ndarray] = {}
         self.anchors = None
         self._anchor_base: tuple | None = None
         self._ref_brow_angle: float | None = None
@@ -994,6 +1125,30 @@ class Tracker:
         self.last_head = head
         contours = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
         fids = fiducials(contours, head, brow_mid_fraction=self.brow_fraction)
+        if self.mouth_corner_mode == "profile" and not quality["upper_lip"].lost:
+            lip = contours["upper_lip"]
+            width = None
+            if self.mouth_width is not None and self.ref_head is not None:
+                width = self.mouth_width * head.scale / self.ref_head.scale
+            corners = mouth_corners(gray, lip, origin=gorigin, width=width,
+                                    sigma=0.5 * float(self.layout.contours["upper_lip"].sigma))
+            ex = np.array(head.axes[0])
+            reach = 0.25 * max(_polyline_length(lip), width or 0.0)
+            for c, e in zip(corners, (lip[0], lip[-1])):
+                name = "mouth_corner_l" if (e - lip.mean(axis=0)) @ ex > 0 else "mouth_corner_r"
+                if c is None or np.hypot(*(c - e)) > reach:
+                    # no clear end of the mouth this frame (a highlight, a lip pressed
+                    # on the teeth): keep the last corner, moved with the head
+                    last = self._corners_head.get(name)
+                    if last is not None:
+                        q = head.to_image(last[None])[0]
+                        fids[name] = (float(q[0]), float(q[1]))
+                    continue
+                fids[name] = (float(c[0]), float(c[1]))
+                self._corners_head[name] = head.to_head(np.asarray(c, float)[None])[0]
+            if first:
+                self.mouth_width = float(np.hypot(*np.subtract(fids["mouth_corner_l"],
+                                                               fids["mouth_corner_r"])))
         out = TrackResult(self.index, contours, quality, int(iters), bool(res.converged),
                           head, fids, {"head_source": self.head_source})
         self.index += 1

@@ -124,3 +124,54 @@ def test_brow_mid_fraction_option():
     np.testing.assert_allclose(r.fiducials["brow_mid_l"], r.fiducials["brow_inner_l"])
     with pytest.raises(ValueError, match="brow_mid"):
         Tracker(lay, brow_mid=2.0)
+
+
+def _open_mouth(jaw_px, *, size=(120, 160), corners=((45.0, 60.0), (115.0, 60.0)), noise=1.0):
+    import cv2
+
+    img = np.full(size, 190, np.uint8)
+    (x0, y0), (x1, y1) = corners
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    half = 0.5 * (x1 - x0)
+    # lips (mid grey), the line where they meet, and the cavity opened by the jaw
+    cv2.ellipse(img, (int(cx), int(cy)), (int(half), 10 + jaw_px), 0, 0, 360, 140, -1,
+                cv2.LINE_AA)
+    cv2.line(img, (int(x0) + 1, int(y0)), (int(x1) - 1, int(y1)), 45, 2, cv2.LINE_AA)
+    if jaw_px:
+        t = np.linspace(0, np.pi, 40)
+        lens = np.c_[cx + (half - 1) * np.cos(t), cy + jaw_px * np.sin(t)]
+        cv2.fillPoly(img, [np.round(np.vstack([lens, lens[::-1] * [1, 0] + [0, 2 * cy - 1]])
+                                    ).astype(np.int32)], 30, cv2.LINE_AA)
+    rng = np.random.default_rng(0)
+    return np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("jaw_px", [0, 6, 10])
+def test_mouth_corners_closed_and_open(jaw_px):
+    from trackers.tracking import mouth_corners
+
+    img = _open_mouth(jaw_px)
+    # a contour that follows the cavity's lower border, short of the corners
+    x = np.linspace(62, 98, 15)
+    lip = np.c_[x, 60 + jaw_px * np.sin(np.pi * (x - 45) / 70)]
+    got = mouth_corners(img, lip, width=70.0)
+    assert got[0] is not None and got[1] is not None
+    assert np.hypot(*(got[0] - (45, 60))) < 1.5
+    assert np.hypot(*(got[1] - (115, 60))) < 1.5
+
+
+def test_mouth_corners_validates_and_gives_up():
+    from trackers.tracking import mouth_corners
+
+    with pytest.raises(ValueError, match="lip"):
+        mouth_corners(np.zeros((20, 20)), [[1, 1], [2, 2]])
+    flat = np.full((60, 100), 128, np.uint8)
+    assert mouth_corners(flat, np.c_[np.linspace(30, 70, 9), np.full(9, 30.0)]) == [None, None]
+
+
+def test_mouth_corner_option_validated():
+    from trackers.layout import layout_from_eyes
+
+    lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    with pytest.raises(ValueError, match="mouth_corner"):
+        Tracker(lay, mouth_corner="tips")
