@@ -1064,7 +1064,7 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
 # ----------------------------------------------------------------------------- round trip
 def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float = 0.0,
                noise: float = 0.0, illumination: float = 0.0, personalised: bool = False,
-               estimator: str = "joint", workdir=None) -> pd.DataFrame:
+               analysis_options: dict | None = None, workdir=None) -> pd.DataFrame:
     """Render known contractions, analyse, resynthesise; score the resynthesised fiducials.
 
     For every ``(identity, expression)``: the face of identity seed ``identity`` renders the
@@ -1088,6 +1088,8 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 
+    options = ({"tracker_options": {"brow_mid": 0.556}} if analysis_options is None
+               else dict(analysis_options))
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         for identity, expression in cases:
@@ -1098,7 +1100,7 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
                                     head_motion=head_motion, noise=noise,
                                     illumination=illumination, flow=False, **kwargs)
             truth = pd.read_csv(files["truth"])
-            a = analyze(files["video"], estimator=estimator)
+            a = analyze(files["video"], **options)
             if personalised:
                 res = resynthesize(a, subject=a, size=size, shading="wireframe")
             else:
