@@ -70,7 +70,12 @@ from trackers.snakes import (
     resample_polyline,
 )
 
-__all__ = ["ContourQuality", "TrackResult", "Tracker", "mouth_corners", "refine_end"]
+#: Default arc-length fraction (from the inner end) of ``brow_mid_*`` along an eyebrow
+#: contour (see :class:`Tracker`, ``brow_mid``).
+BROW_MID_FRACTION = 0.556
+
+__all__ = ["BROW_MID_FRACTION", "ContourQuality", "TrackResult", "Tracker", "mouth_corners",
+           "refine_end"]
 
 
 @dataclass(frozen=True)
@@ -721,13 +726,20 @@ class Tracker:
         force; it does not change equilibria).
     max_shape_change : float
         Largest change of shape (see :class:`ContourQuality`) before a contour is lost.
-    brow_mid : 'apex' or float
-        Where ``brow_mid_*`` sits along each eyebrow contour (arc-length fraction
-        from the inner end). 'apex' (default) finds the top of the arch on the first
-        frame and keeps that fraction afterwards; a number fixes it (0.5 = middle).
-        On renders of this project's face model the landmark lies at 0.556 +- 0.01
-        of the brow's image arc length (five identities; the outer brow is
-        foreshortened), where 'apex' is 1-2.5 px off.
+    brow_mid : float or 'apex'
+        Where ``brow_mid_*`` sits along each eyebrow contour, as an arc-length
+        fraction from the inner end (default :data:`BROW_MID_FRACTION` = 0.556).
+        One definition for everyone: the brow's centre is the top of its arch,
+        where the frontalis major lifts it; the face model puts its ``brow_mid``
+        landmark there (the apex of the brow curve, about midway between the ends
+        along the face's surface), which on its renders lies at 0.556 +- 0.01 of the
+        brow's *image* arc length (five identities; the outer brow turns away from
+        the camera and is foreshortened). Finding that apex on every face instead
+        ('apex': a parabola fitted to the contour on the first frame, its fraction
+        kept afterwards) is ill-conditioned on a flat arch: on the model's renders
+        it lands 1.6-3.5 px away (mean 2.5 px over six expression sequences,
+        against 1.1 px for the fixed fraction). A fixed fraction also follows the
+        same piece of brow whatever the expression does to the arch.
     channel_order : {'rgb', 'bgr'}
     mouth_corner : {'profile', 'ends'}
         'profile' (default): ``mouth_corner_*`` are the lateral ends of the dark
@@ -770,7 +782,7 @@ class Tracker:
                  strength="auto", descent_rate: float = 0.3, tol: float = 0.01,
                  max_iter: int = 100, first_max_iter: int = 2000, lost_depth: float = 0.3,
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
-                 max_step: float = 1.0, brow_mid="apex", max_shape_change: float = 0.15,
+                 max_step: float = 1.0, brow_mid=BROW_MID_FRACTION, max_shape_change: float = 0.15,
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile"):
         if not isinstance(layout, FaceLayout):

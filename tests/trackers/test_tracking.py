@@ -175,3 +175,18 @@ def test_mouth_corner_option_validated():
     lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
     with pytest.raises(ValueError, match="mouth_corner"):
         Tracker(lay, mouth_corner="tips")
+
+
+def test_brow_mid_default_is_the_fixed_fraction():
+    from trackers.fiducials import arc_point
+    from trackers.tracking import BROW_MID_FRACTION
+
+    img, _ = draw_face()
+    lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    r = Tracker(lay).track(img)
+    b = r.contours["brow_l"]
+    if abs(b[0, 0] - 127.5) > abs(b[-1, 0] - 127.5):
+        b = b[::-1]
+    np.testing.assert_allclose(r.fiducials["brow_mid_l"], arc_point(b, BROW_MID_FRACTION))
+    r2 = Tracker(lay, brow_mid="apex").track(img)
+    assert not np.allclose(r2.fiducials["brow_mid_l"], r.fiducials["brow_mid_l"])
