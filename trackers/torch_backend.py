@@ -423,6 +423,11 @@ class TorchContourSystem:
     dtype : torch.float32 or torch.float64, optional
         Default float64 on the CPU, float32 elsewhere. The inverse is always computed
         in float64.
+    num_threads : int or None
+        torch CPU threads while relaxing (restored afterwards). The default 1 keeps
+        the many small operations of a step out of OpenMP regions, whose spinning
+        worker threads made steps 10-50 times slower on a busy two-core machine;
+        None leaves torch's setting. Ignored on other devices.
 
     Notes
     -----
@@ -450,9 +455,13 @@ class TorchContourSystem:
     (True, True)
     """
 
-    def __init__(self, systems, *, batch: int | None = None, device="cpu", dtype=None):
+    def __init__(self, systems, *, batch: int | None = None, device="cpu", dtype=None,
+                 num_threads: int | None = 1):
         torch, _ = require_torch()
         self.device, self.dtype = _device_dtype(device, dtype)
+        if num_threads is not None and int(num_threads) < 1:
+            raise ValueError(f"num_threads must be >= 1 or None, got {num_threads}")
+        self.num_threads = None if num_threads is None else int(num_threads)
         if isinstance(systems, ContourSystem):
             systems = [systems] * (1 if batch is None else int(batch))
         elif batch is not None:
@@ -688,6 +697,20 @@ class TorchContourSystem:
         ValueError
             For bad fields or parameters, or when a node starts outside its field.
         """
+        torch, _ = require_torch()
+        if self.device.type != "cpu" or self.num_threads is None:
+            return self._relax(forces, potentials, origin, sizes, user_forces, tol, max_iter,
+                               min_iter, criterion, active, check_every)
+        before = torch.get_num_threads()
+        torch.set_num_threads(self.num_threads)
+        try:
+            return self._relax(forces, potentials, origin, sizes, user_forces, tol, max_iter,
+                               min_iter, criterion, active, check_every)
+        finally:
+            torch.set_num_threads(before)
+
+    def _relax(self, forces, potentials, origin, sizes, user_forces, tol, max_iter, min_iter,
+               criterion, active, check_every):
         torch, _ = require_torch()
         B, K, M = self.B, self.K, self.M
         F, org, sz = self._prepare_fields(forces, potentials, origin, sizes)
@@ -932,7 +955,8 @@ def snake_relax_batch(points, forces, *, closed: bool = False, params: SnakePara
 
 # --------------------------------------------------------------------- trackers
 
-def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None, **kwargs):
+def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None,
+                 num_threads: int | None = 1, **kwargs):
     """A :class:`~trackers.tracking.Tracker` on the chosen backend.
 
     Parameters
@@ -946,6 +970,8 @@ def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None, **k
         Torch device ('cpu', 'cuda', 'cuda:1'); only with ``backend='torch'``.
     dtype : torch dtype, optional
         Default float64 on the CPU, float32 elsewhere.
+    num_threads : int or None
+        torch CPU threads while relaxing (see :class:`TorchContourSystem`).
     **kwargs
         Passed to :class:`~trackers.tracking.Tracker` (``channel_order``, ``tol``...).
 
@@ -970,7 +996,8 @@ def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None, **k
                              "runs on the CPU)")
         return Tracker(layout, **kwargs)
     tracker = Tracker(layout, **kwargs)
-    ts = TorchContourSystem(tracker.system, device=device, dtype=dtype)
+    ts = TorchContourSystem(tracker.system, device=device, dtype=dtype,
+                            num_threads=num_threads)
     tracker.system.relax = _SingleRelay(ts)
     tracker.torch_system = ts
     return tracker
@@ -1107,7 +1134,7 @@ class TorchTracker:
     ----------
     layouts : sequence of FaceLayout
         One per video (node counts may differ).
-    device, dtype
+    device, dtype, num_threads
         See :class:`TorchContourSystem`.
     **kwargs
         Passed to every :class:`~trackers.tracking.Tracker`.
@@ -1125,7 +1152,8 @@ class TorchTracker:
     [True, True]
     """
 
-    def __init__(self, layouts: Sequence, *, device=None, dtype=None, **kwargs):
+    def __init__(self, layouts: Sequence, *, device=None, dtype=None,
+                 num_threads: int | None = 1, **kwargs):
         from trackers.tracking import Tracker
 
         layouts = list(layouts)
@@ -1133,7 +1161,7 @@ class TorchTracker:
             raise ValueError("layouts must hold at least one FaceLayout")
         self.trackers = [Tracker(lay, **kwargs) for lay in layouts]
         self.system = TorchContourSystem([t.system for t in self.trackers], device=device,
-                                         dtype=dtype)
+                                         dtype=dtype, num_threads=num_threads)
         self._batcher = _Batcher(self.system)
         for b, t in enumerate(self.trackers):
             t.system.relax = self._batcher.relay(b)
