@@ -640,6 +640,7 @@ class Resynthesis:
                              f"{self.input_video})")
         self._renderer = None
         self._wire = None
+        self.texture_seed = 0
         self._order = [MUSCLES.index(m) for m in self.model.muscle_names]
         if subject is not None:
             self.report["personalisation"] = self._personal_report()
@@ -681,7 +682,7 @@ class Resynthesis:
                             camera=self._fixed_camera()[0], light=unlit, supersample=1)
         from synth.render import paint_skin_texture
 
-        tex = paint_skin_texture(mesh, 0, size=512)
+        tex = paint_skin_texture(mesh, self.texture_seed, size=512)
         return Renderer(mesh, texture=tex, camera=self._fixed_camera()[0], supersample=1)
 
     def _render(self, skin, inner, row: int, contractions):
@@ -952,7 +953,8 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
                  shading: str = "textured", fps: float | None = None,
                  side_by_side: bool = False, output=None, export_meshes=None,
                  mesh_format: str = "obj", input_video=None, overwrite: bool = False,
-                 tol: float = 2e-3, progress: bool = False) -> Resynthesis:
+                 tol: float = 2e-3, texture_seed: int = 0, progress: bool = False
+                 ) -> Resynthesis:
     """Drive the face model with a contraction time series and render it (004, Fig. 7c).
 
     Parameters
@@ -991,6 +993,9 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
         ``analysis.json``.
     overwrite : bool
         Replace existing outputs.
+    texture_seed : int
+        Identity seed of the procedural skin texture (:func:`synth.render.paint_skin_texture`)
+        of the ``textured`` shading without a subject.
     tol : float
         Equilibrium tolerance in cm (largest solver update; at 2e-3 cm the vertices of the
         256 px frontal view are within ~0.05 px of the converged equilibrium on average).
@@ -1031,6 +1036,9 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
         raise ValueError(f"fps must be a positive number, got {fps!r}")
     if not (np.isfinite(tol) and tol > 0):
         raise ValueError(f"tol must be a positive number, got {tol!r}")
+    if isinstance(texture_seed, bool) or not isinstance(texture_seed, (int, np.integer)) \
+            or texture_seed < 0:
+        raise ValueError(f"texture_seed must be a non-negative integer, got {texture_seed!r}")
     if output is not None and Path(output).exists() and not overwrite:
         raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
     series = _load_series(source)
@@ -1050,6 +1058,7 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
         subj = subject if isinstance(subject, SubjectInfo) else personalize(subject, model=model)
     res = Resynthesis(series, model=model, subject=subj, size=size, view=view, shading=shading,
                       fps=fps, side_by_side=side_by_side, input_video=input_video, tol=tol)
+    res.texture_seed = int(texture_seed)
     if output is not None:
         res.write(output, export_meshes=export_meshes, mesh_format=mesh_format,
                   overwrite=overwrite, progress=progress)
@@ -1105,7 +1114,8 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
                 res = resynthesize(a, subject=a, size=size, shading="wireframe")
             else:
                 model = FaceModel.build(FaceShape.random(int(identity)))
-                res = resynthesize(a, model=model, size=size, shading="wireframe")
+                res = resynthesize(a, model=model, size=size, shading="wireframe",
+                                   texture_seed=int(identity))
             err = []
             for st in res.states():
                 row = truth.loc[truth["frame"] == st.frame]
