@@ -183,11 +183,9 @@ def _series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = Non
             bad = ~lost_nan & (~np.isfinite(v) | (v < 0.0) | (v > hi))
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
-            what = "an empty cell" if np.isnan(v[r]) else f"{v[r]:g}"
-            raise ValueError(f"{where}: {_label(frames, r)}, column {name}: {what} is outside "
-                             f"[0, {hi:g}]" if not np.isnan(v[r]) else
-                             f"{where}: {_label(frames, r)}, column {name}: {what} in a "
-                             "tracked frame (success == 1)")
+            problem = ("an empty cell in a tracked frame (success == 1)" if np.isnan(v[r])
+                       else f"{v[r]:g} is outside [0, {hi:g}]")
+            raise ValueError(f"{where}: {_label(frames, r)}, column {name}: {problem}")
         if name == JAW:
             jaw = v
         else:
@@ -409,9 +407,14 @@ def personalize(subject, *, model=None, kernel: str = "linear") -> SubjectInfo:
         The subject has no tracked fiducials or head frame, its video cannot be found, or
         the landmarks fold the warp.
     """
+    series, video = _subject_series(subject)
+    return _personalize_series(series, video, model=model, kernel=kernel)
+
+
+def _personalize_series(series: _Series, video, *, model=None, kernel: str = "linear"
+                        ) -> SubjectInfo:
     from synth.personalize import head_frame_points, personalize_model
 
-    series, video = _subject_series(subject)
     if series.fiducials is None or series.heads is None:
         raise ValueError("the subject's table has no fiducials or head frame columns")
     if model is None:
@@ -1054,8 +1057,15 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
     if unknown:
         raise ValueError(f"the model has muscles the table format does not know: {unknown}")
     subj = None
-    if subject is not None:
-        subj = subject if isinstance(subject, SubjectInfo) else personalize(subject, model=model)
+    if isinstance(subject, SubjectInfo):
+        subj = subject
+    elif subject is not None:
+        same = (isinstance(subject, (str, os.PathLike)) and Path(subject).is_file()
+                and series.input_path is not None and series.input_path.exists()
+                and series.input_path.resolve() == Path(subject).resolve())
+        # the subject is the video the source analysed: its neutral frame is already tracked
+        subj = (_personalize_series(series, Path(subject), model=model) if same
+                else personalize(subject, model=model))
     res = Resynthesis(series, model=model, subject=subj, size=size, view=view, shading=shading,
                       fps=fps, side_by_side=side_by_side, input_video=input_video, tol=tol)
     res.texture_seed = int(texture_seed)

@@ -23,6 +23,24 @@ def _size(text: str):
             from None
 
 
+def _analysis_json_for(args: argparse.Namespace) -> Path | None:
+    """The analysis.json that records the personalisation: the subject's analysis folder,
+    or the source's analysis when the subject is the video it analysed."""
+    subject = Path(args.subject)
+    if subject.is_dir() and (subject / "analysis.json").is_file():
+        return subject / "analysis.json"
+    src = Path(args.contractions)
+    meta_path = (src if src.is_dir() else src.parent) / "analysis.json"
+    if meta_path.is_file():
+        try:
+            analysed = json.loads(meta_path.read_text()).get("input", {}).get("path")
+        except (OSError, json.JSONDecodeError):
+            return None
+        if analysed and Path(analysed).resolve() == subject.resolve():
+            return meta_path
+    return None
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     from faceanalysis.resynth import MESH_FORMATS, SHADINGS, VIEWS
 
@@ -34,8 +52,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "view the model follows the tracked head frame of the input. With --subject the "
         "model is first warped onto the subject's neutral frame (landmark-driven warp of the "
         "whole model, Kähler ch. 8) and textured with it; its landmark and photometric "
-        "agreement with the neutral frame is added to the subject's analysis.json (key "
-        "'resynthesis') and written beside the video (OUT.json).")
+        "agreement with the neutral frame is added to the analysis.json of the subject (or of "
+        "CONTRACTIONS when the subject is the video it analysed; key 'resynthesis') and "
+        "written beside the video (OUT.json).")
     parser.epilog = (
         "examples:\n"
         "  faceanalysis analyze clip.mp4 -o results/\n"
@@ -92,11 +111,10 @@ def run(args: argparse.Namespace) -> int:
               "missing_muscles": list(res.missing), **res.report}
     sidecar = write_text_atomic(res.path.with_suffix(".json"), json.dumps(report, indent=1)
                                 + "\n")
-    if "personalisation" in res.report and args.subject is not None \
-            and (args.subject / "analysis.json").is_file():
+    meta_path = _analysis_json_for(args) if "personalisation" in res.report else None
+    if meta_path is not None:
         from faceanalysis.report import write_analysis
 
-        meta_path = args.subject / "analysis.json"
         meta = json.loads(meta_path.read_text())
         meta["resynthesis"] = {"video": str(res.path.resolve()), **res.report["personalisation"]}
         write_analysis(meta, meta_path)

@@ -244,3 +244,15 @@ def test_round_trip_small_case():
     table = round_trip([(101, "surprise")], frames=30)
     assert table.loc[0, "frames"] >= 28
     assert table.loc[0, "fiducial_error_px"] < 1.5
+
+
+@pytest.mark.slow
+def test_personalise_from_the_video_itself(subject):
+    from faceanalysis.resynth import personalize
+
+    root, files = subject
+    info = personalize(files["video"])          # analyses the first frame
+    assert info.neutral_frame == 0 and info.image.shape == (256, 256, 3)
+    res = resynthesize(root / "analysis", subject=files["video"], shading="wireframe")
+    assert res.report["personalisation"]["landmark_error_px"]["max"] < 1.0
+    assert len(list(res)) == 12
