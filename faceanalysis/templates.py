@@ -20,16 +20,18 @@ node motion) into fields on the canonical :class:`~faceanalysis.flow.FaceGrid`:
 Head frame of the model. The grid lives in the head frame of the trackers
 (:mod:`trackers.fiducials`). To place the model's motion in the *same* frame as an analysed
 video, the model's neutral render is tracked by the same tracker (automatic layout on the
-render, then the tracker's head frame); only if that fails is the frame built from the
-model's landmarks (origin = mean of the three hairline landmarks, scale = distance to the
-nose tip, roll = image angle of the model's x axis), which differs from the tracker's by a
-few percent.
+render, then the tracker's head frame). If the tracker fails, or its frame disagrees with
+the one built from the model's landmarks (origin = mean of the three hairline landmarks,
+scale = distance to the nose tip, roll = image angle of the model's x axis; mapped to the
+trackers' convention by two constants measured on several identities), the landmark frame
+is used (``meta['head_source']`` says which).
 
 Personalised templates: :func:`personalize` warps generic templates onto a subject's face
 by a thin-plate spline of the grid driven by the 11 fiducials (model's at rest -> the
 subject's neutral fiducials, both in head coordinates), the 2-D counterpart of the
-landmark-driven deformation of Kähler (001, ch. 8). A model built for the subject
-(``make_templates(FaceModel.build(shape))``) is the 3-D way and works too.
+landmark-driven deformation of Kähler (001, ch. 8). A model warped to the subject in 3-D
+(:func:`faceanalysis.resynth.personalize`) or built for an identity
+(``make_templates(FaceModel.build(shape))``) works too.
 """
 
 from __future__ import annotations
@@ -173,7 +175,17 @@ class FlowTemplates:
 
 
 # ---------------------------------------------------------------------------- model head frame
+#: The trackers' head frame on model renders relative to the landmark one (measured on the
+#: generic face and three random identities, spread ~1 %): reference length = this times
+#: the hairline-to-nose-tip distance, origin this many (landmark) units higher.
+_TRACKER_SCALE = 1.137
+_TRACKER_RISE = 0.046
+
+
 def _landmark_head(renderer, res, landmarks: dict) -> np.ndarray:
+    """The model's head frame from its landmarks, in the trackers' convention: origin at the
+    hairline landmarks' mean (raised by ``_TRACKER_RISE``), scale the hairline-to-nose-tip
+    distance (times ``_TRACKER_SCALE``), roll the image angle of the model's x axis."""
     from synth.render.camera import project
 
     pts = np.array([landmarks[n] for n in ("hairline_l", "hairline_centre", "hairline_r",
@@ -182,8 +194,18 @@ def _landmark_head(renderer, res, landmarks: dict) -> np.ndarray:
     xy, _ = project(np.vstack([pts, o3, o3 + [1.0, 0, 0]]), res.camera, res.pose)
     origin = xy[4]
     d = xy[5] - xy[4]
-    return np.array([origin[0], origin[1], float(np.hypot(*(xy[3] - origin))),
-                     math.atan2(d[1], d[0])])
+    roll = math.atan2(d[1], d[0])
+    length = float(np.hypot(*(xy[3] - origin)))
+    up = np.array([math.sin(roll), -math.cos(roll)])          # head -y in the image
+    origin = origin + _TRACKER_RISE * length * up
+    return np.array([origin[0], origin[1], _TRACKER_SCALE * length, roll])
+
+
+def _agrees(head: np.ndarray, guess: np.ndarray) -> bool:
+    """Tracked and landmark head frames agree (origin within 0.05 units, scale within 8 %,
+    roll within 0.05 rad)."""
+    return bool(np.hypot(*(head[:2] - guess[:2])) < 0.05 * guess[2]
+                and abs(head[2] / guess[2] - 1.0) < 0.08 and abs(head[3] - guess[3]) < 0.05)
 
 
 def _tracked_head(image) -> np.ndarray | None:
@@ -274,10 +296,12 @@ class ModelView:
         self.rest = res0 = self.renderer.render(self.skin0, self.inner0)
         lm = (model.landmark_positions() if hasattr(model, "landmark_positions")
               else mesh.landmark_positions(self.skin0))
+        guess = _landmark_head(self.renderer, res0, lm)
         head = _tracked_head(res0.image)
         self.head_source = "tracker"
-        if head is None:
-            head = _landmark_head(self.renderer, res0, lm)
+        if head is None or not _agrees(head, guess):
+            # the tracker failed or locked onto other features on this render
+            head = guess
             self.head_source = "landmarks"
         self.head = head
         pts = grid_image_points(grid, head).astype(np.float32)
@@ -302,6 +326,36 @@ class ModelView:
             d[~self.mask] = 0.0
             return np.nan_to_num(d)
         return _nodes_to_grid(self.rest, result, self.n_skin, self.head, self.grid, self.mask)
+
+    def nuisance(self) -> tuple[list, np.ndarray]:
+        """Names and fields (K, rows, cols, 2) of the nuisance motions: the four similarity
+        motions and the model's own flow under one degree of yaw and of pitch."""
+        from synth.render.camera import HeadPose
+
+        fields = [*rigid_basis(self.grid)]
+        names = ["translate_u", "translate_v", "rotate", "scale"]
+        for axis in ("yaw", "pitch"):
+            res1 = self.renderer.render(self.skin0, self.inner0, pose=HeadPose(**{axis: 1.0}),
+                                        shade=False)
+            fields.append(self.to_grid(res1))
+            names.append(axis)
+        out = np.array(fields)
+        out[:, ~self.mask] = 0.0
+        return names, out
+
+    def templates(self) -> FlowTemplates:
+        """Templates holding only this view's mask, regions and nuisance motions (no control
+        or expression templates): what :func:`faceanalysis.validation.flow_agreement`
+        needs for a model of its own (e.g. a personalised one)."""
+        names, nuisance = self.nuisance()
+        g = self.grid
+        return FlowTemplates(grid=g, controls=(), upper=np.zeros(0),
+                             control=np.zeros((0, *g.shape, 2)), nuisance_names=tuple(names),
+                             nuisance=nuisance, mask=self.mask, region=self.region,
+                             expressions=(), expression=np.zeros((0, 1, *g.shape, 2)),
+                             energy=np.zeros((0, *g.shape)), fiducials=self.fiducials,
+                             head=self.head, meta={"head_source": self.head_source,
+                                                   "personalised": False})
 
     def displacement(self, values=None, jaw_rotation: float = 0.0, *, pose=None
                      ) -> np.ndarray:
@@ -346,7 +400,6 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
     FlowTemplates
     """
     from synth import facs
-    from synth.render.camera import HeadPose
 
     if source not in ("exact", "nodes"):
         raise ValueError(f"source={source!r} must be 'exact' or 'nodes'")
@@ -372,7 +425,6 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
         raise ValueError(f"unknown controls {bad}; the model has {', '.join(muscles)}")
     view = ModelView(model, grid=grid, size=size, texture_seed=texture_seed, source=source)
     mesh, renderer, head, mask = view.mesh, view.renderer, view.head, view.mask
-    skin0, inner0 = view.skin0, view.inner0
     cam = renderer.camera
     to_grid = view.to_grid
 
@@ -396,17 +448,9 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
             skin, inner = _model_state(model, {name: level})
         control[m] = to_grid(renderer.render(skin, inner, shade=False)) / amount
         tick()
-    # nuisance: similarity + out-of-plane rotation by one degree
-    nuis = [*rigid_basis(grid)]
-    names = ["translate_u", "translate_v", "rotate", "scale"]
-    for axis in ("yaw", "pitch"):
-        res1 = renderer.render(skin0, inner0, pose=HeadPose(**{axis: 1.0}), shade=False)
-        d = to_grid(res1)
-        nuis.append(d)
-        names.append(axis)
-        tick()
-    nuisance = np.array(nuis)
-    nuisance[:, ~mask] = 0.0
+    names, nuisance = view.nuisance()
+    tick()
+    tick()
     # expressions: onset of the timeline, neutral -> apex
     expr = np.zeros((len(expressions), n_steps, *grid.shape, 2))
     energy = np.zeros((len(expressions), *grid.shape))

@@ -4,9 +4,11 @@ The input's face flow (:func:`faceanalysis.flow.video_face_flow`, from the neutr
 the head frame, on the face grid) is compared frame by frame with the flow of the
 *resynthesis*: the face model driven by the analysed contractions, rendered, and its exact
 image-plane motion from rest taken onto the same grid (:class:`faceanalysis.templates.
-ModelView`). The resynthesis is personalised by the 2-D landmark warp of
-:class:`faceanalysis.templates.SubjectWarp` (the model's rest fiducials onto the subject's
-neutral ones), so that features line up with the subject's.
+ModelView`). The resynthesis is personalised, so that features line up with the subject's: by
+default the face model itself is warped to the subject's neutral frame
+(:func:`faceanalysis.resynth.personalize`, the 3-D landmark warp of Kähler, ch. 8); where
+that is not possible, the generic resynthesis flow is warped onto the subject's neutral
+fiducials in 2-D (:class:`faceanalysis.templates.SubjectWarp`).
 
 Both fields have the nuisance motions (head-frame jitter, out-of-plane head rotation)
 projected out on the face mask before they are compared. Agreement per frame and per face
@@ -246,6 +248,22 @@ def plot_agreement(table: pd.DataFrame, path=None, *, title: str | None = None):
     return fig
 
 
+def _personal_model(folder: Path, model):
+    """The face model personalised to the analysed subject by
+    :func:`faceanalysis.resynth.personalize` (3-D landmark warp), or None when that is not
+    possible (the resynthesis module is missing, the video cannot be found, a bad warp)."""
+    try:
+        from faceanalysis.resynth import personalize as personalize_model
+    except ImportError:
+        return None
+    try:
+        return personalize_model(folder, model=model).model
+    except (ValueError, FileNotFoundError) as exc:
+        log.warning("personalised model not available (%s); warping the generic "
+                    "resynthesis in 2-D instead", exc)
+        return None
+
+
 def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
              method: str = "dis", model=None, templates: FlowTemplates | None = None,
              personalised: bool = True, contractions: pd.DataFrame | None = None,
@@ -264,8 +282,12 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         Model of the resynthesis (default: the generic face).
     templates : FlowTemplates, optional
         Mask, regions and nuisance motions (default: the generic templates).
-    personalised : bool
-        Warp the resynthesis onto the subject's neutral fiducials.
+    personalised : bool or {'model', 'warp'}
+        Personalise the resynthesis: ``True``/``'model'``: the face model warped to the
+        subject's neutral frame (:func:`faceanalysis.resynth.personalize`, 3-D), falling
+        back to ``'warp'``: the generic resynthesis flow warped onto the subject's neutral
+        fiducials in 2-D (:class:`faceanalysis.templates.SubjectWarp`). ``False``: the
+        generic face as it is.
     contractions : DataFrame, optional
         Drive the resynthesis with these instead of the analysis's (e.g. :func:`shuffled`).
     write : bool
@@ -306,20 +328,32 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         from synth.model import FaceModel
 
         model = FaceModel.default()
-    view = ModelView(model, grid=templates.grid)
     drive = table if contractions is None else contractions
-    pred = resynthesis_flow(drive, view=view)
-    tpl = templates
     k = int(np.flatnonzero(frames == int(neutral))[0])
-    cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
-    if personalised and all(c in table.columns for c in cols):
-        fid = table[cols].to_numpy(float)[k].reshape(len(_FIDUCIALS), 2)
-        if np.isfinite(fid).all():
-            warp = SubjectWarp(templates.grid, view.fiducials, to_head_frame(fid, heads[k]))
-            pred = warp.vectors(pred)
-            from faceanalysis.templates import personalize
+    personalisation = "none"
+    tpl = templates
+    personal = _personal_model(folder, model) if personalised == "model" or \
+        personalised is True else None
+    if personal is not None:
+        # the model itself warped to the subject (faceanalysis.resynth.personalize)
+        view = ModelView(personal, grid=templates.grid)
+        tpl = view.templates()
+        pred = resynthesis_flow(drive, view=view)
+        personalisation = "model"
+    else:
+        view = ModelView(model, grid=templates.grid)
+        pred = resynthesis_flow(drive, view=view)
+        cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
+        if personalised and all(c in table.columns for c in cols):
+            fid = table[cols].to_numpy(float)[k].reshape(len(_FIDUCIALS), 2)
+            if np.isfinite(fid).all():
+                # 2-D landmark warp of the generic resynthesis flow onto the subject
+                q = to_head_frame(fid, heads[k])
+                pred = SubjectWarp(templates.grid, view.fiducials, q).vectors(pred)
+                from faceanalysis.templates import personalize
 
-            tpl = personalize(templates, to_head_frame(fid, heads[k]))
+                tpl = personalize(templates, q)
+                personalisation = "warp"
     # the resynthesis is from the model's rest; the input from its neutral frame
     pred = pred - pred[k]
     obs = ff.displacement
@@ -331,7 +365,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
             o[i] = obs[j]
     agree = flow_agreement(o, pred, tpl, frames=frames, px_per_unit=float(heads[k, 2]))
     summary = summarize(agree)
-    summary.update(method=method, neutral_frame=int(neutral), personalised=bool(personalised),
+    summary.update(method=method, neutral_frame=int(neutral), personalisation=personalisation,
                    grid=templates.grid.as_dict(),
                    resynthesis="shuffled/override" if contractions is not None else "analysis")
     result = ValidationResult(agree, summary, o, pred)
