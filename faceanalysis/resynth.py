@@ -825,8 +825,8 @@ class Resynthesis:
         output = Path(output)
         if output.exists() and not overwrite:
             raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
-        exporter = _MeshExporter(export_meshes, mesh_format, self.model, overwrite) \
-            if export_meshes is not None else None
+        exporter = _MeshExporter(export_meshes, mesh_format, self.model, overwrite,
+                                 self.subject) if export_meshes is not None else None
         t0 = time.perf_counter()
         times = []
         maes = []
@@ -902,7 +902,8 @@ def _input_frames(path: Path, frames: np.ndarray, size):
 class _MeshExporter:
     """Per-frame OBJ/PLY files in a folder, or one ``.npz`` of vertex trajectories."""
 
-    def __init__(self, target, fmt: str, model, overwrite: bool):
+    def __init__(self, target, fmt: str, model, overwrite: bool,
+                 subject: SubjectInfo | None = None):
         if fmt not in MESH_FORMATS:
             raise ValueError(f"unknown mesh format {fmt!r}; choose from {', '.join(MESH_FORMATS)}")
         self.target = Path(target)
@@ -913,6 +914,7 @@ class _MeshExporter:
         self.vertices: list[np.ndarray] = []
         self.inner: list[np.ndarray] = []
         self.frames: list[int] = []
+        self.subject_uv = subject.uv()[0] if subject is not None else None
         if self.npz:
             if self.target.exists() and not overwrite:
                 raise FileExistsError(f"{self.target} exists; pass --overwrite to replace it")
@@ -920,6 +922,36 @@ class _MeshExporter:
             from faceanalysis.outputs import prepare_output_dir
 
             prepare_output_dir(self.target, overwrite=overwrite)
+            if subject is not None and fmt == "obj":
+                self._write_material(subject)
+
+    def _write_material(self, subject: SubjectInfo) -> None:
+        """The subject's neutral frame as the texture of the OBJ files (``subject.mtl``)."""
+        import cv2
+
+        from faceanalysis.outputs import atomic_path, write_text_atomic
+
+        with atomic_path(self.target / "subject_texture.png") as tmp:
+            if not cv2.imwrite(str(tmp), cv2.cvtColor(subject.image, cv2.COLOR_RGB2BGR)):
+                raise ValueError(f"could not write {self.target / 'subject_texture.png'}")
+        write_text_atomic(self.target / "subject.mtl",
+                          "newmtl skin\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\n"
+                          "map_Kd subject_texture.png\n")
+
+    def _write_obj(self, path: Path, vertices: np.ndarray) -> None:
+        """OBJ of the skin with the subject's texture coordinates (neutral-frame projection)."""
+        from faceanalysis.outputs import write_text_atomic
+
+        mesh = self.model_mesh
+        t = np.asarray(mesh.triangles) + 1
+        uv = self.subject_uv
+        lines = ["# faceanalysis resynthesis, personalised skin (cm; x = subject's left, "
+                 "y = up, z = toward the viewer)", "mtllib subject.mtl"]
+        lines += [f"v {a:.6f} {b:.6f} {c:.6f}" for a, b, c in vertices]
+        lines += [f"vt {a:.6f} {1.0 - b:.6f}" for a, b in uv]
+        lines.append("usemtl skin")
+        lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in t]
+        write_text_atomic(path, "\n".join(lines) + "\n")
 
     def add(self, st: FrameState, model) -> None:
         self.frames.append(st.frame)
@@ -928,7 +960,10 @@ class _MeshExporter:
             self.inner.append(np.asarray(st.inner, np.float32))
             return
         path = self.target / f"frame_{st.frame:06d}.{self.fmt}"
-        (model.to_obj if self.fmt == "obj" else model.to_ply)(path)
+        if self.fmt == "obj" and self.subject_uv is not None:
+            self._write_obj(path, st.vertices)
+        else:
+            (model.to_obj if self.fmt == "obj" else model.to_ply)(path)
         self.written.append(path)
 
     def finish(self, series: _Series) -> Path:
@@ -944,7 +979,9 @@ class _MeshExporter:
                 inner_triangles=np.asarray(mesh.inner_triangles, np.int32),
                 uv=np.asarray(mesh.uv, np.float32), frames=np.asarray(self.frames),
                 timestamps=series.timestamps[: len(self.frames)],
-                units=np.array("cm; x = subject's left, y = up, z = toward the viewer"))
+                units=np.array("cm; x = subject's left, y = up, z = toward the viewer"),
+                **({} if self.subject_uv is None else
+                   {"subject_uv": self.subject_uv.astype(np.float32)}))
         return self.target
 
     def abort(self) -> None:
@@ -1073,7 +1110,7 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
         res.write(output, export_meshes=export_meshes, mesh_format=mesh_format,
                   overwrite=overwrite, progress=progress)
     elif export_meshes is not None:
-        exporter = _MeshExporter(export_meshes, mesh_format, res.model, overwrite)
+        exporter = _MeshExporter(export_meshes, mesh_format, res.model, overwrite, subj)
         for st in res.states(progress=progress):
             exporter.add(st, res.model)
         res.report["meshes"] = str(exporter.finish(series))

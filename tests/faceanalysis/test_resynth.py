@@ -201,7 +201,7 @@ def test_personalisation_on_synthetic_subject(subject, tmp_path):
     root, files = subject
     info = personalize(root / "analysis")
     res = resynthesize(root / "analysis", subject=info, side_by_side=True,
-                       output=tmp_path / "sbs.mp4")
+                       output=tmp_path / "sbs.mp4", export_meshes=tmp_path / "meshes")
     p = res.report["personalisation"]
     # the warped model's projected landmarks sit on the subject's neutral fiducials
     assert p["landmark_error_px"]["max"] < 1.0
@@ -215,6 +215,15 @@ def test_personalisation_on_synthetic_subject(subject, tmp_path):
     ok, frame = cap.read()
     cap.release()
     assert ok and frame.shape[1] == 512 and frame.shape[0] > 256 + 80
+    # exported meshes carry the subject's texture (the neutral frame, projected)
+    assert (tmp_path / "meshes" / "subject.mtl").is_file()
+    assert cv2.imread(str(tmp_path / "meshes" / "subject_texture.png")).shape == (256, 256, 3)
+    obj = (tmp_path / "meshes" / "frame_000005.obj").read_text().splitlines()
+    assert obj[1] == "mtllib subject.mtl"
+    vt = np.array([[float(x) for x in line.split()[1:]] for line in obj
+                   if line.startswith("vt ")])
+    assert vt.shape == (len(info.model.mesh.vertices), 2)
+    np.testing.assert_allclose(vt[:, 0], info.uv()[0][:, 0], atol=1e-5)
     # the personalised model is still a working model with the generic muscles
     m = info.model
     m.reset()
