@@ -308,7 +308,8 @@ class IrisAnchors:
                 break
         return px, py
 
-    def similarity(self, frame, predicted=None, *, rotation: float | None = None):
+    def similarity(self, frame, predicted=None, *, rotation: float | None = None,
+                   search: float | None = None):
         """Similarity from the reference irises to those on ``frame``.
 
         Parameters
@@ -321,6 +322,8 @@ class IrisAnchors:
             between the irises (the tracker passes the turn of the line between the
             eyebrows, which is less disturbed by the lids); the translation then
             keeps the midpoint of the irises on its match.
+        search : float, optional
+            Half-size of the search window (see :meth:`locate`).
 
         Returns
         -------
@@ -328,7 +331,7 @@ class IrisAnchors:
             ``a, b`` of ``z -> a z + b`` (points as complex ``x + 1j y``), or None when
             an iris is not found or the pair is implausible (scale change over 30 %).
         """
-        pts, _ = self.locate(frame, predicted)
+        pts, _ = self.locate(frame, predicted, search=search)
         if not np.isfinite(pts).all():
             return None
         a, b = similarity_from_pairs(self.centres, pts)

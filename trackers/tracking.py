@@ -824,6 +824,7 @@ class Tracker:
         self._anchor_base: tuple | None = None
         self._ref_brow_angle: float | None = None
         self._brows_lost = False
+        self._head_contours_lost = False
         self.head_source = "contours"
         if not np.isfinite(max_shape_change) or max_shape_change <= 0:
             raise ValueError(f"max_shape_change must be positive, got {max_shape_change}")
@@ -1033,30 +1034,59 @@ class Tracker:
             self._ref_brow_angle = _brow_angle(self.system, self.names)
             return hc if hc is not None else self.last_head
         if self.anchors is not None and self.ref_head is not None:
+            # search around the irises last found (a wider window after a miss)
             pred = None
-            if self.last_head is not None:
-                # where the irises are if the head moved like the last frame's frame
-                a, b = _similarity_between(self.ref_head, self.last_head)
-                z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
-                pred = np.c_[z.real, z.imag]
+            wide = self.head_source != "eyes"
             rot = None
             if self._ref_brow_angle is not None and not self._brows_lost:
                 rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
-            sim = self.anchors.similarity(frame, pred, rotation=rot)
+            sim = self.anchors.similarity(frame, pred, rotation=rot,
+                                          search=3.0 * self.anchors.radius if wide else None)
             if sim is not None:
                 head = _apply_similarity(self.ref_head, *sim)
-                self.head_source = "eyes"
-                if hc is not None:
-                    self._anchor_base = (hc, head)
-                return head
-        self.head_source = "contours"
-        if hc is None:
-            return self.last_head
+                if self._plausible(head, hc):
+                    self.head_source = "eyes"
+                    if hc is not None:
+                        self._anchor_base = (hc, head)
+                    return head
+            fallback = self._chained(hc)
+            if fallback is not None:
+                # search the irises again where the fallback frame puts them
+                a, b = _similarity_between(self.ref_head, fallback)
+                z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
+                self.anchors.last = np.c_[z.real, z.imag]
+            self.head_source = "contours"
+            return fallback
+        return self._chained(hc)
+
+    def _plausible(self, head, hc):
+        """Whether a head frame from the irises agrees with the last one and with the
+        contours' scale (a drifted iris match changes the scale abruptly)."""
+        last = self.last_head
+        if last is not None and (abs(head.scale / last.scale - 1) > 0.04
+                                 or np.hypot(head.x - last.x, head.y - last.y)
+                                 > 0.1 * last.scale):
+            return False
+        # expressions change the contours' scale by a few per cent, no more
+        return hc is None or self._head_contours_lost or abs(head.scale / hc.scale - 1) <= 0.12
+
+    def _chained(self, hc):
+        """Fallback frame: the contours' motion since the last frame the irises gave."""
+        if hc is None or self._head_contours_lost:
+            # the frame's own contours are unreliable: hold the last frame
+            return self.last_head if self.last_head is not None else hc
         if self._anchor_base is None:
             return hc
         # the contours' motion since the last frame whose frame the irises gave
         hc0, h0 = self._anchor_base
-        return _apply_similarity(h0, *_similarity_between(hc0, hc))
+        a, b = _similarity_between(hc0, hc)
+        moved = _apply_similarity(h0, a, b)
+        # a contour frame that jumped (a hairline contour on a hand, the nose contour
+        # on a nostril's edge) is not followed: the last frame is held instead
+        if abs(abs(a) - 1) > 0.08 or abs(np.angle(a)) > 0.1 \
+                or np.hypot(moved.x - h0.x, moved.y - h0.y) > 0.25 * h0.scale:
+            return self.last_head if self.last_head is not None else h0
+        return moved
 
     # ------------------------------------------------------------------ public
     def track(self, frame) -> TrackResult:
@@ -1102,6 +1132,7 @@ class Tracker:
                 self.ref_shape[name] = self.system.contour_points(k)
         quality = self._quality(depths, outside)
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+        self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         head = self._head(frame, first)
         lost = [k for k, n in enumerate(self.names) if quality[n].lost]
         reinit = set()
@@ -1120,6 +1151,7 @@ class Tracker:
             depths = self._depths(Ps, origins)
             quality = self._quality(depths, outside, reinit)
             self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+            self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
             head = self._head(frame)
         if first and head is not None:
             self.ref_head = head
