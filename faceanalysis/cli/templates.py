@@ -29,7 +29,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "expression, the spatio-temporal motion from neutral to apex and its motion-energy "
         "map (Essa & Pentland). Writes generic.npz and preview PNGs (colour wheel: hue = "
         "direction, saturation = magnitude; arrows exaggerated). With --subject, also the "
-        "templates warped onto an analysed subject's face (personalised.npz); with "
+        "templates of the model personalised to an analysed subject (personalised.npz: the "
+        "model warped to the subject's neutral frame, or else the generic templates warped "
+        "onto the subject's fiducials); with "
         "--identity, templates of a synthetic identity's own model (identity_SEED.npz).")
     parser.epilog = (
         "examples:\n"
@@ -73,20 +75,29 @@ def run(args: argparse.Namespace) -> int:
     generic = make_templates(FaceModel.default(), **options)
     written = write_templates(generic, out, name="generic", previews=not args.no_previews)
     if args.subject is not None:
-        table = pd.read_csv(csv)
-        meta_path = csv.parent / "analysis.json"
-        neutral = None
-        if meta_path.is_file():
-            neutral = json.loads(meta_path.read_text()).get("parameters", {}).get(
-                "neutral_frame")
-        if neutral is None:
-            ok = table["success"].to_numpy() == 1 if "success" in table else None
-            if ok is None or not ok.any():
-                raise ValueError(f"{csv}: no tracked frame to personalise on")
-            neutral = int(table["frame"].to_numpy()[ok.argmax()])
-        pers = personalize_from_table(generic, table, int(neutral))
-        if not pers.meta.get("personalised"):
-            raise ValueError(f"{csv}: the neutral frame's fiducials are missing")
+        from faceanalysis.validation import _personal_model
+
+        personal = _personal_model(csv.parent, FaceModel.default())
+        if personal is not None:
+            # the face model warped to the subject in 3-D (faceanalysis.resynth.personalize)
+            pers = make_templates(personal, **options)
+            pers.meta.update(personalised=True, personalisation="model")
+        else:
+            table = pd.read_csv(csv)
+            meta_path = csv.parent / "analysis.json"
+            neutral = None
+            if meta_path.is_file():
+                neutral = json.loads(meta_path.read_text()).get("parameters", {}).get(
+                    "neutral_frame")
+            if neutral is None:
+                ok = table["success"].to_numpy() == 1 if "success" in table else None
+                if ok is None or not ok.any():
+                    raise ValueError(f"{csv}: no tracked frame to personalise on")
+                neutral = int(table["frame"].to_numpy()[ok.argmax()])
+            pers = personalize_from_table(generic, table, int(neutral))
+            if not pers.meta.get("personalised"):
+                raise ValueError(f"{csv}: the neutral frame's fiducials are missing")
+            pers.meta["personalisation"] = "warp"
         written.update({f"personalised_{k}": v for k, v in write_templates(
             pers, out, name="personalised", previews=not args.no_previews).items()})
     if args.identity is not None:
