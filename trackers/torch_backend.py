@@ -610,30 +610,8 @@ class TorchContourSystem:
         return r[self._flat[int(b)]]
 
     # ------------------------------------------------------------------ fields
-    def _prepare_fields(self, forces, potentials, origin, sizes):
+    def _origins(self, origin, B, Kf):
         torch, _ = require_torch()
-        if (forces is None) == (potentials is None):
-            raise ValueError("give exactly one of forces or potentials")
-        if potentials is not None:
-            _check_tensor(potentials, "potentials", 4, ("B", "Kf", "H", "W"))
-            if potentials.shape[0] != self.B:
-                raise ValueError(f"potentials must have shape [B, Kf, H, W] with B = {self.B},"
-                                 f" got {list(potentials.shape)}")
-            F = force_field_batch(potentials.to(self.device, self.dtype), sizes=sizes)
-        else:
-            _check_tensor(forces, "forces", 5, ("B", "Kf", "2", "H", "W"))
-            if forces.shape[0] != self.B or forces.shape[2] != 2:
-                raise ValueError(f"forces must have shape [B, Kf, 2, H, W] with B = {self.B},"
-                                 f" got {list(forces.shape)}")
-            F = forces.to(self.device, self.dtype)
-        B, Kf, _, H, W = F.shape
-        if H < 2 or W < 2:
-            raise ValueError(f"fields must be at least 2x2 (H, W), got {H}x{W}")
-        need = int(self.fidx.max()) + 1
-        if need > Kf:
-            raise ValueError(f"a contour uses field {need - 1} but only {Kf} were given")
-        if not torch.isfinite(F).all():
-            raise ValueError("forces / potentials contain NaN or infinite values")
         org = torch.as_tensor(np.asarray(origin, np.float64) if not isinstance(
             origin, torch.Tensor) else origin, device=self.device, dtype=self.dtype)
         if org.shape in ((2,), (Kf, 2)):
@@ -641,21 +619,140 @@ class TorchContourSystem:
         if org.shape != (B, Kf, 2) or not torch.isfinite(org).all():
             raise ValueError(f"origin must be (x, y), [Kf, 2] or [B, Kf, 2] with Kf = {Kf}, "
                              f"got {list(org.shape)}")
+        return org
+
+    def _sizes(self, sizes, B, Kf, H, W):
+        torch, _ = require_torch()
         if sizes is None:
-            sz = torch.tensor([H, W], device=self.device, dtype=self.dtype).expand(B, Kf, 2)
+            return torch.tensor([H, W], device=self.device, dtype=torch.long).expand(B, Kf, 2)
+        sz = torch.as_tensor(np.asarray(sizes) if not isinstance(sizes, torch.Tensor)
+                             else sizes, device=self.device).long()
+        if sz.shape != (B, Kf, 2):
+            raise ValueError(f"sizes must have shape [B, Kf, 2] = [{B}, {Kf}, 2], got "
+                             f"{list(sz.shape)}")
+        if (sz < 2).any() or (sz[..., 0] > H).any() or (sz[..., 1] > W).any():
+            raise ValueError(f"sizes must lie in [2, {H}] x [2, {W}]")
+        return sz
+
+    def _per_contour(self, *arrays):
+        """[B, Kf, ...] per field -> [B, K, ...] per contour (Contour.field)."""
+        torch, _ = require_torch()
+        Kf = arrays[0].shape[1]
+        if Kf == self.K and (self.fidx == np.arange(self.K)).all():
+            return arrays
+        bi = torch.arange(self.B, device=self.device)[:, None]
+        fi = torch.as_tensor(self.fidx, device=self.device)
+        return tuple(a[bi, fi] for a in arrays)
+
+    def _prepare_fields(self, forces, potentials, origin, sizes):
+        """A sampler X [B, K, M, 2] -> (force [B, K, M, 2], inside [B, K, M])."""
+        torch, _ = require_torch()
+        B, K, M = self.B, self.K, self.M
+        if (forces is None) == (potentials is None):
+            raise ValueError("give exactly one of forces or potentials")
+        need = int(self.fidx.max()) + 1
+        if forces is not None:
+            _check_tensor(forces, "forces", 5, ("B", "Kf", "2", "H", "W"))
+            if forces.shape[0] != B or forces.shape[2] != 2:
+                raise ValueError(f"forces must have shape [B, Kf, 2, H, W] with B = {B}, got "
+                                 f"{list(forces.shape)}")
+            _, Kf, _, H, W = forces.shape
+            if H < 2 or W < 2:
+                raise ValueError(f"fields must be at least 2x2 (H, W), got {H}x{W}")
+            if need > Kf:
+                raise ValueError(f"a contour uses field {need - 1} but only {Kf} were given")
+            F = forces.to(self.device, self.dtype)
+            if not torch.isfinite(F).all():
+                raise ValueError("forces contain NaN or infinite values")
+            org, sz = self._per_contour(self._origins(origin, B, Kf),
+                                        self._sizes(sizes, B, Kf, H, W).to(self.dtype))
+            Fk = self._per_contour(F)[0].reshape(B * K, 2, H, W)
+            org, sz = org.reshape(B * K, 2), sz.reshape(B * K, 2)
+
+            def sample(X):
+                vals, inside = _grid_sample(Fk, X.reshape(B * K, M, 2), org, sz)
+                return vals.reshape(B, K, M, 2), inside.reshape(B, K, M)
+
+            return sample, org.reshape(B, K, 2), sz.reshape(B, K, 2)
+        # potentials: one flat buffer, -grad P from the 4x4 pixels around each node
+        if isinstance(potentials, torch.Tensor):
+            _check_tensor(potentials, "potentials", 4, ("B", "Kf", "H", "W"))
+            if potentials.shape[0] != B:
+                raise ValueError(f"potentials must have shape [B, Kf, H, W] with B = {B}, got "
+                                 f"{list(potentials.shape)}")
+            _, Kf, H, W = potentials.shape
+            if H < 2 or W < 2:
+                raise ValueError(f"fields must be at least 2x2 (H, W), got {H}x{W}")
+            buf = potentials.to(self.device, self.dtype).contiguous().reshape(-1)
+            sz = self._sizes(sizes, B, Kf, H, W)
+            offset = torch.arange(B * Kf, device=self.device).reshape(B, Kf) * (H * W)
+            stride = torch.full((B, Kf), W, device=self.device, dtype=torch.long)
         else:
-            sz = torch.as_tensor(np.asarray(sizes) if not isinstance(sizes, torch.Tensor)
-                                 else sizes, device=self.device).to(self.dtype)
-            if sz.shape != (B, Kf, 2):
-                raise ValueError(f"sizes must have shape [B, Kf, 2], got {list(sz.shape)}")
-        K = self.K
-        if Kf == K and (self.fidx == np.arange(K)).all():
-            Fk, ok, sk = F, org, sz
-        else:
-            bi = torch.arange(B, device=self.device)[:, None]
-            fi = torch.as_tensor(self.fidx, device=self.device)
-            Fk, ok, sk = F[bi, fi], org[bi, fi], sz[bi, fi]
-        return (Fk.reshape(B * K, 2, H, W), ok.reshape(B * K, 2), sk.reshape(B * K, 2))
+            plists = list(potentials)
+            if len(plists) != B:
+                raise ValueError(f"potentials must be a [B, Kf, H, W] tensor or B = {B} "
+                                 f"sequences of 2-D fields, got {len(plists)}")
+            plists = [[q if isinstance(q, torch.Tensor) else torch.from_numpy(
+                np.ascontiguousarray(q)) for q in pl] for pl in plists]
+            Kf = max(len(pl) for pl in plists)
+            shapes = np.full((B, Kf, 2), 2, np.int64)
+            offs = np.zeros((B, Kf), np.int64)
+            parts, pos = [], 0
+            for b, pl in enumerate(plists):
+                for f, q in enumerate(pl):
+                    if q.ndim != 2 or q.shape[0] < 2 or q.shape[1] < 2:
+                        raise ValueError(f"batch element {b}: field {f} must be 2-D and at "
+                                         f"least 2x2, got shape {tuple(q.shape)}")
+                    shapes[b, f] = q.shape
+                    offs[b, f] = pos
+                    pos += q.numel()
+                    parts.append(q.reshape(-1).to(torch.float64))
+                for f in range(len(pl), Kf):  # missing fields: a 2x2 zero field
+                    offs[b, f] = pos
+                    pos += 4
+                    parts.append(torch.zeros(4, dtype=torch.float64))
+            if sizes is not None:
+                raise ValueError("sizes go with a padded potentials tensor, not with a "
+                                 "sequence of fields")
+            buf = torch.cat(parts).to(self.device, self.dtype)
+            sz = torch.as_tensor(shapes, device=self.device)
+            offset = torch.as_tensor(offs, device=self.device)
+            stride = sz[..., 1].clone()
+        if need > Kf:
+            raise ValueError(f"a contour uses field {need - 1} but only {Kf} were given")
+        if not torch.isfinite(buf).all():
+            raise ValueError("potentials contain NaN or infinite values")
+        org = self._origins(origin, B, Kf)
+        org, sz, offset, stride = self._per_contour(org, sz, offset, stride)
+        hk, wk = sz[..., 0, None], sz[..., 1, None]
+        offset, stride = offset[..., None], stride[..., None]
+        org_ = org[:, :, None, :]
+        span = torch.arange(-1, 3, device=self.device)
+
+        def sample(X):
+            rel = X - org_
+            xf, yf = rel[..., 0], rel[..., 1]
+            inside = (xf >= 0) & (yf >= 0) & (xf <= wk - 1) & (yf <= hk - 1)
+            xc = torch.minimum(torch.clamp(xf, min=0.0), (wk - 1).to(xf.dtype))
+            yc = torch.minimum(torch.clamp(yf, min=0.0), (hk - 1).to(yf.dtype))
+            x0 = torch.minimum(xc.floor().long(), wk - 2)
+            y0 = torch.minimum(yc.floor().long(), hk - 2)
+            tx, ty = xc - x0, yc - y0
+            cols = torch.minimum(torch.clamp(x0[..., None] + span, min=0), wk[..., None] - 1)
+            rows = torch.minimum(torch.clamp(y0[..., None] + span, min=0), hk[..., None] - 1)
+            v = buf[offset[..., None, None] + rows[..., :, None] * stride[..., None, None]
+                    + cols[..., None, :]]  # [B, K, M, 4 rows, 4 cols]
+            dc = (cols[..., 2:] - cols[..., :2]).to(v.dtype)  # [B, K, M, 2]
+            dr = (rows[..., 2:] - rows[..., :2]).to(v.dtype)
+            gx = (v[..., 1:3, 2:] - v[..., 1:3, :2]) / dc[..., None, :]  # rows y0, y0+1
+            gy = (v[..., 2:, 1:3] - v[..., :2, 1:3]) / dr[..., :, None]
+            wx = torch.stack([1.0 - tx, tx], -1)
+            wy = torch.stack([1.0 - ty, ty], -1)
+            w = wy[..., :, None] * wx[..., None, :]
+            f = -torch.stack([(w * gx).sum((-2, -1)), (w * gy).sum((-2, -1))], -1)
+            return f, inside
+
+        return sample, org, sz.to(self.dtype)
 
     # ------------------------------------------------------------------ dynamics
     def relax(self, forces=None, *, potentials=None, origin=(0.0, 0.0), sizes=None,
@@ -668,14 +765,18 @@ class TorchContourSystem:
         forces : Tensor [B, Kf, 2, H, W], optional
             Force fields ``-grad P`` (strength 1); contour k of element b uses field
             ``Contour.field``.
-        potentials : Tensor [B, Kf, H, W], optional
-            Instead of ``forces``: the potentials (``-grad P`` by central differences,
-            one-sided on each field's border, interpolated bilinearly, as
-            ``ContourSystem.relax(potentials=...)``).
+        potentials : Tensor [B, Kf, H, W] or B sequences of 2-D arrays, optional
+            Instead of ``forces``: the potentials. ``-grad P`` is taken at the four
+            pixels around each node (central differences, one-sided on each field's
+            border) and interpolated bilinearly, exactly as
+            ``ContourSystem.relax(potentials=...)``; no force field is built. A
+            sequence (element b: its Kf fields, of any sizes, e.g. the per-contour
+            boxes of a tracker) is packed into one flat buffer without padding.
         origin : (x, y), [Kf, 2] or [B, Kf, 2]
             Image position of each field's pixel [0, 0].
         sizes : [B, Kf, 2] of int (h, w), optional
-            Valid size of each field (smaller fields zero-padded to H x W).
+            With a tensor of fields: the valid size of each (smaller fields
+            zero-padded to H x W).
         user_forces : array_like or Tensor [B, K, M, 2], optional
             Extra constant forces (padded layout, see :meth:`pad`).
         tol : float or array_like (B,)
@@ -713,7 +814,7 @@ class TorchContourSystem:
                criterion, active, check_every):
         torch, _ = require_torch()
         B, K, M = self.B, self.K, self.M
-        F, org, sz = self._prepare_fields(forces, potentials, origin, sizes)
+        sample, org, sz = self._prepare_fields(forces, potentials, origin, sizes)
         dev, dt_ = self.device, self.dtype
 
         def per_elem(v, name, kind=float):
@@ -750,11 +851,10 @@ class TorchContourSystem:
                 raise ValueError(f"user_forces must be a finite [B, K, M, 2] = [{B}, {K}, {M},"
                                  f" 2] tensor, got {list(user.shape)}")
         # nodes must start inside their field
-        Xr = self.X.reshape(B * K, M, 2)
-        rel = Xr - org[:, None, :]
-        bad = ((rel[..., 0] < 0) | (rel[..., 1] < 0) | (rel[..., 0] > sz[:, None, 1] - 1)
-               | (rel[..., 1] > sz[:, None, 0] - 1)) & self._valid.reshape(B * K, M)
-        bad = bad.reshape(B, K, M) & torch.as_tensor(act, device=dev)[:, None, None]
+        rel = self.X - org[:, :, None, :]
+        bad = ((rel[..., 0] < 0) | (rel[..., 1] < 0) | (rel[..., 0] > sz[..., 1, None] - 1)
+               | (rel[..., 1] > sz[..., 0, None] - 1)) & self._valid
+        bad = bad & torch.as_tensor(act, device=dev)[:, None, None]
         if bad.any():
             b, k, m = (int(v) for v in torch.nonzero(bad)[0])
             s = self.systems[b]
@@ -784,9 +884,8 @@ class TorchContourSystem:
         n_max = int(max_a[act].max()) if act.any() else 0
         while step < n_max:
             # forces: bilinear samples of the fields; 0 (and 'outside') off the field
-            vals, inside = _grid_sample(F, X.reshape(B * K, M, 2), org, sz)
-            inside = inside.reshape(B, K, M)
-            Fx = torch.where(inside[..., None], vals.reshape(B, K, M, 2), 0.0)
+            vals, inside = sample(X)
+            Fx = torch.where(inside[..., None], vals, 0.0)
             outside |= ((~inside) & valid).any(-1) & running[:, None]
             if self._any_normal:
                 t = X.gather(2, nxt2) - X.gather(2, prv2)
@@ -1003,24 +1102,6 @@ def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None,
     return tracker
 
 
-def _potential_stack(requests):
-    """Per-element lists of 2-D potentials -> padded [B, K, H, W] float32 + sizes."""
-    K = max(len(r) for r in requests)
-    H = max(q.shape[0] for r in requests for q in r)
-    W = max(q.shape[1] for r in requests for q in r)
-    out = np.zeros((len(requests), K, H, W), np.float32)
-    sizes = np.full((len(requests), K, 2), 2, np.int64)
-    for b, r in enumerate(requests):
-        for k, q in enumerate(r):
-            q = np.asarray(q)
-            if q.ndim != 2 or q.shape[0] < 2 or q.shape[1] < 2:
-                raise ValueError(f"each potential must be 2-D and at least 2x2, got shape "
-                                 f"{q.shape}")
-            out[b, k, :q.shape[0], :q.shape[1]] = q
-            sizes[b, k] = q.shape
-    return out, sizes
-
-
 def _as_field_list(potentials):
     if isinstance(potentials, np.ndarray) and potentials.ndim in (2, 3):
         return [potentials] if potentials.ndim == 2 else list(potentials)
@@ -1029,19 +1110,15 @@ def _as_field_list(potentials):
 
 def _batched_relax(ts, requests):
     """Run ContourSystem.relax-style requests {b: kwargs} as one batched relaxation."""
-    torch, _ = require_torch()
     B = ts.B
     elems = sorted(requests)
     for kw in requests.values():
         if kw.get("forces") is not None or kw.get("user_forces") is not None:
             raise ValueError("the torch tracker relays potentials only (no forces / user "
                              "forces)")
-    blank = [np.zeros((2, 2), np.float32)]
-    plists = [(_as_field_list(requests[b]["potentials"]) if b in requests else blank)
+    plists = [(_as_field_list(requests[b]["potentials"]) if b in requests else [])
               for b in range(B)]
     Kf = max(len(p) for p in plists)
-    plists = [p + [np.zeros((2, 2), np.float32)] * (Kf - len(p)) for p in plists]
-    stack, sizes = _potential_stack(plists)
     org = np.zeros((B, Kf, 2))
     for b in elems:
         o = np.asarray(requests[b].get("origin", (0.0, 0.0)), np.float64)
@@ -1059,7 +1136,7 @@ def _batched_relax(ts, requests):
     active = np.zeros(B, bool)
     active[elems] = True
     ts.load(elems)
-    res = ts.relax(potentials=torch.from_numpy(stack), origin=org, sizes=sizes, tol=tol,
+    res = ts.relax(potentials=plists, origin=org, tol=tol,
                    max_iter=max_iter, min_iter=min_iter, criterion=crit, active=active)
     ts.store(elems)
     return {b: res.element(b, int(ts.n_contours[b])) for b in elems}

@@ -342,3 +342,33 @@ def test_trackers_import_without_torch():
                          check=True)
     assert "the torch backend needs the [torch] extra: pip install torch==2.13.0 kornia" \
         in out.stdout
+
+
+def test_ragged_field_sequences_equal_padded_tensor_and_forces():
+    img, band = _curve_image()
+    pot_band = potential_from_gray(to_gray(img), "valley", 2.0)[10:90, 5:135]
+    ell = potential_from_gray(to_gray(_ellipse()), "edge", 2.0)
+    contours = [Contour(_ellipse_contour(), closed=True, field=1),
+                Contour(band[20:180:8] + [0.0, 3.0], normal_forces=True, field=0)]
+    origin = [(5.0, 10.0), (0.0, 0.0)]
+    runs = []
+    for form in ("sequence", "tensor", "forces"):
+        ts = TorchContourSystem(ContourSystem(contours, SnakeParams(p=0.05)))
+        if form == "sequence":
+            r = ts.relax(potentials=[[pot_band, ell]], origin=origin, tol=1e-3)
+        else:
+            stack = np.zeros((1, 2, 120, 160))
+            stack[0, 0, :80, :130] = pot_band
+            stack[0, 1] = ell
+            sizes = [[[80, 130], [120, 160]]]
+            if form == "tensor":
+                r = ts.relax(potentials=_t(stack), sizes=sizes, origin=origin, tol=1e-3)
+            else:
+                F = force_field_batch(_t(stack), sizes=sizes)
+                r = ts.relax(F, sizes=sizes, origin=origin, tol=1e-3)
+        runs.append((ts.positions(0), int(r.iterations[0])))
+    ref = ContourSystem(contours, SnakeParams(p=0.05))
+    r_np = ref.relax(potentials=[pot_band, ell], origin=origin, tol=1e-3)
+    for pos, iters in runs:
+        assert iters == r_np.iterations
+        assert np.hypot(*(pos - ref.positions).T).max() < 1e-6
