@@ -16,8 +16,12 @@ moves with the head. Otherwise a fixed camera frames the face.
 Personalisation (``subject=``). The generic model is deformed to the subject's neutral frame
 by a landmark-driven warp of the whole structure (Kähler 001, ch. 8;
 :mod:`synth.personalize`): the 11 neutral fiducials (taken from the image into model space by
-the neutral frame's similarity, depth kept from the model), the hairline centroid and the
-nostrils (pinned: they define the framing) drive a 3-D radial-basis interpolation. The
+the neutral frame's similarity; their unobserved depth is the model's, scaled by the
+subject's overall size in the image plane), the hairline centroid and the nostrils (pinned:
+they define the framing) drive a 3-D radial-basis interpolation. Should the warp fold space
+or leave a muscle without tissue to pull, it is blended toward the best affine map of the
+landmarks until the model is valid (a warning says so; the landmark error in the report
+shows the cost). The
 personalised model is textured with the neutral frame itself, projected through the
 framing (uv = image position / image size), and rendered unlit, so that its neutral frame
 reproduces the input and its expressions move the subject's own skin.
@@ -425,19 +429,44 @@ def _personalize_series(series: _Series, video, *, model=None, kernel: str = "li
     fid = series.fiducials[k]
     if not np.isfinite(fid).all():
         raise ValueError(f"the subject's neutral frame {series.frames[k]} has no fiducials")
-    origin_cm, scale_cm = head_reference(model.mesh)
-    framing = framing_from_head(series.heads[k], origin_cm, scale_cm)
-    lm = model.landmark_positions()
-    src = [np.asarray(lm[n], float) for n in FIDUCIALS]
-    xy = framing.invert(fid)
-    dst = [np.r_[xy[i], src[i][2]] for i in range(len(FIDUCIALS))]
-    o3, n3 = head_frame_points(model.mesh)         # pinned: they define the framing
-    src += [o3, n3]
-    dst += [o3, n3]
-    personal, warp = personalize_model(model, np.array(src), np.array(dst), kernel=kernel)
     if video is None or not Path(video).exists():
         raise ValueError(f"the subject's video {video} cannot be found (needed for the "
                          "texture); pass the video itself as the subject")
+    origin_cm, scale_cm = head_reference(model.mesh)
+    framing = framing_from_head(series.heads[k], origin_cm, scale_cm)
+    lm = model.landmark_positions()
+    src = np.array([lm[n] for n in FIDUCIALS], dtype=float)
+    xy = framing.invert(fid)
+    # depth is not observed: the model's, scaled by the subject's overall size in the image
+    # plane (keeping depth unscaled where the face is narrower would tilt short muscles
+    # such as the corrugator into the skull)
+    A, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], xy, rcond=None)
+    depth_scale = float(np.sqrt(abs(np.linalg.det(A[:2]))))
+    o3, n3 = head_frame_points(model.mesh)         # pinned: they define the framing
+    source = np.vstack([src, o3, n3])
+    target = np.vstack([np.c_[xy, depth_scale * src[:, 2]],
+                        [o3[0], o3[1], depth_scale * o3[2]],
+                        [n3[0], n3[1], depth_scale * n3[2]]])
+    # the best 3-D affine map of the landmarks: the fallback when the full warp cannot
+    # make a valid model (a fold, or a muscle left without tissue to pull)
+    B, *_ = np.linalg.lstsq(np.c_[source, np.ones(len(source))], target, rcond=None)
+    affine = np.c_[source, np.ones(len(source))] @ B
+    personal = warp = None
+    for alpha in (1.0, 0.75, 0.5, 0.25, 0.0):
+        try:
+            personal, warp = personalize_model(model, source, affine + alpha * (target - affine),
+                                               kernel=kernel)
+        except ValueError as exc:
+            log.warning("personalisation: the landmark warp at %.0f%% gives no valid model "
+                        "(%s); trying a smoother one", 100 * alpha, exc)
+            continue
+        if alpha < 1.0:
+            log.warning("personalisation: the model follows the subject's landmarks at %.0f%% "
+                        "only (see the landmark error in the report)", 100 * alpha)
+        break
+    if personal is None:
+        raise ValueError("the subject's neutral fiducials cannot be fitted by the face model "
+                         "(every warp, down to an affine one, failed)")
     image = _read_frame(Path(video), int(series.frames[k]))
     return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
                        fiducials=fid, neutral_frame=int(series.frames[k]),
@@ -645,8 +674,17 @@ class Resynthesis:
         self._wire = None
         self.texture_seed = 0
         self._order = [MUSCLES.index(m) for m in self.model.muscle_names]
+        self._background = None
         if subject is not None:
             self.report["personalisation"] = self._personal_report()
+            if shading == "textured" and self._framings is not None:
+                # the rest of the subject's head (hair, ears, neck) and the scene: the
+                # neutral frame, moved with the tracked head frame
+                import cv2
+
+                f = w / in_size[0]
+                img = cv2.resize(subject.image, (w, h), interpolation=cv2.INTER_AREA)
+                self._background = (img, subject.framing.scaled(f))
 
     # -------------------------------------------------------------- rendering setup
     def _fixed_camera(self):
@@ -698,7 +736,22 @@ class Resynthesis:
             return self._wire.draw(xy, contractions, self.size), xy, None
         self._renderer.camera = cam
         res = self._renderer.render(skin, inner, pose=pose)
-        return res.image, res.xy[: len(skin)], res.skin_mask
+        image = res.image
+        if self._background is not None:
+            image = np.where(res.mask[..., None], image, self._moved_background(row))
+        return image, res.xy[: len(skin)], res.skin_mask
+
+    def _moved_background(self, row: int) -> np.ndarray:
+        """The subject's neutral frame moved by the head motion from neutral to ``row``."""
+        import cv2
+
+        img, f0 = self._background
+        fi = self._framings[row]
+        M = (fi.k / f0.k) * _rot(fi.roll) @ _rot(f0.roll).T
+        t = np.asarray(fi.T) - M @ np.asarray(f0.T)
+        w, h = self.size
+        return cv2.warpAffine(img, np.c_[M, t], (w, h), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
 
     def _personal_report(self) -> dict:
         """Landmark error and photometric comparison of the personalised neutral frame."""
