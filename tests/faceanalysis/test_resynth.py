@@ -286,3 +286,26 @@ def test_framing_matches_the_camera_and_pose_it_makes():
     g = framing_from_head((100.0, 60.0, 40.0, -0.1), np.array([0.2, 7.5]), 9.0)
     np.testing.assert_allclose(g.apply(np.array([[0.2, 7.5]])), [[100.0, 60.0]], atol=1e-9)
     assert g.k == pytest.approx(40.0 / 9.0) and g.roll == -0.1
+
+
+@pytest.mark.slow
+def test_personalisation_falls_back_when_the_warp_is_invalid(subject, tmp_path, caplog):
+    """Crossed mouth corners would fold the face: the warp is softened, and says so."""
+    import shutil
+
+    from faceanalysis.resynth import personalize
+
+    root, _ = subject
+    bad = tmp_path / "bad"
+    shutil.copytree(root / "analysis", bad)
+    table = pd.read_csv(bad / "contractions.csv")
+    table.loc[0, ["fid_mouth_corner_l_x", "fid_mouth_corner_r_x"]] = \
+        table.loc[0, ["fid_mouth_corner_r_x", "fid_mouth_corner_l_x"]].to_numpy()
+    write_contractions(table, bad / "contractions.csv")
+    with caplog.at_level(logging.WARNING, logger="faceanalysis.resynth"):
+        info = personalize(bad)
+    assert "follows the subject's landmarks at" in caplog.text
+    assert np.isfinite(info.model.mesh.vertices).all()
+    res = resynthesize(bad, subject=info, shading="wireframe")
+    assert res.report["personalisation"]["landmark_error_px"]["max"] > 1.0   # honest cost
+    assert len(list(res)) == 12
