@@ -338,8 +338,24 @@ class IrisAnchors:
         if not 0.7 < abs(a) < 1.3:
             return None
         if rotation is not None:
-            a = abs(a) * complex(np.exp(1j * float(rotation)))
-            m0 = complex(*self.centres.mean(axis=0))
-            m1 = complex(*pts.mean(axis=0))
-            b = m1 - a * m0
+            a, b = self.similarity_with_rotation((a, b), rotation)
         return a, b
+
+    def similarity_with_rotation(self, sim, rotation: float):
+        """``sim`` (a, b) with its rotation replaced by ``rotation`` (radians), scale
+        kept and the midpoint of the reference irises still carried onto its match.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> anc = IrisAnchors.__new__(IrisAnchors)
+        >>> anc.centres = np.array([[0.0, 0.0], [10.0, 0.0]])
+        >>> a, b = anc.similarity_with_rotation((1.0 + 0j, 2 + 1j), 0.0)
+        >>> a, b
+        ((1+0j), (2+1j))
+        """
+        a, b = sim
+        m0 = complex(*self.centres.mean(axis=0))
+        m1 = a * m0 + b
+        a = abs(a) * complex(np.exp(1j * float(rotation)))
+        return a, complex(m1 - a * m0)

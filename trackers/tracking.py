@@ -825,6 +825,7 @@ class Tracker:
         self._ref_brow_angle: float | None = None
         self._brows_lost = False
         self._head_contours_lost = False
+        self._held = 0
         self.head_source = "contours"
         if not np.isfinite(max_shape_change) or max_shape_change <= 0:
             raise ValueError(f"max_shape_change must be positive, got {max_shape_change}")
@@ -1037,11 +1038,15 @@ class Tracker:
             # search around the irises last found (a wider window after a miss)
             pred = None
             wide = self.head_source != "eyes"
-            rot = None
-            if self._ref_brow_angle is not None and not self._brows_lost:
-                rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
-            sim = self.anchors.similarity(frame, pred, rotation=rot,
+            sim = self.anchors.similarity(frame, pred,
                                           search=3.0 * self.anchors.radius if wide else None)
+            if sim is not None and self._ref_brow_angle is not None and not self._brows_lost:
+                # the brow line's turn, unless it disagrees with the irises' (a brow
+                # contour that slid away)
+                rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
+                rot = (rot + np.pi) % (2 * np.pi) - np.pi
+                if abs(rot - np.angle(sim[0])) < 0.05:
+                    sim = self.anchors.similarity_with_rotation(sim, rot)
             if sim is not None:
                 head = _apply_similarity(self.ref_head, *sim)
                 if self._plausible(head, hc):
@@ -1062,7 +1067,7 @@ class Tracker:
     def _plausible(self, head, hc):
         """Whether a head frame from the irises agrees with the last one and with the
         contours' scale (a drifted iris match changes the scale abruptly)."""
-        last = self.last_head
+        last = self.last_head if self.head_source == "eyes" else None
         if last is not None and (abs(head.scale / last.scale - 1) > 0.04
                                  or np.hypot(head.x - last.x, head.y - last.y)
                                  > 0.1 * last.scale):
@@ -1085,7 +1090,14 @@ class Tracker:
         # on a nostril's edge) is not followed: the last frame is held instead
         if abs(abs(a) - 1) > 0.08 or abs(np.angle(a)) > 0.1 \
                 or np.hypot(moved.x - h0.x, moved.y - h0.y) > 0.25 * h0.scale:
-            return self.last_head if self.last_head is not None else h0
+            self._held += 1
+            if self._held <= 5 and self.last_head is not None:
+                return self.last_head
+            # the contours have settled elsewhere for good: start over from them
+            self._anchor_base = (hc, hc)
+            self._held = 0
+            return hc
+        self._held = 0
         return moved
 
     # ------------------------------------------------------------------ public
