@@ -157,14 +157,21 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
                             weights.reshape(len(pairs), len(MEASUREMENT_POINTS), 2))
 
 
-def model_response(model=None, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
+def model_response(model=None, controls: tuple[str, ...] | None = None, *,
                    n_levels: int = 6, jaw_max: float = JAW_MAX, n_samples: int = 480,
                    use_cache: bool = True) -> FiducialResponse:
-    """The fiducial response of ``model`` (default: the generic face), cached on disk."""
+    """The fiducial response of ``model`` (default: the generic face), cached on disk.
+
+    ``controls`` defaults to the :data:`OBSERVED_CONTROLS` that the model has (a model
+    built from a user's muscle file may lack some).
+    """
     if model is None:
         from synth import FaceModel
 
         model = FaceModel.default()
+    if controls is None:
+        controls = tuple(c for c in OBSERVED_CONTROLS
+                         if c == "jaw_rotation" or c in model.muscle_names)
     key = _model_key(model, tuple(controls), n_levels, jaw_max, n_samples)
     path = cache_dir() / f"response-{key}.npz"
     if use_cache and path.is_file():
