@@ -254,7 +254,13 @@ def _load_series(source) -> _Series:
         raise FileNotFoundError(f"{csv}: no such file (expected an analysis folder or a "
                                 "contractions.csv)")
     meta = _read_metadata(folder / "analysis.json")
-    head = pd.read_csv(csv, nrows=0)
+    try:
+        head = pd.read_csv(csv, nrows=0)
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"{csv}: file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError):
+        raise ValueError(f"{csv}: not a CSV table (expected contractions.csv or an analysis "
+                         "folder)") from None
     from faceanalysis.table import contraction_columns, read_contractions
 
     if all(c in [str(h).strip() for h in head.columns] for c in contraction_columns()):

@@ -163,6 +163,10 @@ def test_cli_resynth(tmp_path, run_cli):
     bad.to_csv(csv, index=False)
     code, out, err = run_cli("resynth", csv, "-o", tmp_path / "s.mp4", "-q")
     assert code == 1 and "column zygomaticus_major_l" in err and "line 3" in err
+    video = tmp_path / "clip.mp4"                # a video where the table should be
+    video.write_bytes(b"\x00\x00\x00\x18ftypmp42\xc3\x28\xff\xfe" * 20)
+    code, out, err = run_cli("resynth", video, "-o", tmp_path / "t.mp4", "-q")
+    assert code == 1 and "not a CSV table" in err
 
 
 # --------------------------------------------------------------------------- synthetic subject
