@@ -647,6 +647,8 @@ class Resynthesis:
             in_size = (subject.image.shape[1], subject.image.shape[0])
         self.input_size = in_size
         # output size
+        if size is None:
+            size = (in_size[0] if in_size is not None and view == "front" else 256)
         if isinstance(size, (int, np.integer)):
             if in_size is not None and view == "front":
                 w = int(size)
@@ -1048,7 +1050,7 @@ class _MeshExporter:
         self.inner.clear()
 
 
-def resynthesize(source, *, model=None, subject=None, size=256, view: str = "front",
+def resynthesize(source, *, model=None, subject=None, size=None, view: str = "front",
                  shading: str = "textured", fps: float | None = None,
                  side_by_side: bool = False, output=None, export_meshes=None,
                  mesh_format: str = "obj", input_video=None, overwrite: bool = False,
@@ -1070,9 +1072,10 @@ def resynthesize(source, *, model=None, subject=None, size=256, view: str = "fro
     subject : Analysis or path, optional
         Personalise: warp the model to this subject's neutral frame (an analysis folder or
         a video) and texture it with that frame (see the module docstring).
-    size : int or (width, height)
+    size : int or (width, height), optional
         Frame width (the height follows the input's aspect ratio in the input's framing),
-        or an explicit size.
+        or an explicit size. Default: the input's size in the front view when the source
+        knows it (the analysis's own scale), else 256.
     view : {'front', 'three-quarter', 'profile'}
     shading : {'textured', 'plain', 'wireframe'}
         ``wireframe`` draws the skin mesh and the muscles (004, Fig. 4), redder and thicker

@@ -67,9 +67,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="VIDEO",
                         help="output video (.mp4; .avi if no mp4 encoder)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    parser.add_argument("--size", type=_size, default=256, metavar="W[xH]",
+    parser.add_argument("--size", type=_size, metavar="W[xH]",
                         help="frame width (height follows the input's aspect), or WxH "
-                             "(default 256)")
+                             "(default: the input's size in the front view, else 256)")
     parser.add_argument("--view", choices=list(VIEWS), default="front",
                         help="camera view (default front)")
     parser.add_argument("--shading", choices=SHADINGS, default="textured",
