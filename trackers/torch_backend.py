@@ -136,20 +136,32 @@ def _blur(images, sigma):
     return out[..., r:r + H, r:r + W]
 
 
+def _gradient(g):
+    """(d/dx, d/dy) with kornia's central differences, one-sided on the image border."""
+    _, kornia = require_torch()
+    grad = kornia.filters.spatial_gradient(g, mode="diff", order=1, normalized=True)
+    gx, gy = grad[:, :, 0], grad[:, :, 1]
+    gx[..., 0] = g[..., 1] - g[..., 0]
+    gx[..., -1] = g[..., -1] - g[..., -2]
+    gy[..., 0, :] = g[..., 1, :] - g[..., 0, :]
+    gy[..., -1, :] = g[..., -1, :] - g[..., -2, :]
+    return gx, gy
+
+
 def _diff_x(g):
     """d/dx by central differences, one-sided on the first and last column."""
-    torch, kornia = require_torch()
-    grad = kornia.filters.spatial_gradient(g, mode="diff", order=1, normalized=True)
-    gx = grad[:, :, 0].clone()
+    torch, _ = require_torch()
+    gx = torch.empty_like(g)
+    gx[..., 1:-1] = 0.5 * (g[..., 2:] - g[..., :-2])
     gx[..., 0] = g[..., 1] - g[..., 0]
     gx[..., -1] = g[..., -1] - g[..., -2]
     return gx
 
 
 def _diff_y(g):
-    torch, kornia = require_torch()
-    grad = kornia.filters.spatial_gradient(g, mode="diff", order=1, normalized=True)
-    gy = grad[:, :, 1].clone()
+    torch, _ = require_torch()
+    gy = torch.empty_like(g)
+    gy[..., 1:-1, :] = 0.5 * (g[..., 2:, :] - g[..., :-2, :])
     gy[..., 0, :] = g[..., 1, :] - g[..., 0, :]
     gy[..., -1, :] = g[..., -1, :] - g[..., -2, :]
     return gy
@@ -200,7 +212,8 @@ def potential_batch(images, kind: str = "edge", sigma: float = 2.0):
         raise ValueError(f"sigma must be a positive number, got {sigma}")
     g = _blur(images, sigma)
     if kind == "edge":
-        return -torch.sqrt(_diff_x(g) ** 2 + _diff_y(g) ** 2)
+        gx, gy = _gradient(g)
+        return -torch.sqrt(gx * gx + gy * gy)
     if kind == "dark_below":
         return torch.clamp(_diff_y(g), max=0.0)
     gx = _diff_x(g)
