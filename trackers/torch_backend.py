@@ -1214,6 +1214,9 @@ class _Batcher:
 class TorchTracker:
     """Track B videos at once: B trackers whose relaxations form one torch batch.
 
+    Also the way to relax one layout on B independent frames at once (stills, or
+    frames of one video tracked independently): ``TorchTracker([layout] * B)``.
+
     Each video has its own :class:`~trackers.tracking.Tracker` (its own layout,
     strengths, quality references, end relocation, re-initialisation); at every
     relaxation the trackers wait for one another and one
@@ -1300,8 +1303,10 @@ class TorchTracker:
             th.join()
         if errors == "raise":
             for b, r in enumerate(out):
+                if isinstance(r, ValueError):
+                    raise ValueError(f"video {b}: {r}") from r
                 if isinstance(r, Exception):
-                    raise type(r)(f"video {b}: {r}") from r
+                    raise r
         return out
 
     def run(self, videos):

@@ -372,3 +372,14 @@ def test_ragged_field_sequences_equal_padded_tensor_and_forces():
     for pos, iters in runs:
         assert iters == r_np.iterations
         assert np.hypot(*(pos - ref.positions).T).max() < 1e-6
+
+
+def test_torch_tracker_names_the_video_with_a_bad_frame():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    img, _ = draw_face()
+    tt = TorchTracker([lay, lay])
+    with pytest.raises(ValueError, match="video 1: frame 0 is 100x100"):
+        tt.track([img, np.zeros((100, 100), np.uint8)])
+    got = TorchTracker([lay, lay]).track([img, np.zeros((100, 100), np.uint8)],
+                                         errors="return")
+    assert got[0].success and isinstance(got[1], ValueError)
