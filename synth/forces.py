@@ -92,74 +92,195 @@ def _cross(ax, ay, az, bx, by, bz):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cover
+    """Volume term; ``quads`` must be :data:`~synth.lattice.PRISM_QUADS` (the faces are
+    unrolled: triangles (0, 1, 2), (3, 5, 4) and the three bilinear side quads)."""
     energy = 0.0
-    g = np.zeros((6, 3))
-    q = np.zeros((6, 3))
     for e in range(prisms.shape[0]):
-        cx = 0.0
-        cy = 0.0
-        cz = 0.0
-        for a in range(6):
-            n = prisms[e, a]
-            cx += x[n, 0]
-            cy += x[n, 1]
-            cz += x[n, 2]
-        cx /= 6.0
-        cy /= 6.0
-        cz /= 6.0
-        for a in range(6):
-            n = prisms[e, a]
-            q[a, 0] = x[n, 0] - cx
-            q[a, 1] = x[n, 1] - cy
-            q[a, 2] = x[n, 2] - cz
-        # triangles (0, 1, 2) and (3, 5, 4): det(i, j, k) / 6
-        vol = 0.0
-        for t in range(2):
-            i = 0 if t == 0 else 3
-            j = 1 if t == 0 else 5
-            k = 2 if t == 0 else 4
-            jk = _cross(q[j, 0], q[j, 1], q[j, 2], q[k, 0], q[k, 1], q[k, 2])
-            ki = _cross(q[k, 0], q[k, 1], q[k, 2], q[i, 0], q[i, 1], q[i, 2])
-            ij = _cross(q[i, 0], q[i, 1], q[i, 2], q[j, 0], q[j, 1], q[j, 2])
-            vol += (q[i, 0] * jk[0] + q[i, 1] * jk[1] + q[i, 2] * jk[2]) / 6.0
-            for c in range(3):
-                g[i, c] = jk[c] / 6.0
-                g[j, c] = ki[c] / 6.0
-                g[k, c] = ij[c] / 6.0
-        # bilinear quads: s . (d1 x d2) / 24
-        for f in range(3):
-            i0 = quads[f, 0]
-            i1 = quads[f, 1]
-            i2 = quads[f, 2]
-            i3 = quads[f, 3]
-            sx = q[i0, 0] + q[i1, 0] + q[i2, 0] + q[i3, 0]
-            sy = q[i0, 1] + q[i1, 1] + q[i2, 1] + q[i3, 1]
-            sz = q[i0, 2] + q[i1, 2] + q[i2, 2] + q[i3, 2]
-            d1x = q[i2, 0] - q[i0, 0]
-            d1y = q[i2, 1] - q[i0, 1]
-            d1z = q[i2, 2] - q[i0, 2]
-            d2x = q[i3, 0] - q[i1, 0]
-            d2y = q[i3, 1] - q[i1, 1]
-            d2z = q[i3, 2] - q[i1, 2]
-            c12 = _cross(d1x, d1y, d1z, d2x, d2y, d2z)
-            c2s = _cross(d2x, d2y, d2z, sx, sy, sz)
-            cs1 = _cross(sx, sy, sz, d1x, d1y, d1z)
-            vol += (sx * c12[0] + sy * c12[1] + sz * c12[2]) / 24.0
-            for c in range(3):
-                g[i0, c] += (c12[c] - c2s[c]) / 24.0
-                g[i2, c] += (c12[c] + c2s[c]) / 24.0
-                g[i1, c] += (c12[c] - cs1[c]) / 24.0
-                g[i3, c] += (c12[c] + cs1[c]) / 24.0
+        n0 = prisms[e, 0]
+        n1 = prisms[e, 1]
+        n2 = prisms[e, 2]
+        n3 = prisms[e, 3]
+        n4 = prisms[e, 4]
+        n5 = prisms[e, 5]
+        cx = (x[n0, 0] + x[n1, 0] + x[n2, 0] + x[n3, 0] + x[n4, 0] + x[n5, 0]) * (1.0 / 6.0)
+        cy = (x[n0, 1] + x[n1, 1] + x[n2, 1] + x[n3, 1] + x[n4, 1] + x[n5, 1]) * (1.0 / 6.0)
+        cz = (x[n0, 2] + x[n1, 2] + x[n2, 2] + x[n3, 2] + x[n4, 2] + x[n5, 2]) * (1.0 / 6.0)
+        q0x = x[n0, 0] - cx
+        q0y = x[n0, 1] - cy
+        q0z = x[n0, 2] - cz
+        q1x = x[n1, 0] - cx
+        q1y = x[n1, 1] - cy
+        q1z = x[n1, 2] - cz
+        q2x = x[n2, 0] - cx
+        q2y = x[n2, 1] - cy
+        q2z = x[n2, 2] - cz
+        q3x = x[n3, 0] - cx
+        q3y = x[n3, 1] - cy
+        q3z = x[n3, 2] - cz
+        q4x = x[n4, 0] - cx
+        q4y = x[n4, 1] - cy
+        q4z = x[n4, 2] - cz
+        q5x = x[n5, 0] - cx
+        q5y = x[n5, 1] - cy
+        q5z = x[n5, 2] - cz
+        vol6 = 0.0
+        jkx = q1y * q2z - q1z * q2y
+        jky = q1z * q2x - q1x * q2z
+        jkz = q1x * q2y - q1y * q2x
+        kix = q2y * q0z - q2z * q0y
+        kiy = q2z * q0x - q2x * q0z
+        kiz = q2x * q0y - q2y * q0x
+        ijx = q0y * q1z - q0z * q1y
+        ijy = q0z * q1x - q0x * q1z
+        ijz = q0x * q1y - q0y * q1x
+        vol6 += q0x * jkx + q0y * jky + q0z * jkz
+        g0x = 4.0 * jkx
+        g1x = 4.0 * kix
+        g2x = 4.0 * ijx
+        g0y = 4.0 * jky
+        g1y = 4.0 * kiy
+        g2y = 4.0 * ijy
+        g0z = 4.0 * jkz
+        g1z = 4.0 * kiz
+        g2z = 4.0 * ijz
+        jkx = q5y * q4z - q5z * q4y
+        jky = q5z * q4x - q5x * q4z
+        jkz = q5x * q4y - q5y * q4x
+        kix = q4y * q3z - q4z * q3y
+        kiy = q4z * q3x - q4x * q3z
+        kiz = q4x * q3y - q4y * q3x
+        ijx = q3y * q5z - q3z * q5y
+        ijy = q3z * q5x - q3x * q5z
+        ijz = q3x * q5y - q3y * q5x
+        vol6 += q3x * jkx + q3y * jky + q3z * jkz
+        g3x = 4.0 * jkx
+        g5x = 4.0 * kix
+        g4x = 4.0 * ijx
+        g3y = 4.0 * jky
+        g5y = 4.0 * kiy
+        g4y = 4.0 * ijy
+        g3z = 4.0 * jkz
+        g5z = 4.0 * kiz
+        g4z = 4.0 * ijz
+        vol24 = 4.0 * vol6
+        sx = q0x + q3x + q4x + q1x
+        d1x = q4x - q0x
+        d2x = q1x - q3x
+        sy = q0y + q3y + q4y + q1y
+        d1y = q4y - q0y
+        d2y = q1y - q3y
+        sz = q0z + q3z + q4z + q1z
+        d1z = q4z - q0z
+        d2z = q1z - q3z
+        c12x = d1y * d2z - d1z * d2y
+        c12y = d1z * d2x - d1x * d2z
+        c12z = d1x * d2y - d1y * d2x
+        c2sx = d2y * sz - d2z * sy
+        c2sy = d2z * sx - d2x * sz
+        c2sz = d2x * sy - d2y * sx
+        cs1x = sy * d1z - sz * d1y
+        cs1y = sz * d1x - sx * d1z
+        cs1z = sx * d1y - sy * d1x
+        vol24 += sx * c12x + sy * c12y + sz * c12z
+        g0x += c12x - c2sx
+        g4x += c12x + c2sx
+        g3x += c12x - cs1x
+        g1x += c12x + cs1x
+        g0y += c12y - c2sy
+        g4y += c12y + c2sy
+        g3y += c12y - cs1y
+        g1y += c12y + cs1y
+        g0z += c12z - c2sz
+        g4z += c12z + c2sz
+        g3z += c12z - cs1z
+        g1z += c12z + cs1z
+        sx = q1x + q4x + q5x + q2x
+        d1x = q5x - q1x
+        d2x = q2x - q4x
+        sy = q1y + q4y + q5y + q2y
+        d1y = q5y - q1y
+        d2y = q2y - q4y
+        sz = q1z + q4z + q5z + q2z
+        d1z = q5z - q1z
+        d2z = q2z - q4z
+        c12x = d1y * d2z - d1z * d2y
+        c12y = d1z * d2x - d1x * d2z
+        c12z = d1x * d2y - d1y * d2x
+        c2sx = d2y * sz - d2z * sy
+        c2sy = d2z * sx - d2x * sz
+        c2sz = d2x * sy - d2y * sx
+        cs1x = sy * d1z - sz * d1y
+        cs1y = sz * d1x - sx * d1z
+        cs1z = sx * d1y - sy * d1x
+        vol24 += sx * c12x + sy * c12y + sz * c12z
+        g1x += c12x - c2sx
+        g5x += c12x + c2sx
+        g4x += c12x - cs1x
+        g2x += c12x + cs1x
+        g1y += c12y - c2sy
+        g5y += c12y + c2sy
+        g4y += c12y - cs1y
+        g2y += c12y + cs1y
+        g1z += c12z - c2sz
+        g5z += c12z + c2sz
+        g4z += c12z - cs1z
+        g2z += c12z + cs1z
+        sx = q2x + q5x + q3x + q0x
+        d1x = q3x - q2x
+        d2x = q0x - q5x
+        sy = q2y + q5y + q3y + q0y
+        d1y = q3y - q2y
+        d2y = q0y - q5y
+        sz = q2z + q5z + q3z + q0z
+        d1z = q3z - q2z
+        d2z = q0z - q5z
+        c12x = d1y * d2z - d1z * d2y
+        c12y = d1z * d2x - d1x * d2z
+        c12z = d1x * d2y - d1y * d2x
+        c2sx = d2y * sz - d2z * sy
+        c2sy = d2z * sx - d2x * sz
+        c2sz = d2x * sy - d2y * sx
+        cs1x = sy * d1z - sz * d1y
+        cs1y = sz * d1x - sx * d1z
+        cs1z = sx * d1y - sy * d1x
+        vol24 += sx * c12x + sy * c12y + sz * c12z
+        g2x += c12x - c2sx
+        g3x += c12x + c2sx
+        g5x += c12x - cs1x
+        g0x += c12x + cs1x
+        g2y += c12y - c2sy
+        g3y += c12y + c2sy
+        g5y += c12y - cs1y
+        g0y += c12y + cs1y
+        g2z += c12z - c2sz
+        g3z += c12z + c2sz
+        g5z += c12z - cs1z
+        g0z += c12z + cs1z
+        vol = vol24 * (1.0 / 24.0)
         v0 = rest_volume[e]
         strain = (vol - v0) / v0
         energy += 0.5 * bulk[e] * v0 * strain * strain
-        cf = bulk[e] * strain
-        for a in range(6):
-            n = prisms[e, a]
-            out[n, 0] -= cf * g[a, 0]
-            out[n, 1] -= cf * g[a, 1]
-            out[n, 2] -= cf * g[a, 2]
+        cf = bulk[e] * strain * (1.0 / 24.0)
+        out[n0, 0] -= cf * g0x
+        out[n0, 1] -= cf * g0y
+        out[n0, 2] -= cf * g0z
+        out[n1, 0] -= cf * g1x
+        out[n1, 1] -= cf * g1y
+        out[n1, 2] -= cf * g1z
+        out[n2, 0] -= cf * g2x
+        out[n2, 1] -= cf * g2y
+        out[n2, 2] -= cf * g2z
+        out[n3, 0] -= cf * g3x
+        out[n3, 1] -= cf * g3y
+        out[n3, 2] -= cf * g3z
+        out[n4, 0] -= cf * g4x
+        out[n4, 1] -= cf * g4y
+        out[n4, 2] -= cf * g4z
+        out[n5, 0] -= cf * g5x
+        out[n5, 1] -= cf * g5y
+        out[n5, 2] -= cf * g5z
     return energy
+
 
 
 @numba.njit(cache=True, nogil=True)
@@ -432,12 +553,14 @@ class TissueSystem:
 # ---------------------------------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
-def _lu_solve3(q, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, out):  # pragma: no cover
-    """Solve A z = q for 3 right-hand sides (rows of q are nodes) with SuperLU factors
-    ``Pr A Pc = L U`` (L unit lower, U upper, both CSC)."""
+def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
+    """Solve A z = q for 3 right-hand sides (rows of q are nodes) with a symmetric factor
+    ``P A P^T = L D L^T`` (``L`` strictly lower part in CSC: ``lp``, ``li``, ``lx``;
+    ``dinv = 1 / diag(D)``; row ``i`` of ``A`` is row ``perm[i]`` of the factor).  Both
+    sweeps run over the columns of ``L``: the backward one as dot products."""
     n = q.shape[0]
     for i in range(n):
-        r = perm_r[i]
+        r = perm[i]
         work[r, 0] = q[i, 0]
         work[r, 1] = q[i, 1]
         work[r, 2] = q[i, 2]
@@ -447,31 +570,29 @@ def _lu_solve3(q, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, out):  # 
         y2 = work[j, 2]
         for k in range(lp[j], lp[j + 1]):
             i = li[k]
-            if i > j:
-                v = lx[k]
-                work[i, 0] -= v * y0
-                work[i, 1] -= v * y1
-                work[i, 2] -= v * y2
+            v = lx[k]
+            work[i, 0] -= v * y0
+            work[i, 1] -= v * y1
+            work[i, 2] -= v * y2
     for j in range(n - 1, -1, -1):
-        d = udiag[j]
-        y0 = work[j, 0] / d
-        y1 = work[j, 1] / d
-        y2 = work[j, 2] / d
+        d = dinv[j]
+        y0 = work[j, 0] * d
+        y1 = work[j, 1] * d
+        y2 = work[j, 2] * d
+        for k in range(lp[j], lp[j + 1]):
+            i = li[k]
+            v = lx[k]
+            y0 -= v * work[i, 0]
+            y1 -= v * work[i, 1]
+            y2 -= v * work[i, 2]
         work[j, 0] = y0
         work[j, 1] = y1
         work[j, 2] = y2
-        for k in range(up[j], up[j + 1]):
-            i = ui[k]
-            if i < j:
-                v = ux[k]
-                work[i, 0] -= v * y0
-                work[i, 1] -= v * y1
-                work[i, 2] -= v * y2
     for i in range(n):
-        c = perm_c[i]
-        out[i, 0] = work[c, 0]
-        out[i, 1] = work[c, 1]
-        out[i, 2] = work[c, 2]
+        r = perm[i]
+        out[i, 0] = work[r, 0]
+        out[i, 1] = work[r, 1]
+        out[i, 2] = work[r, 2]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -486,7 +607,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
     (springs, rest_length, k_low, k_high, switch, prisms, quads, rest_volume, bulk,
      use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs, c_normal, c_k,
      f_ext, fixed) = forces_args
-    lp, li, lx, up, ui, ux, udiag, perm_r, perm_c = factor
+    lp, li, lx, dinv, perm = factor
     nf = free.shape[0]
     m = s_hist.shape[0]
     fbuf = np.empty_like(x)
@@ -524,7 +645,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
             for a in range(nf):
                 for c in range(3):
                     q[a, c] -= ak * y_hist[k, a, c]
-        _lu_solve3(q, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, z)
+        _ldl_solve3(q, lp, li, lx, dinv, perm, work, z)
         for t in range(n_pairs - 1, -1, -1):
             k = (head - 1 - t) % m
             dot = 0.0
@@ -542,7 +663,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                 slope -= g[a, c] * z[a, c]           # p = -z
         if slope >= 0.0:
             state[0] = 0
-            _lu_solve3(g, lp, li, lx, up, ui, ux, udiag, perm_r, perm_c, work, z)
+            _ldl_solve3(g, lp, li, lx, dinv, perm, work, z)
             slope = 0.0
             for a in range(nf):
                 for c in range(3):

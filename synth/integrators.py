@@ -341,6 +341,28 @@ def _project_with_velocity(system: TissueSystem, x, v, lip_slack: float = 0.05) 
         v[nodes] -= np.minimum(vn, 0.0)[:, None] * nrm
 
 
+def _symmetric_factor(matrix, lu):
+    """``(lp, li, lx, dinv, perm)``: ``P A P^T = L D L^T`` from a SuperLU factorisation of the
+    symmetric positive definite ``matrix`` taken with diagonal pivots (then ``U = D L^T``), or
+    from a refactorisation of the symmetrically permuted matrix when SuperLU pivoted off the
+    diagonal.  Only the strictly lower part of ``L`` is kept (CSC, 32-bit indices, single
+    precision values: the factor only preconditions L-BFGS, and halving the memory traffic
+    of the triangular solves matters on large lattices)."""
+    perm = np.asarray(lu.perm_c, dtype=np.int64)     # matrix row i = factor row perm[i]
+    if not np.array_equal(lu.perm_r, perm):
+        p = np.argsort(perm)
+        lu = spla.splu(matrix[p][:, p].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+        ident = np.arange(len(p))
+        if not (np.array_equal(lu.perm_r, ident) and np.array_equal(lu.perm_c, ident)):
+            raise SimulationError("the preconditioner matrix is not symmetric positive definite")
+    lf = sp.tril(lu.L.tocsc(), k=-1).tocsc()
+    lf.sort_indices()
+    diag = lu.U.diagonal()
+    return (lf.indptr.astype(np.int64), lf.indices.astype(np.int32), lf.data.astype(np.float32),
+            (1.0 / diag).astype(np.float64), np.asarray(perm, dtype=np.int64))
+
+
 class EquilibriumSolver:
     """Prefactored, unconditionally stable quasi-static solver (per-frame equilibrium).
 
@@ -382,16 +404,7 @@ class EquilibriumSolver:
         self.matrix = a.tocsc()
         self._lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
-        lf, uf = self._lu.L.tocsc(), self._lu.U.tocsc()
-        lf.sort_indices()
-        uf.sort_indices()
-        # the factor only preconditions L-BFGS, so single precision is enough; it halves the
-        # memory traffic of the triangular solves, which dominate on large lattices
-        self._factor = (lf.indptr.astype(np.int64), lf.indices.astype(np.int64),
-                        lf.data.astype(np.float32), uf.indptr.astype(np.int64),
-                        uf.indices.astype(np.int64), uf.data.astype(np.float32),
-                        uf.diagonal().astype(np.float32), self._lu.perm_r.astype(np.int64),
-                        self._lu.perm_c.astype(np.int64))
+        self._factor = _symmetric_factor(self.matrix, self._lu)
         nf = len(free)
         m = max(self.history, 1)
         self._s = np.zeros((m, nf, 3))
