@@ -342,6 +342,27 @@ def framing_from_head(head, origin_cm, scale_cm) -> Framing:
     return Framing(k, hr, (float(T[0]), float(T[1])))
 
 
+def transfer_head_motion(heads, source_neutral, target_neutral) -> np.ndarray:
+    """Head frames (T, 4) of a target that moves as the source moves from its neutral frame.
+
+    Translation, scale ratio and roll change of each source head frame (x, y, scale, roll)
+    relative to ``source_neutral`` are applied to ``target_neutral``; translations are
+    rotated and scaled into the target's frame.
+
+    Examples
+    --------
+    >>> h = np.array([[100.0, 80.0, 50.0, 0.0], [110.0, 80.0, 55.0, 0.1]])
+    >>> transfer_head_motion(h, h[0], np.array([40.0, 30.0, 25.0, 0.0])).round(3).tolist()
+    [[40.0, 30.0, 25.0, 0.0], [45.0, 30.0, 27.5, 0.1]]
+    """
+    h = np.asarray(heads, dtype=float)
+    s0 = np.asarray(source_neutral, dtype=float)
+    t0 = np.asarray(target_neutral, dtype=float)
+    k = t0[2] / s0[2]
+    d = (h[:, :2] - s0[:2]) @ _rot(t0[3] - s0[3]).T * k
+    return np.c_[t0[:2] + d, t0[2] * h[:, 2] / s0[2], t0[3] + (h[:, 3] - s0[3])]
+
+
 # ----------------------------------------------------------------------------- subject
 @dataclass
 class SubjectInfo:
@@ -371,6 +392,7 @@ class SubjectInfo:
     neutral_frame: int
     reference: tuple
     source: str = ""
+    head: np.ndarray | None = None
 
     def uv(self) -> tuple[np.ndarray, np.ndarray]:
         """Texture coordinates of the skin and inner vertices in the neutral frame."""
@@ -476,7 +498,8 @@ def _personalize_series(series: _Series, video, *, model=None, kernel: str = "li
     image = _read_frame(Path(video), int(series.frames[k]))
     return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
                        fiducials=fid, neutral_frame=int(series.frames[k]),
-                       reference=(origin_cm, scale_cm), source=str(video))
+                       reference=(origin_cm, scale_cm), source=str(video),
+                       head=np.array(series.heads[k], dtype=float))
 
 
 def _subject_series(subject) -> tuple[_Series, Path | None]:
@@ -663,13 +686,20 @@ class Resynthesis:
         # framing: from the head frames when we know the input's size
         self._framings = None
         if view == "front" and series.heads is not None and in_size is not None:
+            heads = series.heads
             if subject is not None:
                 origin_cm, scale_cm = subject.reference
+                if subject.head is not None and series.success.any():
+                    # the source's head motion, relative to its neutral frame, applied to
+                    # the subject's neutral head frame (the identity when the subject is the
+                    # source's own neutral frame; expression transfer otherwise)
+                    heads = transfer_head_motion(heads, heads[series.neutral_row],
+                                                 subject.head)
             else:
                 origin_cm, scale_cm = head_reference(self.model.mesh)
             f = w / in_size[0]
             self._framings = [framing_from_head(h_, origin_cm, scale_cm).scaled(f)
-                              for h_ in series.heads]
+                              for h_ in heads]
         self.input_video = input_video
         if side_by_side and self.input_video is None:
             self.input_video = (Path(subject.source) if subject is not None and subject.source

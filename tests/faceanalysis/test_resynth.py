@@ -313,3 +313,24 @@ def test_personalisation_falls_back_when_the_warp_is_invalid(subject, tmp_path, 
     res = resynthesize(bad, subject=info, shading="wireframe")
     assert res.report["personalisation"]["landmark_error_px"]["max"] > 1.0   # honest cost
     assert len(list(res)) == 12
+
+
+@pytest.mark.slow
+def test_expression_transfer_to_another_subject(subject, tmp_path):
+    """Another face's series drives the subject's model in the subject's own framing."""
+    from faceanalysis.analysis import analyze
+    from faceanalysis.resynth import personalize
+    from synth.render.sequence import render_sequence
+
+    root, _ = subject
+    files = render_sequence(tmp_path / "other", frames=8, size=192, seed=102,
+                            expression="surprise", head_motion=0.5, flow=False)
+    other = analyze(files["video"], tracker_options={"brow_mid": 0.556})
+    info = personalize(root / "analysis")
+    states = list(resynthesize(other, subject=info, shading="wireframe").states())
+    assert states[0].image.shape == (256, 256, 3)          # the subject's frame size
+    # at the source's neutral frame the model sits on the subject's neutral fiducials
+    k = int(np.argmax(other.table["success"].to_numpy() == 1))
+    assert np.hypot(*(states[k].fiducials - info.fiducials).T).max() < 1.0
+    # and the expression moves it
+    assert np.abs(states[-1].vertices - states[k].vertices).max() > 0.1
