@@ -47,8 +47,9 @@ from faceanalysis.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES
 
 log = logging.getLogger(__name__)
 
-__all__ = ["resynthesize", "Resynthesis", "Framing", "SubjectInfo", "round_trip",
-           "VIEWS", "SHADINGS", "MESH_FORMATS"]
+__all__ = ["resynthesize", "Resynthesis", "FrameState", "personalize", "SubjectInfo",
+           "Framing", "framing_from_head", "head_reference", "transfer_head_motion",
+           "round_trip", "VIEWS", "SHADINGS", "MESH_FORMATS"]
 
 #: Views of :func:`resynthesize`: yaw of the head in degrees.
 VIEWS: dict[str, float] = {"front": 0.0, "three-quarter": 40.0, "profile": 90.0}
