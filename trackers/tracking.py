@@ -51,7 +51,7 @@ import cv2
 import numba
 import numpy as np
 
-from trackers.anchors import IrisAnchors
+from trackers.anchors import IrisAnchors, similarity_from_pairs
 from trackers.fiducials import (
     HeadFrame,
     apex_fraction,
@@ -60,7 +60,7 @@ from trackers.fiducials import (
     fiducials,
     head_frame,
 )
-from trackers.layout import CONTOUR_NAMES, FaceLayout
+from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
 from trackers.potentials import potentials_in_boxes, sample_or_nan, to_gray
 from trackers.snakes import (
     Contour,
@@ -747,6 +747,15 @@ class Tracker:
         contour (with the mouth open the contour follows a border of the cavity and
         its ends fall short of the corners); where no clear end is found the last
         corner is kept, moved with the head frame. 'ends': the contour's ends (004).
+    redetect : bool
+        When three or more contours have been lost for three frames in a row, detect
+        the face again (:func:`~trackers.layout.detect_layout`, at most every
+        ``redetect_interval`` frames) and place all contours from it; kept only if
+        fewer contours are lost afterwards. The head frame is then the first
+        frame's moved by the similarity between the two detections' eyes
+        (``extra['head_source'] == 'detection'``).
+    redetect_interval : int
+        Least number of frames between two detections.
     head_anchor : {'auto', 'eyes', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -784,7 +793,8 @@ class Tracker:
                  stretch_range=(0.6, 1.6), refine_ends: bool = True,
                  max_step: float = 1.0, brow_mid=BROW_MID_FRACTION, max_shape_change: float = 0.15,
                  channel_order: str = "rgb", head_anchor: str = "auto",
-                 mouth_corner: str = "profile"):
+                 mouth_corner: str = "profile", redetect: bool = True,
+                 redetect_interval: int = 15):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -819,6 +829,12 @@ class Tracker:
             raise ValueError(f"mouth_corner must be 'profile' or 'ends', got {mouth_corner!r}")
         self.mouth_corner_mode = mouth_corner
         self.mouth_width: float | None = None
+        if int(redetect_interval) < 1:
+            raise ValueError(f"redetect_interval must be >= 1, got {redetect_interval}")
+        self.redetect = bool(redetect)
+        self.redetect_interval = int(redetect_interval)
+        self._failing = 0
+        self._last_detect = 0
         self._corners_head: dict[str, np.ndarray] = {}
         self.anchors = None
         self._anchor_base: tuple | None = None
@@ -992,6 +1008,49 @@ class Tracker:
         W, H = self.frame_size
         return np.clip(pts, 0, [W - 1, H - 1])
 
+    def _redetect(self, frame, n_lost):
+        """Place all contours again from a new face detection (many contours lost for
+        several frames: a turned head, a hand over the face). Kept only when fewer
+        contours are lost afterwards; returns (quality, head, iterations) or None."""
+        try:
+            new = detect_layout(frame, frame_index=self.index,
+                                channel_order=self.channel_order)
+        except ValueError:
+            return None
+        if new.eyes is None or self.layout.eyes is None or self.ref_head is None:
+            return None
+        saved = [self.system.contour_points(k).copy() for k in range(len(self.names))]
+        for k, name in enumerate(self.names):
+            c = new.contours[name]
+            n = self.system.contour_slice(k).stop - self.system.contour_slice(k).start
+            self.system.set_contour(k, resample_polyline(c.points, n, closed=c.closed),
+                                    reset_rest=True)
+        Ps, origins, gray, gorigin = self._fields(frame)
+        r = self.system.relax(potentials=Ps, origin=origins, tol=self.tol,
+                              max_iter=self.max_iter, criterion="rms")
+        self._refine(Ps, origins, gray, gorigin, settle=True)
+        depths = self._depths(Ps, origins)
+        quality = self._quality(depths, r.outside, set(self.names))
+        if sum(q.lost for q in quality.values()) >= n_lost:
+            for k, pts in enumerate(saved):
+                self.system.set_contour(k, pts, reset_rest=True)
+            return None
+        # the head frame: the first frame's moved by the similarity between the eyes
+        # of the two detections; the contours' later motion is chained on from here
+        a, b = similarity_from_pairs(self.layout.eyes, new.eyes)
+        head = _apply_similarity(self.ref_head, a, b)
+        hc = self._contour_head()
+        self._anchor_base = (hc, head) if hc is not None else None
+        self._held = 0
+        self.head_source = "detection"
+        if self.anchors is not None:
+            a2, b2 = _similarity_between(self.ref_head, head)
+            z = a2 * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b2
+            self.anchors.last = np.c_[z.real, z.imag]
+        self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+        self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
+        return quality, head, r.iterations
+
     def _quality(self, depths, outside, reinit=()):
         q = {}
         for k, name in enumerate(self.names):
@@ -1065,15 +1124,23 @@ class Tracker:
         return self._chained(hc)
 
     def _plausible(self, head, hc):
-        """Whether a head frame from the irises agrees with the last one and with the
-        contours' scale (a drifted iris match changes the scale abruptly)."""
-        last = self.last_head if self.head_source == "eyes" else None
-        if last is not None and (abs(head.scale / last.scale - 1) > 0.04
-                                 or np.hypot(head.x - last.x, head.y - last.y)
-                                 > 0.1 * last.scale):
+        """Whether a head frame from the irises agrees with the contours' frame (scale,
+        roll) and with the last frame (a drifted iris match jumps)."""
+        def turn(a, b):
+            return abs((a - b + np.pi) % (2 * np.pi) - np.pi)
+
+        if hc is not None and not self._head_contours_lost and (
+                abs(head.scale / hc.scale - 1) > 0.12 or turn(head.roll, hc.roll) > 0.1):
+            # expressions change the contours' scale by a few per cent, no more
             return False
-        # expressions change the contours' scale by a few per cent, no more
-        return hc is None or self._head_contours_lost or abs(head.scale / hc.scale - 1) <= 0.12
+        last = self.last_head
+        if last is not None:
+            tight = self.head_source == "eyes"
+            ds, dp, dr = (0.04, 0.1, 0.05) if tight else (0.1, 0.2, 0.1)
+            if (abs(head.scale / last.scale - 1) > ds or turn(head.roll, last.roll) > dr
+                    or np.hypot(head.x - last.x, head.y - last.y) > dp * last.scale):
+                return False
+        return True
 
     def _chained(self, hc):
         """Fallback frame: the contours' motion since the last frame the irises gave."""
@@ -1165,6 +1232,16 @@ class Tracker:
             self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
             self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
             head = self._head(frame)
+        if not first:
+            n_lost = sum(q.lost for q in quality.values())
+            self._failing = self._failing + 1 if n_lost >= 3 else 0
+            if (self.redetect and self._failing >= 3
+                    and self.index - self._last_detect >= self.redetect_interval):
+                self._last_detect = self.index
+                got = self._redetect(frame, n_lost)
+                if got is not None:
+                    quality, head, more = got
+                    iters += more
         if first and head is not None:
             self.ref_head = head
             self.brow_fraction = {}

@@ -190,3 +190,49 @@ def test_brow_mid_default_is_the_fixed_fraction():
     np.testing.assert_allclose(r.fiducials["brow_mid_l"], arc_point(b, BROW_MID_FRACTION))
     r2 = Tracker(lay, brow_mid="apex").track(img)
     assert not np.allclose(r2.fiducials["brow_mid_l"], r.fiducials["brow_mid_l"])
+
+
+def test_redetect_option_validated():
+    lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    with pytest.raises(ValueError, match="redetect_interval"):
+        Tracker(lay, redetect_interval=0)
+
+
+def test_redetect_without_a_detectable_face_keeps_tracking():
+    # the cartoon face has no face the Haar cascade finds: re-detection is tried,
+    # fails quietly, and the lost contours stay flagged
+    img, _ = draw_face()
+    lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    tr = Tracker(lay, redetect_interval=1)
+    tr.track(img)
+    blank = np.full_like(img, 190)
+    for _ in range(4):
+        r = tr.track(blank)
+    assert not r.success
+    assert tr._last_detect > 0
+
+
+@pytest.mark.slow
+def test_real_video_few_lost_frames(real_video_dir):
+    import cv2
+
+    from trackers import detect_layout
+
+    path = real_video_dir / "cap13_edit2.mp4"
+    if not path.exists():
+        pytest.skip("cap13_edit2.mp4 not available")
+    cap = cv2.VideoCapture(str(path))
+    tr = None
+    lost = n = 0
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        if tr is None:
+            tr = Tracker(detect_layout(f, channel_order="bgr"), channel_order="bgr")
+        lost += not tr.track(f).success
+        n += 1
+    assert n > 700
+    # 167 of the 765 frames were lost before the iris head frame, its plausibility
+    # checks and re-detection; 81 with them
+    assert lost <= 120, lost
