@@ -183,11 +183,12 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
 
 
 def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
-           iterations: int = 300) -> np.ndarray:
+           iterations: int = 300, tol: float = 1e-9) -> np.ndarray:
     """Solve ``min 0.5 x'Hx - g'x`` s.t. ``lo <= x <= hi`` for a batch of small problems.
 
     Accelerated projected gradient (FISTA) with step ``1 / lambda_max(H)``, vectorised
-    over the leading axis.
+    over the leading axis; stops early when no variable moved by more than ``tol``
+    over an iteration.
 
     Parameters
     ----------
@@ -205,11 +206,14 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     x = np.zeros_like(grad0)
     y = x.copy()
     t = 1.0
-    for _ in range(iterations):
+    for k in range(iterations):
         g = np.einsum("tmn,tn->tm", hess, y) - grad0
         new = np.clip(y - g / lipschitz, lo, hi)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         y = new + ((t - 1.0) / t_new) * (new - x)
+        if k % 10 == 9 and np.abs(new - x).max(initial=0.0) < tol:
+            x = new
+            break
         x, t = new, t_new
     return x
 
