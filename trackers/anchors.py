@@ -22,6 +22,7 @@ All points are image pixels (x right, y down).
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 from trackers.potentials import to_gray
@@ -128,6 +129,73 @@ def similarity_from_pairs(src, dst):
     return a, complex(zd[0] - a * zs[0])
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _lk_nb(win, rows, cols, J, tm, x, y, h):
+    """Inverse-compositional Lucas-Kanade for a translation with gain and bias
+    normalisation and robust (Cauchy) weights; returns the refined (x, y) or the
+    start when it wanders off by more than 1.5 px."""
+    n = rows.shape[0]
+    H, W = win.shape
+    tsd = 0.0
+    for i in range(n):
+        tsd += tm[i] * tm[i]
+    tsd = np.sqrt(tsd / n)
+    w = np.empty(n)
+    e = np.empty(n)
+    px = x
+    py = y
+    for _ in range(8):
+        s = 0.0
+        for i in range(n):
+            xf = cols[i] + px - h
+            yf = rows[i] + py - h
+            if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+                return x, y
+            x0 = min(int(xf), W - 2)
+            y0 = min(int(yf), H - 2)
+            tx = xf - x0
+            ty = yf - y0
+            w[i] = ((1 - ty) * ((1 - tx) * win[y0, x0] + tx * win[y0, x0 + 1])
+                    + ty * ((1 - tx) * win[y0 + 1, x0] + tx * win[y0 + 1, x0 + 1]))
+            s += w[i]
+        mean = s / n
+        v = 0.0
+        for i in range(n):
+            w[i] -= mean
+            v += w[i] * w[i]
+        sd = np.sqrt(v / n)
+        if sd < 1e-6:
+            break
+        for i in range(n):
+            e[i] = w[i] * (tsd / sd) - tm[i]
+        c = 2.5 * max(np.median(np.abs(e)) * 1.4826, 1.0)
+        a11 = 0.0
+        a12 = 0.0
+        a22 = 0.0
+        b1 = 0.0
+        b2 = 0.0
+        for i in range(n):
+            r = e[i] / c
+            wt = 1.0 / (1.0 + r * r)
+            a11 += wt * J[i, 0] * J[i, 0]
+            a12 += wt * J[i, 0] * J[i, 1]
+            a22 += wt * J[i, 1] * J[i, 1]
+            b1 += wt * J[i, 0] * e[i]
+            b2 += wt * J[i, 1] * e[i]
+        det = a11 * a22 - a12 * a12
+        if abs(det) < 1e-9:
+            break
+        dx = (a22 * b1 - a12 * b2) / det
+        dy = (a11 * b2 - a12 * b1) / det
+        px -= dx
+        py -= dy
+        if abs(px - x) > 1.5 or abs(py - y) > 1.5:
+            return x, y
+        if dx * dx + dy * dy < 1e-6:
+            break
+    return px, py
+
+
 def _subpixel(resp, i, j):
     """Parabolic sub-pixel offsets around the integer peak (row i, column j)."""
     def off(m, c, p):
@@ -214,6 +282,7 @@ class IrisAnchors:
         # inverse-compositional Lucas-Kanade (translation, gain and bias): template
         # gradients and the Gauss-Newton matrix are fixed
         sel = self.mask > 0
+        self._rows, self._cols = (v.astype(np.int64) for v in np.nonzero(sel))
         self._lk = []
         for t in self.templates:
             gy, gx = np.gradient(t)
@@ -222,7 +291,8 @@ class IrisAnchors:
             A = J.T @ J
             if np.linalg.cond(A) > 1e6 or tm.std() < 1.0:
                 raise ValueError("an iris template has too little texture")
-            self._lk.append((J, tm))
+            self._lk.append((np.ascontiguousarray(J, np.float64),
+                             np.ascontiguousarray(tm, np.float64)))
         self.last = self.centres.copy()
         self.scores = np.ones(2)
 
@@ -279,33 +349,8 @@ class IrisAnchors:
     def _refine(self, win, k, x, y):
         """Sub-pixel position in ``win`` of template ``k`` whose integer match is (x, y)."""
         J, tm = self._lk[k]
-        sel = self.mask > 0
-        h = self.half
-        px, py = float(x), float(y)
-        for _ in range(8):
-            M = np.float32([[1, 0, px - h], [0, 1, py - h]])
-            w = cv2.warpAffine(win, M, (2 * h + 1, 2 * h + 1),
-                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)[sel]
-            w = w - w.mean()
-            sd = w.std()
-            if sd < 1e-6:
-                break
-            e = w * (tm.std() / sd) - tm
-            # robust (Cauchy) weights: pixels that a lid now covers or uncovers differ
-            # from the template far more than noise does and are left out
-            c = 2.5 * max(float(np.median(np.abs(e))) * 1.4826, 1.0)
-            wt = 1.0 / (1.0 + (e / c) ** 2)
-            Jw = J * wt[:, None]
-            A = Jw.T @ J
-            if abs(np.linalg.det(A)) < 1e-9:
-                break
-            d = np.linalg.solve(A, Jw.T @ e)
-            px -= d[0]
-            py -= d[1]
-            if abs(px - x) > 1.5 or abs(py - y) > 1.5:
-                return float(x), float(y)
-            if d @ d < 1e-6:
-                break
+        px, py = _lk_nb(np.ascontiguousarray(win, np.float32), self._rows, self._cols,
+                        J, tm, float(x), float(y), self.half)
         return px, py
 
     def similarity(self, frame, predicted=None, *, rotation: float | None = None,

@@ -342,6 +342,16 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
     off = float((mid - p[0]) @ nrm)
     step = 0.5
     vs = np.arange(-h, h + 1e-9, step) + 0.5 * off
+    # blur only the part of the image the scan samples
+    pad = 0.3 * wid + 0.5 * (wid - L) + h + abs(off) + 4.0 * max(sigma, 0.5) + 2.0
+    x0 = max(int(np.floor(p[:, 0].min() - pad - origin[0])), 0)
+    y0 = max(int(np.floor(p[:, 1].min() - pad - origin[1])), 0)
+    x1 = min(int(np.ceil(p[:, 0].max() + pad - origin[0])) + 1, g.shape[1])
+    y1 = min(int(np.ceil(p[:, 1].max() + pad - origin[1])) + 1, g.shape[0])
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return [None, None]
+    g = g[y0:y1, x0:x1]
+    origin = (origin[0] + x0, origin[1] + y0)
     if sigma > 0:
         g = cv2.GaussianBlur(g, (0, 0), float(sigma))
     out = []

