@@ -618,6 +618,12 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
     work = np.empty((nf, 3))
     xf = np.empty((nf, 3))
     alphas = np.empty(m)
+    n3 = 3 * nf
+    s2 = s_hist.reshape((m, n3))
+    y2 = y_hist.reshape((m, n3))
+    gf = g.reshape(n3)
+    qf = q.reshape(n3)
+    zf = z.reshape(n3)
     energy = _total_kernel(x, springs, rest_length, k_low, k_high, switch, prisms, quads,
                            rest_volume, bulk, use_volume, sk_nodes, sk_bone, sk_normal,
                            sk_margin, sk_k, c_pairs, c_normal, c_k, f_ext, fixed, fbuf)
@@ -630,33 +636,48 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
     while True:
         n_pairs = state[0]
         head = state[1]
-        # two-loop recursion, newest pair first; H0 = A^{-1}
-        for a in range(nf):
-            for c in range(3):
-                q[a, c] = g[a, c]
+        # two-loop recursion, newest pair first; H0 = A^{-1}.  Flat views; each pass over a
+        # pair's vectors also takes the dot product the next pair needs.
+        for i in range(n3):
+            qf[i] = gf[i]
+        dot = 0.0
+        if n_pairs > 0:
+            k = (head - 1) % m
+            for i in range(n3):
+                dot += s2[k, i] * qf[i]
         for t in range(n_pairs):
             k = (head - 1 - t) % m
-            dot = 0.0
-            for a in range(nf):
-                for c in range(3):
-                    dot += s_hist[k, a, c] * q[a, c]
             ak = rho[k] * dot
             alphas[t] = ak
-            for a in range(nf):
-                for c in range(3):
-                    q[a, c] -= ak * y_hist[k, a, c]
+            dot = 0.0
+            if t + 1 < n_pairs:
+                kn = (head - 2 - t) % m
+                for i in range(n3):
+                    v = qf[i] - ak * y2[k, i]
+                    qf[i] = v
+                    dot += s2[kn, i] * v
+            else:
+                for i in range(n3):
+                    qf[i] -= ak * y2[k, i]
         _ldl_solve3(q, lp, li, lx, dinv, perm, work, z)
+        dot = 0.0
+        if n_pairs > 0:
+            k = (head - n_pairs) % m
+            for i in range(n3):
+                dot += y2[k, i] * zf[i]
         for t in range(n_pairs - 1, -1, -1):
             k = (head - 1 - t) % m
+            coef = alphas[t] - rho[k] * dot
             dot = 0.0
-            for a in range(nf):
-                for c in range(3):
-                    dot += y_hist[k, a, c] * z[a, c]
-            bk = rho[k] * dot
-            coef = alphas[t] - bk
-            for a in range(nf):
-                for c in range(3):
-                    z[a, c] += coef * s_hist[k, a, c]
+            if t > 0:
+                kn = (head - t) % m
+                for i in range(n3):
+                    v = zf[i] + coef * s2[k, i]
+                    zf[i] = v
+                    dot += y2[kn, i] * v
+            else:
+                for i in range(n3):
+                    zf[i] += coef * s2[k, i]
         slope = 0.0
         for a in range(nf):
             for c in range(3):
@@ -711,23 +732,29 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
         for a in range(nf):
             for c in range(3):
                 gn[a, c] = -fbuf[free[a], c]
-        # curvature pair s = alpha p = -alpha z, y = gn - g
-        k = state[1]
+        # curvature pair s = alpha p = -alpha z, y = gn - g; a pair with too little
+        # curvature is skipped (and must not overwrite the oldest pair kept in the ring)
+        gnf = gn.reshape(n3)
         sy = 0.0
         yy = 0.0
-        for a in range(nf):
-            for c in range(3):
-                sv = -alpha * z[a, c]
-                yv = gn[a, c] - g[a, c]
-                s_hist[k, a, c] = sv
-                y_hist[k, a, c] = yv
-                sy += sv * yv
-                yy += yv * yv
+        for i in range(n3):
+            sv = -alpha * zf[i]
+            yv = gnf[i] - gf[i]
+            sy += sv * yv
+            yy += yv * yv
         if m > 0 and sy > 1e-12 * yy:
-            rho[k] = 1.0 / sy
-            state[1] = (k + 1) % m
-            if state[0] < m:
-                state[0] += 1
+            # stored in the precision of the history buffers; rho from the stored values
+            k = state[1]
+            sy = 0.0
+            for i in range(n3):
+                s2[k, i] = -alpha * zf[i]
+                y2[k, i] = gnf[i] - gf[i]
+                sy += np.float64(s2[k, i]) * np.float64(y2[k, i])
+            if sy > 0.0:
+                rho[k] = 1.0 / sy
+                state[1] = (k + 1) % m
+                if state[0] < m:
+                    state[0] += 1
         for a in range(nf):
             for c in range(3):
                 g[a, c] = gn[a, c]

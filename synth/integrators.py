@@ -407,8 +407,10 @@ class EquilibriumSolver:
         self._factor = _symmetric_factor(self.matrix, self._lu)
         nf = len(free)
         m = max(self.history, 1)
-        self._s = np.zeros((m, nf, 3))
-        self._y = np.zeros((m, nf, 3))
+        # curvature pairs in single precision: half the memory traffic of the two-loop
+        # recursion on large lattices (dot products are accumulated in double precision)
+        self._s = np.zeros((m, nf, 3), dtype=np.float32)
+        self._y = np.zeros((m, nf, 3), dtype=np.float32)
         self._rho = np.zeros(m)
         self._state = np.zeros(2, dtype=np.int64)
         self.last_iterations = 0
