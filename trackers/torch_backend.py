@@ -63,6 +63,7 @@ from trackers.snakes import Contour, ContourSystem, RelaxResult, SnakeParams
 
 __all__ = [
     "BACKENDS",
+    "check_backend",
     "TorchContourSystem",
     "TorchTracker",
     "BatchRelaxResult",
@@ -1075,6 +1076,41 @@ def snake_relax_batch(points, forces, *, closed: bool = False, params: SnakePara
 
 # --------------------------------------------------------------------- trackers
 
+def check_backend(backend: str = "numpy", device=None) -> None:
+    """Validate a backend / device choice up front (before any video is read).
+
+    Parameters
+    ----------
+    backend : {'numpy', 'torch'}
+    device : str, optional
+        'cpu', 'cuda', 'cuda:N' (torch only; None = 'cpu').
+
+    Raises
+    ------
+    ValueError
+        Unknown backend, a device with the numpy backend, an unknown device or a
+        CUDA device this torch build cannot reach.
+    ImportError
+        ``backend='torch'`` without the ``[torch]`` extra.
+
+    Examples
+    --------
+    >>> check_backend("numpy")
+    >>> check_backend("numpy", "cuda")
+    Traceback (most recent call last):
+    ...
+    ValueError: device 'cuda' needs backend='torch' (the numpy backend runs on the CPU)
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "numpy":
+        if device not in (None, "cpu"):
+            raise ValueError(f"device {device!r} needs backend='torch' (the numpy backend "
+                             "runs on the CPU)")
+        return
+    _device_dtype(device, None)
+
+
 def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None,
                  num_threads: int | None = 1, **kwargs):
     """A :class:`~trackers.tracking.Tracker` on the chosen backend.
@@ -1108,12 +1144,8 @@ def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None,
     """
     from trackers.tracking import Tracker
 
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    check_backend(backend, device)
     if backend == "numpy":
-        if device not in (None, "cpu"):
-            raise ValueError(f"device {device!r} needs backend='torch' (the numpy backend "
-                             "runs on the CPU)")
         return Tracker(layout, **kwargs)
     tracker = Tracker(layout, **kwargs)
     ts = TorchContourSystem(tracker.system, device=device, dtype=dtype,

@@ -27,6 +27,7 @@ from trackers.snakes import (  # noqa: E402
 from trackers.torch_backend import (  # noqa: E402
     TorchContourSystem,
     TorchTracker,
+    check_backend,
     force_field_batch,
     make_tracker,
     potential_batch,
@@ -324,6 +325,9 @@ def test_backend_and_device_choices():
             make_tracker(lay, backend="torch", device="cuda")
     with pytest.raises(ValueError, match="device"):
         make_tracker(lay, backend="torch", device="abacus")
+    check_backend("torch", "cpu")
+    with pytest.raises(ValueError, match="backend"):
+        check_backend("tensorflow")
 
 
 def test_trackers_import_without_torch():
@@ -333,6 +337,7 @@ def test_trackers_import_without_torch():
         "import trackers, trackers.torch_backend as tb\n"
         "lay = trackers.layout_from_eyes((96, 105), (159, 105), (256, 256))\n"
         "assert type(tb.make_tracker(lay)).__name__ == 'Tracker'\n"
+        "tb.check_backend('numpy', 'cpu')\n"
         "try:\n"
         "    tb.make_tracker(lay, backend='torch')\n"
         "except ImportError as exc:\n"
