@@ -10,9 +10,13 @@ contour's quality, and computes the head frame and the 11 fiducials: everything
 Cases:
 
 * ``synthetic 640x480``: a face drawn with OpenCV from the layout template (hair,
-  brows, furrows, nostrils, lips, mouth line, chin boss) on textured skin with
-  sensor noise, moving: head translation and roll, brows raising, mouth opening.
-  Also reports the mean fiducial error against the drawn truth.
+  brows, furrows, nostrils, eyes with irises, lips, mouth line, chin boss) on
+  textured skin with sensor noise, moving: head translation and roll, brows
+  raising, mouth opening, and (as in the face model) the hairline rising with the
+  brows and the nostrils dropping as the mouth opens. Also reports the mean
+  fiducial error against the drawn truth and the head frame's error against the
+  rigid motion (the first frame's tracked frame moved by the true similarity):
+  origin in px, scale in per cent, roll in radians (maxima over the frames).
 * ``real <name>``: the first frames of each video in ``../shared/data/real`` when
   present (layout detected on the first frame), resized to 640x480.
 """
@@ -71,7 +75,8 @@ def draw_face(t: float, rng: np.random.Generator, skin_noise: np.ndarray):
                     0.45 + 1.55 * np.sin(np.linspace(0, 2 * np.pi, 80))])
     cv2.fillPoly(img, [np.round(face * 16).astype(np.int32)], (200, 160, 135), cv2.LINE_AA,
                  shift=4)
-    hair = np.vstack([tf(TEMPLATE["hairline"]), tf([[0.9, -1.4], [-0.9, -1.4]])])
+    hair = np.vstack([tf(TEMPLATE["hairline"], (0, -0.4 * raise_)),
+                      tf([[0.9, -1.4], [-0.9, -1.4]])])
     cv2.fillPoly(img, [np.round(hair * 16).astype(np.int32)], (70, 45, 30), cv2.LINE_AA, shift=4)
     iod = 2 * half
     for side in ("l", "r"):
@@ -79,10 +84,26 @@ def draw_face(t: float, rng: np.random.Generator, skin_noise: np.ndarray):
               int(round(0.07 * iod)))
         _poly(img, tf(TEMPLATE[f"furrow_{side}"]), (150, 110, 95), 2)
         sx = 1 if side == "l" else -1
-        cv2.ellipse(img, (int(round(tf([[0.11 * sx, 0.98]])[0, 0] * 16)),
-                          int(round(tf([[0.11 * sx, 0.98]])[0, 1] * 16))),
+        nostril = tf([[0.11 * sx, 0.98 + 0.5 * jaw]])[0]
+        cv2.ellipse(img, (int(round(nostril[0] * 16)), int(round(nostril[1] * 16))),
                     (int(0.05 * iod * 16), int(0.025 * iod * 16)), np.degrees(roll), 0, 360,
                     (40, 25, 25), -1, cv2.LINE_AA, shift=4)
+    for e in (-0.5, 0.5):
+        # eyes: a white almond, the lids opening a little with the brows, an iris
+        t = np.linspace(0, 2 * np.pi, 60)
+        almond = tf(np.c_[e + 0.2 * np.cos(t),
+                          (0.07 + 0.2 * raise_) * np.sin(t) * (1 + 0.2 * np.cos(t))])
+        inside = np.zeros((H, W), np.uint8)
+        cv2.fillPoly(inside, [np.round(almond * 16).astype(np.int32)], 255, cv2.LINE_AA,
+                     shift=4)
+        eye = np.empty_like(img)
+        eye[:] = (235, 235, 230)
+        ctr = tf([[e, 0.0]])[0]
+        cv2.circle(eye, (int(round(ctr[0] * 16)), int(round(ctr[1] * 16))),
+                   int(round(0.08 * iod * 16)), (70, 50, 40), -1, cv2.LINE_AA, shift=4)
+        wgt = (inside.astype(np.float32) / 255)[..., None]
+        img = np.round(wgt * eye + (1 - wgt) * img).astype(np.uint8)
+        _poly(img, almond, (90, 60, 50), 1, closed=True)
     mouth = TEMPLATE["upper_lip"]
     lower = TEMPLATE["lower_lip"] + [0, jaw]
     lip_poly = np.vstack([tf(mouth + [0, -0.09]), tf(lower[::-1])])
@@ -103,7 +124,7 @@ def draw_face(t: float, rng: np.random.Generator, skin_noise: np.ndarray):
         "furrow_top_r": tf(TEMPLATE["furrow_r"][:1])[0],
         "chin": tf([[0.0, 1.829 + jaw]])[0],
     }
-    return img, truth, (eye_r, eye_l)
+    return img, truth, (eye_r, eye_l), (R, o)
 
 
 def _track_fps(frames, layout, repeat):
@@ -152,17 +173,30 @@ def _run(quick: bool) -> list[Figure]:
     rng = np.random.default_rng(0)
     skin = (1.0 + 0.04 * cv2.GaussianBlur(rng.normal(size=(H, W)).astype(np.float32),
                                           (0, 0), 3.0) * 3).astype(np.float32)
-    frames, truths = [], []
+    frames, truths, sims = [], [], []
     for i in range(n):
-        img, truth, eyes = draw_face(i / (n - 1), rng, skin)
+        img, truth, eyes, sim = draw_face(i / (n - 1), rng, skin)
         frames.append(img)
         truths.append(truth)
+        sims.append(sim)
         if i == 0:
             eyes0 = eyes
     layout = layout_from_eyes(*eyes0, (W, H))
     fps, fps_mean, results = _track_fps(frames, layout, repeat)
     errs = [np.hypot(*(np.asarray(r.fiducials[k]) - t[k])) for r, t in zip(results, truths[1:])
             for k in t]
+    # head frame against the rigid motion: frame 0's tracked frame moved by the truth
+    head0 = Tracker(layout).track(frames[0]).head
+    R0, o0 = sims[0]
+    h_err = []
+    for r, (R, o) in zip(results, sims[1:]):
+        M = R @ np.linalg.inv(R0)  # similarity from frame 0 to this frame
+        origin = M @ (np.array([head0.x, head0.y]) - o0) + o
+        scale = head0.scale * float(np.sqrt(abs(np.linalg.det(M))))
+        roll = head0.roll + float(np.arctan2(M[1, 0], M[0, 0]))
+        h_err.append((np.hypot(r.head.x - origin[0], r.head.y - origin[1]),
+                      abs(r.head.scale / scale - 1) * 100, abs(r.head.roll - roll)))
+    h_err = np.array(h_err)
     lost = sum(not r.success for r in results)
     iters = statistics.median(r.iterations for r in results)
     figures = [Figure("tracking", "synthetic 640x480", "frames per second", fps, "frame/s",
@@ -171,7 +205,14 @@ def _run(quick: bool) -> list[Figure]:
                              "lost_frames": lost, "fps_from_mean_time": fps_mean}),
                Figure("tracking", "synthetic 640x480", "mean fiducial error", float(np.mean(errs)),
                       "px", higher_is_better=False,
-                      extra={"fiducials": [k for k in FIDUCIAL_NAMES if k in truths[0]]})]
+                      extra={"fiducials": [k for k in FIDUCIAL_NAMES if k in truths[0]]}),
+               Figure("tracking", "synthetic 640x480", "head frame origin error (max)",
+                      float(h_err[:, 0].max()), "px", higher_is_better=False,
+                      extra={"scale_error_percent_max": float(h_err[:, 1].max()),
+                             "roll_error_rad_max": float(h_err[:, 2].max()),
+                             "origin_error_px_median": float(np.median(h_err[:, 0])),
+                             "head_sources": sorted({r.extra.get("head_source", "")
+                                                     for r in results})})]
     if REAL.is_dir():
         for path in sorted(REAL.glob("*.mp4")):
             frames = _real_frames(path, 40 if quick else 150)

@@ -341,7 +341,7 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
     mid = p.mean(axis=0)
     off = float((mid - p[0]) @ nrm)
     step = 0.5
-    vs = np.arange(-h, h + 1e-9, step) + 0.5 * off
+    vs = np.arange(-h, h + 1e-9, 1.0) + 0.5 * off
     # blur only the part of the image the scan samples
     pad = 0.3 * wid + 0.5 * (wid - L) + h + abs(off) + 4.0 * max(sigma, 0.5) + 2.0
     x0 = max(int(np.floor(p[:, 0].min() - pad - origin[0])), 0)
@@ -396,7 +396,14 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
         t = found - i
         j = min(i + 1, len(ss) - 1)
         # height: where the window is darkest, just inside the end
-        v = vs[k[max(i - 1, 0)]]
+        col = vals[max(i - 1, 0)]
+        kk = int(k[max(i - 1, 0)])
+        v = vs[kk]
+        if 0 < kk < len(vs) - 1:
+            den = col[kk - 1] - 2 * col[kk] + col[kk + 1]
+            if den > 0:
+                v += float(np.clip(0.5 * (col[kk - 1] - col[kk + 1]) / den, -0.5, 0.5)) \
+                    * (vs[1] - vs[0])
         pt = end + ((1 - t) * ss[i] + t * ss[j]) * direction + v * nrm
         out.append(pt)
     return out
