@@ -153,7 +153,8 @@ def _progress(total, enabled: bool, desc: str):
 def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
-            tracker_options: dict | None = None,
+            tracker_options: dict | None = None, backend: str = "numpy",
+            device: str | None = None,
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
@@ -183,6 +184,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         interact, about ten times slower.
     tracker_options : dict, optional
         Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
+    backend : {'numpy', 'torch'}, keyword-only
+        Where the snakes relax: compiled NumPy/Numba (default) or batched torch
+        (the ``[torch]`` extra; same contours within 1e-6 px).
+    device : str, optional
+        Torch device (``'cpu'``, ``'cuda'``, ``'cuda:N'``) with ``backend='torch'``.
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -202,10 +208,15 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     """
     from faceanalysis.overlay import draw_overlay
     from faceanalysis.video_writer import VideoWriter
-    from trackers import Tracker, detect_layout
+    from trackers import detect_layout
+    from trackers.torch_backend import check_backend, make_tracker
 
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    try:
+        check_backend(backend, device)
+    except ImportError as exc:
+        raise FaceAnalysisError(str(exc)) from None
     t_start = time.perf_counter()
     if response is None:
         from faceanalysis.model_response import model_response
@@ -247,7 +258,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                         if lay is None:
                             lay = detect_layout(frame.image, frame_index=frame.index,
                                                 channel_order="bgr")
-                        tracker = Tracker(lay, channel_order="bgr", **(tracker_options or {}))
+                        tracker = make_tracker(lay, backend=backend, device=device,
+                                               channel_order="bgr", **(tracker_options or {}))
                     res = tracker.track(frame.image)
                     t_track += time.perf_counter() - t0
                     good = bool(res.success)
@@ -325,6 +337,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         "estimator": estimator, "fps": fps, "start": start, "end": end,
         "neutral_frame": int(frame_arr[k]), "layout": None if layout is None else str(layout),
         "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
+        "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),
         "estimated_controls": estimated,
         "controls_at_rest": [m for m in (*MUSCLES, JAW) if m not in estimated],

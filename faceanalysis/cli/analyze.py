@@ -26,6 +26,14 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--layout", type=Path, metavar="JSON",
                        help="initial contours from a JSON file (FaceLayout.to_json) instead "
                             "of automatic placement")
+    group.add_argument("--refine", action="store_true",
+                       help="joint estimator: refine every frame through the face model itself "
+                            "(more accurate where muscles interact, about ten times slower)")
+    group.add_argument("--backend", choices=["numpy", "torch"], default="numpy",
+                       help="snake relaxation: compiled NumPy (default) or batched torch "
+                            "(needs the [torch] extra)")
+    group.add_argument("--device", metavar="DEVICE",
+                       help="torch device with --backend torch: cpu (default), cuda, cuda:N")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -53,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,
-        end=args.end, neutral=args.neutral, layout=args.layout)
+        end=args.end, neutral=args.neutral, layout=args.layout, refine=args.refine,
+        backend=args.backend, device=args.device)
     q = result.metadata.get("quality", {})
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
           f"({q.get('frames_lost', 0)} lost) -> {args.output}", file=sys.stderr)

@@ -53,7 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="also write overlay.mp4 for every video")
 
 
-_ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "layout", "overlay")
+_ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "layout", "overlay",
+                     "refine", "backend", "device")
 
 
 def analysis_options(args: argparse.Namespace) -> dict:
