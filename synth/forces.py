@@ -595,7 +595,12 @@ def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
         out[i, 2] = work[r, 2]
 
 
-@numba.njit(cache=True, nogil=True)
+# reassociation lets the dot products of the two-loop recursion vectorise; no-NaN / no-inf
+# assumptions are left out on purpose (the line search tests the energy for finiteness)
+_REASSOC = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
 def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                   max_iter):  # pragma: no cover
     """Minimise the lattice energy over the free nodes, in place on ``x``.
