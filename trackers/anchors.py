@@ -271,7 +271,7 @@ class IrisAnchors:
         yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
         # the iris and a rim of sclera on either side; lids above and below move with
         # the expression, so the mask is a horizontal ellipse
-        self.mask = (((xx / (1.5 * self.radius)) ** 2 + (yy / (0.5 * self.radius)) ** 2)
+        self.mask = (((xx / (1.5 * self.radius)) ** 2 + (yy / (0.7 * self.radius)) ** 2)
                      <= 1).astype(np.float32)
         self.templates = []
         self.offsets = self.centres - np.round(self.centres)
