@@ -289,15 +289,13 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
 
 def plot_report(pooled: dict[str, dict], path) -> Path:
     """Bar chart of per-control RMSE and r for each estimator."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     names = list(pooled)
     controls = [c for c in pooled[names[0]]["controls"]
                 if (pooled[names[0]]["controls"][c].get("truth_max") or 0) > 1e-6]
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True, constrained_layout=True)
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    axes = fig.subplots(2, 1, sharex=True)
     x = np.arange(len(controls))
     width = 0.8 / max(len(names), 1)
     for k, n in enumerate(names):
@@ -316,5 +314,4 @@ def plot_report(pooled: dict[str, dict], path) -> Path:
     axes[0].set_title("Closed-loop evaluation on the synthetic suite")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=150)
-    plt.close(fig)
     return Path(path)

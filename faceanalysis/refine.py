@@ -35,7 +35,7 @@ def _measure(model, response: FiducialResponse, controls: np.ndarray) -> np.ndar
 
 def refine_through_model(displacements: np.ndarray, response: FiducialResponse, model,
                          initial: np.ndarray, *, iterations: int = 3,
-                         regularization: float = 1e-3, tol: float = 1e-3,
+                         regularization: float = 1e-2, tol: float = 1e-3,
                          progress=None) -> np.ndarray:
     """Defect-correction refinement of contraction estimates through ``model``.
 
