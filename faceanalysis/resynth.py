@@ -577,17 +577,16 @@ class _PlotStrip:
     """The contraction plot under a side-by-side video, with a moving cursor."""
 
     def __init__(self, times, controls, jaw, width: int, height: int):
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
 
         series = {MUSCLES[j]: controls[:, j] for j in range(controls.shape[1])}
         series[JAW + " (x2, rad)"] = 2 * jaw
         active = sorted(((float(np.nanmax(v)), k) for k, v in series.items()
                          if np.nanmax(v) > 0.02), reverse=True)[:6]
         dpi = 100
-        fig = plt.figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+        fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+        FigureCanvasAgg(fig)      # an off-screen canvas: the global backend stays as it is
         ax = fig.add_axes((0.06, 0.26, 0.68, 0.68))
         for _, k in active:
             ax.plot(times, series[k], lw=1.2, label=k)
@@ -604,7 +603,6 @@ class _PlotStrip:
         self.y0 = int(round(height - bbox.y1))
         self.y1 = int(round(height - bbox.y0))
         self.xs = ax.transData.transform(np.c_[times, np.zeros_like(times)])[:, 0]
-        plt.close(fig)
 
     def frame(self, i: int) -> np.ndarray:
         import cv2
