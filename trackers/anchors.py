@@ -314,11 +314,12 @@ class IrisAnchors:
         predicted : array_like (2, 2), optional
             Where to search (default: the last positions found).
         search : float, optional
-            Half-size of the search window, pixels (default 1.5 iris radii).
+            Half-size of the search window, pixels (default 0.8 iris radii, at
+            least 4).
         """
         img = np.asarray(frame)
         pred = self.last if predicted is None else np.asarray(predicted, float).reshape(2, 2)
-        m = int(np.ceil(1.5 * self.radius if search is None else search))
+        m = int(np.ceil(max(4.0, 0.8 * self.radius) if search is None else search))
         h = self.half
         out = np.full((2, 2), np.nan)
         scores = np.zeros(2)

@@ -772,7 +772,8 @@ class Tracker:
         frame's moved by the similarity between the two detections' eyes
         (``extra['head_source'] == 'detection'``).
     redetect_interval : int
-        Least number of frames between two detections.
+        Least number of frames between two detections; doubled (up to 16 times)
+        after each detection that finds no face or does not help.
     head_anchor : {'auto', 'eyes', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -852,6 +853,8 @@ class Tracker:
         self.redetect_interval = int(redetect_interval)
         self._failing = 0
         self._last_detect = 0
+        self._redetect_wait = self.redetect_interval
+        self._sim_cache: tuple | None = None
         self._corners_head: dict[str, np.ndarray] = {}
         self.anchors = None
         self._anchor_base: tuple | None = None
@@ -1029,10 +1032,18 @@ class Tracker:
         """Place all contours again from a new face detection (many contours lost for
         several frames: a turned head, a hand over the face). Kept only when fewer
         contours are lost afterwards; returns (quality, head, iterations) or None."""
+        # faces much smaller than the tracked one are not searched for (the Haar
+        # cascade's cost is in its small scales); the contours' own relaxation then
+        # fits the template, so the detector's grid refinement is skipped
+        iod = self.layout.inter_eye
+        if self.last_head is not None and self.ref_head is not None:
+            iod *= self.last_head.scale / self.ref_head.scale
         try:
             new = detect_layout(frame, frame_index=self.index,
-                                channel_order=self.channel_order)
+                                channel_order=self.channel_order, refine=True,
+                                min_face=max(40, int(1.2 * iod)))
         except ValueError:
+            self._redetect_wait = min(2 * self._redetect_wait, 16 * self.redetect_interval)
             return None
         if new.eyes is None or self.layout.eyes is None or self.ref_head is None:
             return None
@@ -1051,7 +1062,10 @@ class Tracker:
         if sum(q.lost for q in quality.values()) >= n_lost:
             for k, pts in enumerate(saved):
                 self.system.set_contour(k, pts, reset_rest=True)
+            # no better: try again later, less and less often
+            self._redetect_wait = min(2 * self._redetect_wait, 16 * self.redetect_interval)
             return None
+        self._redetect_wait = self.redetect_interval
         # the head frame: the first frame's moved by the similarity between the eyes
         # of the two detections; the contours' later motion is chained on from here
         a, b = similarity_from_pairs(self.layout.eyes, new.eyes)
@@ -1114,8 +1128,12 @@ class Tracker:
             # search around the irises last found (a wider window after a miss)
             pred = None
             wide = self.head_source != "eyes"
-            sim = self.anchors.similarity(frame, pred,
-                                          search=3.0 * self.anchors.radius if wide else None)
+            if self._sim_cache is not None and self._sim_cache[0] == self.index:
+                sim = self._sim_cache[1]  # the irises do not depend on the contours
+            else:
+                sim = self.anchors.similarity(
+                    frame, pred, search=3.0 * self.anchors.radius if wide else None)
+                self._sim_cache = (self.index, sim)
             if sim is not None and self._ref_brow_angle is not None and not self._brows_lost:
                 # the brow line's turn, unless it disagrees with the irises' (a brow
                 # contour that slid away)
@@ -1253,7 +1271,7 @@ class Tracker:
             n_lost = sum(q.lost for q in quality.values())
             self._failing = self._failing + 1 if n_lost >= 3 else 0
             if (self.redetect and self._failing >= 3
-                    and self.index - self._last_detect >= self.redetect_interval):
+                    and self.index - self._last_detect >= self._redetect_wait):
                 self._last_detect = self.index
                 got = self._redetect(frame, n_lost)
                 if got is not None:
