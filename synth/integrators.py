@@ -345,7 +345,7 @@ def _symmetric_factor(matrix, lu):
     """``(lp, li, lx, dinv, perm)``: ``P A P^T = L D L^T`` from a SuperLU factorisation of the
     symmetric positive definite ``matrix`` taken with diagonal pivots (then ``U = D L^T``), or
     from a refactorisation of the symmetrically permuted matrix when SuperLU pivoted off the
-    diagonal.  Only the strictly lower part of ``L`` is kept (CSC, 32-bit indices, single
+    diagonal.  Only the strictly lower part of ``L`` is kept (CSC, 16- or 32-bit indices, single
     precision values: the factor only preconditions L-BFGS, and halving the memory traffic
     of the triangular solves matters on large lattices)."""
     perm = np.asarray(lu.perm_c, dtype=np.int64)     # matrix row i = factor row perm[i]
@@ -359,7 +359,9 @@ def _symmetric_factor(matrix, lu):
     lf = sp.tril(lu.L.tocsc(), k=-1).tocsc()
     lf.sort_indices()
     diag = lu.U.diagonal()
-    return (lf.indptr.astype(np.int64), lf.indices.astype(np.int32), lf.data.astype(np.float32),
+    # 16-bit row indices where they fit: the solves are bound by memory traffic
+    itype = np.uint16 if matrix.shape[0] <= np.iinfo(np.uint16).max + 1 else np.int32
+    return (lf.indptr.astype(np.int64), lf.indices.astype(itype), lf.data.astype(np.float32),
             (1.0 / diag).astype(np.float64), np.asarray(perm, dtype=np.int64))
 
 
@@ -405,6 +407,10 @@ class EquilibriumSolver:
         self._lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
         self._factor = _symmetric_factor(self.matrix, self._lu)
+        # 16-bit node indices for the force kernels where they fit (less memory traffic)
+        itype = np.uint16 if lat.n_nodes <= np.iinfo(np.uint16).max + 1 else np.int32
+        self._springs = np.ascontiguousarray(lat.springs, dtype=itype)
+        self._prisms = np.ascontiguousarray(lat.prisms, dtype=itype)
         nf = len(free)
         m = max(self.history, 1)
         # curvature pairs in single precision: half the memory traffic of the two-loop
@@ -460,7 +466,7 @@ class EquilibriumSolver:
         x = np.array(x0, dtype=np.float64)
         sysm.apply_boundary(x)
         sysm.project_skull(x)
-        args = (lat.springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch, lat.prisms,
+        args = (self._springs, lat.rest_length, lat.k_low, lat.k_high, lat.switch, self._prisms,
                 PRISM_QUADS, lat.rest_volume, lat.bulk, sysm.volume_preservation,
                 lat.skull_nodes, lat.skull_bone, sysm.skull_normal, lat.skull_margin,
                 lat.skull_k, sysm.contact_pairs, sysm.contact_normal, lat.contact_k,
