@@ -392,17 +392,20 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
         P = cache[key]
         dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)
-        best, best_d = np.inf, base
-        for dy in dys:
-            for dx in dxs:
-                d = base + (dx, dy)
-                q = c.points + d
-                if (q < 0).any() or (q[:, 0] > W - 1).any() or (q[:, 1] > H - 1).any():
-                    continue
-                # prefer the smallest move among equally good ones
-                v = float(sample_bilinear(P, q).mean()) + 1e-6 * (dx * dx + dy * dy)
-                if v < best:
-                    best, best_d = v, d
+        # all offsets at once (row-major over dy then dx, as a double loop would go)
+        off = np.stack(np.meshgrid(dxs, dys), axis=-1).reshape(-1, 2)
+        lo = c.points.min(axis=0) + base
+        hi = c.points.max(axis=0) + base
+        ok = ((lo[0] + off[:, 0] >= 0) & (lo[1] + off[:, 1] >= 0)
+              & (hi[0] + off[:, 0] <= W - 1) & (hi[1] + off[:, 1] <= H - 1))
+        best_d = base
+        if ok.any():
+            off = off[ok]
+            q = (c.points[None, :, :] + (base + off)[:, None, :]).reshape(-1, 2)
+            v = sample_bilinear(P, q).reshape(len(off), -1).mean(axis=1)
+            # prefer the smallest move among equally good ones
+            v = v + 1e-6 * (off ** 2).sum(axis=1)
+            best_d = base + off[int(np.argmin(v))]
         offsets[name] = best_d
         out[name] = LayoutContour(c.points + best_d, c.closed, c.kind, c.sigma, c.ends)
     return FaceLayout(out, layout.image_size, layout.eyes, layout.face_box,
