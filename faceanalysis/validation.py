@@ -10,8 +10,10 @@ default the face model itself is warped to the subject's neutral frame
 that is not possible, the generic resynthesis flow is warped onto the subject's neutral
 fiducials in 2-D (:class:`faceanalysis.templates.SubjectWarp`).
 
-Both fields have the nuisance motions (head-frame jitter, out-of-plane head rotation)
-projected out on the face mask before they are compared. Agreement per frame and per face
+The input's flow is smoothed over time (Gaussian, one frame by default: each frame's flow
+is measured on its own, so its noise is independent from frame to frame while faces move
+smoothly). Both fields have the nuisance motions (head-frame jitter, out-of-plane head
+rotation) projected out on the face mask before they are compared. Agreement per frame and per face
 region (:data:`faceanalysis.templates.REGION_GROUPS`):
 
 - ``cosine``: normalised correlation of the two vector fields on the mask (1 = same motion
@@ -248,6 +250,22 @@ def plot_agreement(table: pd.DataFrame, path=None, *, title: str | None = None):
     return fig
 
 
+def _smooth_time(displacement: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing over frames that skips lost (NaN) frames (normalised weights)."""
+    if sigma <= 0:
+        return displacement
+    from scipy.ndimage import gaussian_filter1d
+
+    ok = np.isfinite(displacement).all(axis=(1, 2, 3))
+    w = gaussian_filter1d(ok.astype(float), sigma, mode="nearest")
+    num = gaussian_filter1d(np.where(ok[:, None, None, None], displacement, 0.0), sigma,
+                            axis=0, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = num / w[:, None, None, None]
+    out[~ok] = np.nan
+    return out
+
+
 def _personal_model(folder: Path, model):
     """The face model personalised to the analysed subject by
     :func:`faceanalysis.resynth.personalize` (3-D landmark warp), or None when that is not
@@ -267,7 +285,8 @@ def _personal_model(folder: Path, model):
 def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
              method: str = "dis", model=None, templates: FlowTemplates | None = None,
              personalised: bool = True, contractions: pd.DataFrame | None = None,
-             write: bool = True, fps: float | None = None) -> ValidationResult:
+             write: bool = True, fps: float | None = None,
+             temporal_sigma: float = 1.0) -> ValidationResult:
     """Compare the flow of a video with the flow of its analysis's resynthesis.
 
     Parameters
@@ -293,6 +312,10 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     write : bool
         Write ``validation.csv`` and ``validation.png`` into the analysis folder and add the
         summary to its ``analysis.json`` (key ``validation``).
+    temporal_sigma : float
+        Gaussian smoothing of the input flow over time (frames; 0 = none). Each frame's
+        flow is measured on its own, so its noise is independent from frame to frame while
+        the face moves smoothly; one frame of smoothing halves the noise's variance.
 
     Returns
     -------
@@ -356,7 +379,9 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
                 personalisation = "warp"
     # the resynthesis is from the model's rest; the input from its neutral frame
     pred = pred - pred[k]
-    obs = ff.displacement
+    if temporal_sigma < 0:
+        raise ValueError(f"temporal_sigma={temporal_sigma} must be >= 0")
+    obs = _smooth_time(ff.displacement, temporal_sigma)
     pos = {int(f): i for i, f in enumerate(ff.frames)}
     o = np.full_like(pred, np.nan)
     for i, f in enumerate(frames):
@@ -366,6 +391,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     agree = flow_agreement(o, pred, tpl, frames=frames, px_per_unit=float(heads[k, 2]))
     summary = summarize(agree)
     summary.update(method=method, neutral_frame=int(neutral), personalisation=personalisation,
+                   temporal_sigma=float(temporal_sigma),
                    grid=templates.grid.as_dict(),
                    resynthesis="shuffled/override" if contractions is not None else "analysis")
     result = ValidationResult(agree, summary, o, pred)
