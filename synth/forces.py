@@ -459,6 +459,7 @@ class TissueSystem:
         self.volume_preservation = bool(volume_preservation)
         self.fixed = np.ascontiguousarray(lattice.fixed)
         self.free = np.flatnonzero(~lattice.fixed)
+        self._fixed_index = np.flatnonzero(lattice.fixed)
         self.f_ext = np.zeros_like(lattice.rest)
         self.jaw_rotation = 0.0
         self.prescribed = lattice.rest.copy()
@@ -492,7 +493,7 @@ class TissueSystem:
 
     def apply_boundary(self, x: np.ndarray) -> None:
         """Write the prescribed positions of the fixed nodes into ``x`` (in place)."""
-        fx = self.fixed
+        fx = self._fixed_index
         x[fx] = self.prescribed[fx]
 
     def forces(self, x: np.ndarray, out: np.ndarray | None = None, *, skull: bool = True):
@@ -595,12 +596,7 @@ def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
         out[i, 2] = work[r, 2]
 
 
-# reassociation lets the dot products of the two-loop recursion vectorise; no-NaN / no-inf
-# assumptions are left out on purpose (the line search tests the energy for finiteness)
-_REASSOC = {"reassoc", "contract", "nsz", "arcp"}
-
-
-@numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
+@numba.njit(cache=True, nogil=True)
 def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                   max_iter):  # pragma: no cover
     """Minimise the lattice energy over the free nodes, in place on ``x``.

@@ -411,6 +411,7 @@ class EquilibriumSolver:
         itype = np.uint16 if lat.n_nodes <= np.iinfo(np.uint16).max + 1 else np.int32
         self._springs = np.ascontiguousarray(lat.springs, dtype=itype)
         self._prisms = np.ascontiguousarray(lat.prisms, dtype=itype)
+        self._free = np.ascontiguousarray(free, dtype=np.int64)
         nf = len(free)
         m = max(self.history, 1)
         # curvature pairs in single precision: half the memory traffic of the two-loop
@@ -473,7 +474,7 @@ class EquilibriumSolver:
                 sysm.f_ext, sysm.fixed)
         if self.history == 0:
             self._state[:] = 0
-        it, step, _, status = _lbfgs_kernel(x, sysm.free.astype(np.int64), args, self._factor,
+        it, step, _, status = _lbfgs_kernel(x, self._free, args, self._factor,
                                             self._s[: max(self.history, 1)],
                                             self._y[: max(self.history, 1)], self._rho,
                                             self._state, float(tol), int(max_iter))

@@ -529,7 +529,10 @@ def jaw_rotation_matrix(angle: float) -> np.ndarray:
 def rotate_about_jaw(points: np.ndarray, weights: np.ndarray, pivot: np.ndarray,
                      angle: float) -> np.ndarray:
     """Rotate ``points`` about the hinge axis through ``pivot`` (axis +x), each by
-    ``weights * angle`` radians.  Returns a new array."""
+    ``weights * angle`` radians.  Returns a new array (an exact copy for ``angle == 0``, so
+    that closing the jaw brings back the rest geometry bit for bit)."""
+    if angle == 0.0:
+        return np.array(points, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64) - pivot
     a = np.asarray(weights, dtype=np.float64) * angle
     c, s = np.cos(a), np.sin(a)
