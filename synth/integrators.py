@@ -372,9 +372,12 @@ class EquilibriumSolver:
     nodes by L-BFGS whose initial inverse Hessian is ``A^{-1}`` with ``A`` the constant,
     rotation-invariant projective-dynamics matrix (spring Laplacian plus the scalar Gram form
     of the volume term, :func:`isotropic_matrix`).  ``A`` is an ``n x n`` node matrix (one
-    factor serves x, y and z), factored once per lattice with SuperLU and reused for every
-    iteration of every frame.  An Armijo line search makes every iteration lower the energy
-    (no time step, so no stability limit); each frame starts from the previous equilibrium.
+    factor serves x, y and z), factored once per lattice with SuperLU (minimum-degree ordering,
+    kept as ``P A P^T = L D L^T``: one single-precision factor with 16-bit row indices where
+    they fit) and reused for every iteration of every frame.  An Armijo line search makes every
+    iteration lower the energy (no time step, so no stability limit); each frame starts from
+    the previous equilibrium, with the curvature pairs (single precision) of earlier frames.
+    The iteration is bound by memory traffic on large lattices, hence the compact storage.
 
     Parameters
     ----------
