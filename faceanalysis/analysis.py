@@ -162,9 +162,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ----------
     video : path-like
         Video file, folder of images, or a single image.
-    estimator : {'joint', 'tw93'}, keyword-only
+    estimator : {'joint', 'tw93', 'flow'}, keyword-only
         ``joint`` (default): bounded least squares of all contractions through the
-        model's fiducial response; ``tw93``: the paper's per-muscle inversion.
+        model's fiducial response; ``tw93``: the paper's per-muscle inversion;
+        ``flow``: bounded least squares of the dense face flow on the model's flow
+        templates (a second pass over the video).
     fps : float, optional
         Frame rate, overriding the container's.
     start, end : int, optional
@@ -317,7 +319,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     cal = calibrate(meas[k], heads[k], response.rest)
     t0 = time.perf_counter()
     disp = cal.model_displacements(meas, heads)
-    values = _estimate(disp, response, estimator, refine)
+    values = _estimate(disp, response, "joint" if estimator == "flow" else estimator, refine)
     t_estimate = time.perf_counter() - t0
 
     table = empty_table(n, frames=frames, timestamps=stamps)
@@ -347,8 +349,15 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     metadata = analysis_metadata(source, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib})
     timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}
-    return Analysis(table=table, contours=contours, metadata=metadata, calibration=cal,
-                    response=response, measurements=meas, timings=timings)
+    result = Analysis(table=table, contours=contours, metadata=metadata, calibration=cal,
+                      response=response, measurements=meas, timings=timings)
+    if estimator == "flow":
+        from faceanalysis.flow_estimator import reestimate_flow
+
+        t0 = time.perf_counter()
+        result = reestimate_flow(result, video, fps=fps)
+        result.timings["estimate_s"] = time.perf_counter() - t0
+    return result
 
 
 def _estimate(disp, response, estimator: str, refine: bool) -> np.ndarray:
@@ -383,6 +392,9 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
     Tracking dominates the cost of an analysis, so comparing estimators this way
     costs only the estimation.
     """
+    if estimator == "flow":
+        raise ValueError("the flow estimator needs the video: use "
+                         "faceanalysis.flow_estimator.reestimate_flow(analysis, video)")
     if analysis.calibration is None or analysis.response is None:
         raise ValueError("this analysis has no calibration/response to re-estimate from")
     table = analysis.table.copy()

@@ -10,6 +10,9 @@ fiducials (:class:`~faceanalysis.response.FiducialResponse`):
     direction. Here ``b m``, the point's displacement at full contraction, comes from the
     physics model, so tissue mechanics are included, and the tabulated response is
     inverted level by level rather than linearly.
+``flow`` (:mod:`faceanalysis.flow_estimator`)
+    Bounded least squares of the face's dense optical flow on the model's per-muscle
+    flow templates; it needs the video, so :func:`estimate` only names it.
 ``joint``
     All contractions at once: bounded least squares of every fiducial coordinate against
     the sum of all muscles' responses, ``min ||d - sum_m D_m(c_m)||^2 + lam ||c||^2``
@@ -26,7 +29,7 @@ import numpy as np
 
 from faceanalysis.response import FiducialResponse
 
-ESTIMATORS = ("joint", "tw93")
+ESTIMATORS = ("joint", "tw93", "flow")
 
 #: Which fiducial each muscle is read from by the tw93 estimator (004, V-D).
 TW93_FIDUCIALS: dict[str, str] = {
@@ -227,4 +230,8 @@ def estimate(displacements: np.ndarray, response: FiducialResponse, *,
         return estimate_joint(displacements, response, **kwargs)
     if estimator == "tw93":
         return estimate_tw93(displacements, response)
+    if estimator == "flow":
+        raise ValueError("the flow estimator works on the video's dense motion, not on "
+                         "fiducials; use faceanalysis.analysis.analyze(..., estimator='flow') "
+                         "or faceanalysis.flow_estimator.estimate_flow")
     raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")

@@ -205,7 +205,7 @@ class SuiteConfig:
 
 
 def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
-              estimators=("joint", "tw93"), overwrite: bool = False,
+              estimators=("joint", "tw93", "flow"), overwrite: bool = False,
               progress: bool = False, keep_videos: bool = True) -> dict:
     """Render the standard suite, analyse it with each estimator and write the report.
 
@@ -254,7 +254,14 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
                 bar.update(1)
             continue
         for est in estimators:
-            a = base if est == base.metadata["parameters"]["estimator"] else reestimate(base, est)
+            if est == base.metadata["parameters"]["estimator"]:
+                a = base
+            elif est == "flow":
+                from faceanalysis.flow_estimator import reestimate_flow
+
+                a = reestimate_flow(base, video)
+            else:
+                a = reestimate(base, est)
             if keep_videos:
                 from faceanalysis.table import write_contractions
 

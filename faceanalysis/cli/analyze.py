@@ -19,7 +19,8 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("analysis")
     group.add_argument("--estimator", choices=ESTIMATORS, default="joint",
                        help="joint: bounded least squares through the face model (default); "
-                            "tw93: the paper's per-muscle inversion of eq. 5")
+                            "tw93: the paper's per-muscle inversion of eq. 5; flow: dense optical "
+                            "flow on the model's per-muscle flow templates")
     group.add_argument("--neutral", type=int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first frame tracked)")

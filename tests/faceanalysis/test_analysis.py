@@ -96,7 +96,7 @@ def test_no_face_names_the_frame(tmp_path):
 
 
 def test_unknown_estimator_lists_the_choices(surprise):
-    with pytest.raises(ValueError, match="choose from joint, tw93"):
+    with pytest.raises(ValueError, match="choose from joint, tw93, flow"):
         analyze(surprise["video"], estimator="magic")
 
 

@@ -99,7 +99,7 @@ def test_estimators_validate_input(rng):
     resp = _response(rng)
     with pytest.raises(ValueError, match="shape"):
         estimate_joint(np.zeros((3, 5, 2)), resp)
-    with pytest.raises(ValueError, match="choose from joint, tw93"):
+    with pytest.raises(ValueError, match="choose from joint, tw93, flow"):
         estimate(np.zeros((1, 4, 2)), resp, estimator="magic")
     with pytest.raises(ValueError, match="weights"):
         estimate_joint(np.zeros((1, 4, 2)), resp, weights=np.ones(3))
