@@ -596,6 +596,12 @@ def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
         out[i, 2] = work[r, 2]
 
 
+#: a converged L-BFGS step is double-checked against the preconditioned gradient step, which
+#: must then be below this many times the tolerance (it is shorter than the quasi-Newton step
+#: near a minimum: ``A`` over-stiffens the soft modes)
+_RESTART_RATIO = 4.0
+
+
 @numba.njit(cache=True, nogil=True)
 def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                   max_iter):  # pragma: no cover
@@ -696,6 +702,21 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
                 v = abs(z[a, c])
                 if v > step:
                     step = v
+        if step <= tol and state[0] > 0:
+            # a short quasi-Newton step can also come from poor curvature pairs (a false
+            # convergence, seen after lip / skull contact changes): accept it only if the plain
+            # preconditioned step A^{-1} g is short too, else restart the pairs from that step
+            _ldl_solve3(g, lp, li, lx, dinv, perm, work, z)
+            step0 = 0.0
+            slope = 0.0
+            for i in range(n3):
+                v = abs(zf[i])
+                if v > step0:
+                    step0 = v
+                slope -= gf[i] * zf[i]
+            if step0 > _RESTART_RATIO * tol:
+                state[0] = 0
+                step = step0
         if step <= tol:
             break
         it += 1
