@@ -100,7 +100,7 @@ def estimate_tw93(displacements: np.ndarray, response: FiducialResponse) -> np.n
 
 def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    weights: np.ndarray | None = None, regularization: float = 1e-2,
-                   outer_iterations: int = 8, inner_iterations: int = 300,
+                   outer_iterations: int = 8, inner_iterations: int = 120,
                    initial: np.ndarray | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
@@ -174,14 +174,30 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         c = np.broadcast_to(np.asarray(initial, dtype=float), (n_t, n_m))[valid].copy()
         c = np.clip(c, 0.0, upper)                         # a start point, not a result
 
+    def objective(cc):
+        r = dv - response.predict(cc).reshape(-1, n_f * 2) * sw
+        return np.einsum("tk,tk->t", r, r) + (lam * cc * cc).sum(axis=1)
+
+    current = objective(c)
     for _ in range(outer_iterations):
         jac = response.jacobian(c) * sw[None, :, None]    # (T, K, M)
         res = dv - response.predict(c).reshape(-1, n_f * 2) * sw
         hess = np.einsum("tkm,tkn->tmn", jac, jac) + np.diag(lam)
         grad0 = np.einsum("tkm,tk->tm", jac, res) - lam * c
         step = box_qp(hess, grad0, -c, upper - c, iterations=inner_iterations)
-        c = np.clip(c + step, 0.0, upper)                  # rounding only: step is in-box
-        if np.abs(step).max() < 1e-7:
+        # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
+        # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of
+        # the step that lowers the objective (the box is convex: all stay feasible).
+        best, best_val = c, current
+        for frac in (0.25, 0.5, 1.0):
+            trial = np.clip(c + frac * step, 0.0, upper)    # rounding only
+            val = objective(trial)
+            better = val < best_val
+            best = np.where(better[:, None], trial, best)
+            best_val = np.where(better, val, best_val)
+        gain = current - best_val
+        c, current = best, best_val
+        if np.all(gain <= 1e-6 * np.maximum(current, 1e-12)):
             break
     out[valid] = c
     return out
@@ -212,7 +228,7 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     y = x.copy()
     t = 1.0
     for k in range(iterations):
-        g = np.einsum("tmn,tn->tm", hess, y) - grad0
+        g = np.matmul(hess, y[:, :, None])[:, :, 0] - grad0
         new = np.clip(y - g / lipschitz, lo, hi)
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         y = new + ((t - 1.0) / t_new) * (new - x)
