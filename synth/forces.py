@@ -596,6 +596,59 @@ def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
         out[i, 2] = work[r, 2]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _dot(a, b):  # pragma: no cover
+    """``a . b`` with four interleaved partial sums: fast without reassociation flags, and
+    the same result whatever the memory alignment of the arrays."""
+    n = a.shape[0]
+    d0 = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    d3 = 0.0
+    i = 0
+    while i + 4 <= n:
+        d0 += np.float64(a[i]) * np.float64(b[i])
+        d1 += np.float64(a[i + 1]) * np.float64(b[i + 1])
+        d2 += np.float64(a[i + 2]) * np.float64(b[i + 2])
+        d3 += np.float64(a[i + 3]) * np.float64(b[i + 3])
+        i += 4
+    while i < n:
+        d0 += np.float64(a[i]) * np.float64(b[i])
+        i += 1
+    return (d0 + d1) + (d2 + d3)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _axpy_dot(x, c, u, w):  # pragma: no cover
+    """``x += c u`` in place, then return ``w . x`` (one pass; four partial sums)."""
+    n = x.shape[0]
+    d0 = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    d3 = 0.0
+    i = 0
+    while i + 4 <= n:
+        v0 = x[i] + c * u[i]
+        v1 = x[i + 1] + c * u[i + 1]
+        v2 = x[i + 2] + c * u[i + 2]
+        v3 = x[i + 3] + c * u[i + 3]
+        x[i] = v0
+        x[i + 1] = v1
+        x[i + 2] = v2
+        x[i + 3] = v3
+        d0 += np.float64(w[i]) * v0
+        d1 += np.float64(w[i + 1]) * v1
+        d2 += np.float64(w[i + 2]) * v2
+        d3 += np.float64(w[i + 3]) * v3
+        i += 4
+    while i < n:
+        v0 = x[i] + c * u[i]
+        x[i] = v0
+        d0 += np.float64(w[i]) * v0
+        i += 1
+    return (d0 + d1) + (d2 + d3)
+
+
 #: a converged L-BFGS step is double-checked against the preconditioned gradient step, which
 #: must then be below this many times the tolerance (it is shorter than the quasi-Newton step
 #: near a minimum: ``A`` over-stiffens the soft modes)
@@ -649,53 +702,27 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
             qf[i] = gf[i]
         dot = 0.0
         if n_pairs > 0:
-            k = (head - 1) % m
-            for i in range(n3):
-                dot += s2[k, i] * qf[i]
+            dot = _dot(s2[(head - 1) % m], qf)
         for t in range(n_pairs):
             k = (head - 1 - t) % m
             ak = rho[k] * dot
             alphas[t] = ak
-            dot = 0.0
-            if t + 1 < n_pairs:
-                kn = (head - 2 - t) % m
-                for i in range(n3):
-                    v = qf[i] - ak * y2[k, i]
-                    qf[i] = v
-                    dot += s2[kn, i] * v
-            else:
-                for i in range(n3):
-                    qf[i] -= ak * y2[k, i]
+            # q -= ak y_k, and the next (older) pair's s . q in the same pass
+            dot = _axpy_dot(qf, -ak, y2[k], s2[(head - 2 - t) % m])
         _ldl_solve3(q, lp, li, lx, dinv, perm, work, z)
         dot = 0.0
         if n_pairs > 0:
-            k = (head - n_pairs) % m
-            for i in range(n3):
-                dot += y2[k, i] * zf[i]
+            dot = _dot(y2[(head - n_pairs) % m], zf)
         for t in range(n_pairs - 1, -1, -1):
             k = (head - 1 - t) % m
             coef = alphas[t] - rho[k] * dot
-            dot = 0.0
-            if t > 0:
-                kn = (head - t) % m
-                for i in range(n3):
-                    v = zf[i] + coef * s2[k, i]
-                    zf[i] = v
-                    dot += y2[kn, i] * v
-            else:
-                for i in range(n3):
-                    zf[i] += coef * s2[k, i]
-        slope = 0.0
-        for a in range(nf):
-            for c in range(3):
-                slope -= g[a, c] * z[a, c]           # p = -z
+            # z += coef s_k, and the next (newer) pair's y . z in the same pass
+            dot = _axpy_dot(zf, coef, s2[k], y2[(head - t) % m])
+        slope = -_dot(gf, zf)                        # p = -z
         if slope >= 0.0:
             state[0] = 0
             _ldl_solve3(g, lp, li, lx, dinv, perm, work, z)
-            slope = 0.0
-            for a in range(nf):
-                for c in range(3):
-                    slope -= g[a, c] * z[a, c]
+            slope = -_dot(gf, zf)
         step = 0.0
         for a in range(nf):
             for c in range(3):
