@@ -554,27 +554,31 @@ class TissueSystem:
 # ---------------------------------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
-def _ldl_solve3(q, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
+def _ldl_solve3(q, rp, rj, rv, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
     """Solve A z = q for 3 right-hand sides (rows of q are nodes) with a symmetric factor
-    ``P A P^T = L D L^T`` (``L`` strictly lower part in CSC: ``lp``, ``li``, ``lx``;
-    ``dinv = 1 / diag(D)``; row ``i`` of ``A`` is row ``perm[i]`` of the factor).  Both
-    sweeps run over the columns of ``L``: the backward one as dot products."""
+    ``P A P^T = L D L^T``: the strictly lower part of ``L`` by rows (``rp``, ``rj``, ``rv``)
+    for the forward sweep and by columns (``lp``, ``li``, ``lx``) for the backward one, so
+    both sweeps gather (dot products, no scattered stores); ``dinv = 1 / diag(D)``; row ``i``
+    of ``A`` is row ``perm[i]`` of the factor."""
     n = q.shape[0]
     for i in range(n):
         r = perm[i]
         work[r, 0] = q[i, 0]
         work[r, 1] = q[i, 1]
         work[r, 2] = q[i, 2]
-    for j in range(n):
-        y0 = work[j, 0]
-        y1 = work[j, 1]
-        y2 = work[j, 2]
-        for k in range(lp[j], lp[j + 1]):
-            i = li[k]
-            v = lx[k]
-            work[i, 0] -= v * y0
-            work[i, 1] -= v * y1
-            work[i, 2] -= v * y2
+    for i in range(n):
+        y0 = work[i, 0]
+        y1 = work[i, 1]
+        y2 = work[i, 2]
+        for k in range(rp[i], rp[i + 1]):
+            j = rj[k]
+            v = rv[k]
+            y0 -= v * work[j, 0]
+            y1 -= v * work[j, 1]
+            y2 -= v * work[j, 2]
+        work[i, 0] = y0
+        work[i, 1] = y1
+        work[i, 2] = y2
     for j in range(n - 1, -1, -1):
         d = dinv[j]
         y0 = work[j, 0] * d
@@ -667,7 +671,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
     (springs, rest_length, k_low, k_high, switch, prisms, quads, rest_volume, bulk,
      use_volume, sk_nodes, sk_bone, sk_normal, sk_margin, sk_k, c_pairs, c_normal, c_k,
      f_ext, fixed) = forces_args
-    lp, li, lx, dinv, perm = factor
+    rp, rj, rv, lp, li, lx, dinv, perm = factor
     nf = free.shape[0]
     m = s_hist.shape[0]
     fbuf = np.empty_like(x)
@@ -709,7 +713,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
             alphas[t] = ak
             # q -= ak y_k, and the next (older) pair's s . q in the same pass
             dot = _axpy_dot(qf, -ak, y2[k], s2[(head - 2 - t) % m])
-        _ldl_solve3(q, lp, li, lx, dinv, perm, work, z)
+        _ldl_solve3(q, rp, rj, rv, lp, li, lx, dinv, perm, work, z)
         dot = 0.0
         if n_pairs > 0:
             dot = _dot(y2[(head - n_pairs) % m], zf)
@@ -721,7 +725,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
         slope = -_dot(gf, zf)                        # p = -z
         if slope >= 0.0:
             state[0] = 0
-            _ldl_solve3(g, lp, li, lx, dinv, perm, work, z)
+            _ldl_solve3(g, rp, rj, rv, lp, li, lx, dinv, perm, work, z)
             slope = -_dot(gf, zf)
         step = 0.0
         for a in range(nf):
@@ -733,7 +737,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
             # a short quasi-Newton step can also come from poor curvature pairs (a false
             # convergence, seen after lip / skull contact changes): accept it only if the plain
             # preconditioned step A^{-1} g is short too, else restart the pairs from that step
-            _ldl_solve3(g, lp, li, lx, dinv, perm, work, z)
+            _ldl_solve3(g, rp, rj, rv, lp, li, lx, dinv, perm, work, z)
             step0 = 0.0
             slope = 0.0
             for i in range(n3):

@@ -342,12 +342,13 @@ def _project_with_velocity(system: TissueSystem, x, v, lip_slack: float = 0.05) 
 
 
 def _symmetric_factor(matrix, lu):
-    """``(lp, li, lx, dinv, perm)``: ``P A P^T = L D L^T`` from a SuperLU factorisation of the
-    symmetric positive definite ``matrix`` taken with diagonal pivots (then ``U = D L^T``), or
-    from a refactorisation of the symmetrically permuted matrix when SuperLU pivoted off the
-    diagonal.  Only the strictly lower part of ``L`` is kept (CSC, 16- or 32-bit indices, single
-    precision values: the factor only preconditions L-BFGS, and halving the memory traffic
-    of the triangular solves matters on large lattices)."""
+    """``(rp, rj, rv, lp, li, lx, dinv, perm)``: ``P A P^T = L D L^T`` from a SuperLU
+    factorisation of the symmetric positive definite ``matrix`` taken with diagonal pivots
+    (then ``U = D L^T``), or from a refactorisation of the symmetrically permuted matrix when
+    SuperLU pivoted off the diagonal.  Only the strictly lower part of ``L`` is kept, by rows
+    (CSR) and by columns (CSC), with 16- or 32-bit indices and single precision values: the
+    factor only preconditions L-BFGS, and the triangular solves are bound by memory traffic
+    on large lattices."""
     perm = np.asarray(lu.perm_c, dtype=np.int64)     # matrix row i = factor row perm[i]
     if not np.array_equal(lu.perm_r, perm):
         p = np.argsort(perm)
@@ -361,7 +362,10 @@ def _symmetric_factor(matrix, lu):
     diag = lu.U.diagonal()
     # 16-bit row indices where they fit: the solves are bound by memory traffic
     itype = np.uint16 if matrix.shape[0] <= np.iinfo(np.uint16).max + 1 else np.int32
-    return (lf.indptr.astype(np.int64), lf.indices.astype(itype), lf.data.astype(np.float32),
+    lr = lf.tocsr()
+    lr.sort_indices()
+    return (lr.indptr.astype(np.int64), lr.indices.astype(itype), lr.data.astype(np.float32),
+            lf.indptr.astype(np.int64), lf.indices.astype(itype), lf.data.astype(np.float32),
             (1.0 / diag).astype(np.float64), np.asarray(perm, dtype=np.int64))
 
 
