@@ -128,17 +128,40 @@ def _contour_midpoint(points: np.ndarray) -> np.ndarray:
 #: How a measurement point that is not one of the 11 fiducials is read off the contours.
 _CONTOUR_POINTS = {"lip_lower_centre": "lower_lip"}
 
+#: The contour each measurement point comes from: a point is missing on a frame where
+#: its contour is lost (e.g. the chin below the bottom of the frame), while the points
+#: of the other contours still count.
+POINT_CONTOUR = {
+    **{f"brow_{p}_{s}": f"brow_{s}" for p in ("inner", "mid", "outer") for s in "lr"},
+    "mouth_corner_l": "upper_lip", "mouth_corner_r": "upper_lip",
+    "furrow_top_l": "furrow_l", "furrow_top_r": "furrow_r",
+    "chin": "chin_boss", "lip_lower_centre": "lower_lip",
+}
+
+#: A frame is tracked (``success = 1``) when its head frame is known and at least this
+#: many measurement points are; controls that only the missing points observe are NaN.
+MIN_POINTS = 7
+
 
 def _measure(result, names: tuple[str, ...]) -> np.ndarray:
     out = np.empty((len(names), 2))
+    lost = {name for name, q in result.quality.items() if q.lost}
     for j, name in enumerate(names):
-        if name in result.fiducials:
+        if POINT_CONTOUR.get(name) in lost:
+            out[j] = np.nan
+        elif name in result.fiducials:
             out[j] = result.fiducials[name]
         elif name in _CONTOUR_POINTS:
             out[j] = _contour_midpoint(result.contours[_CONTOUR_POINTS[name]])
         else:
             raise ValueError(f"the tracker cannot measure the point {name!r}")
     return out
+
+
+def _confidence(result) -> float:
+    """Smallest relative potential depth over the contours that are not lost, in [0, 1]."""
+    depths = [q.depth for q in result.quality.values() if not q.lost]
+    return float(np.clip(min(depths), 0.0, 1.0)) if depths else 0.0
 
 
 def _progress(total, enabled: bool, desc: str):
@@ -264,15 +287,18 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                                                channel_order="bgr", **(tracker_options or {}))
                     res = tracker.track(frame.image)
                     t_track += time.perf_counter() - t0
-                    good = bool(res.success)
-                    ok.append(good)
-                    conf.append(float(res.confidence))
-                    fid_rows.append(np.array([res.fiducials[n] for n in FIDUCIALS], float)
-                                    if good else nan_fid)
-                    meas_rows.append(_measure(res, response.fiducials) if good else nan_meas)
                     head = res.head
-                    head_rows.append(np.array([head.x, head.y, head.scale, head.roll])
-                                     if good else nan_head)
+                    head_row = np.array([head.x, head.y, head.scale, head.roll], float)
+                    points = _measure(res, response.fiducials)
+                    n_points = int(np.isfinite(points).all(axis=1).sum())
+                    good = bool(np.isfinite(head_row).all() and n_points >= MIN_POINTS)
+                    ok.append(good)
+                    conf.append(_confidence(res))
+                    fids = np.array([res.fiducials[n] for n in FIDUCIALS], float)
+                    fids[~np.isfinite(points[:len(FIDUCIALS)]).all(axis=1)] = np.nan
+                    fid_rows.append(fids if good else nan_fid)
+                    meas_rows.append(points if good else nan_meas)
+                    head_rows.append(head_row if good else nan_head)
                     contours.append(res.contours)
                 if overlay is not None and frame.ok:
                     if writer is None:
@@ -305,8 +331,13 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
 
     frame_arr = np.array(frames)
+    n_valid = np.isfinite(meas).all(axis=2).sum(axis=1)
     if neutral is None:
-        k = int(np.argmax(success))
+        # the first tracked frame that sees every point, else the one that sees the most
+        k = int(np.argmax(np.where(success, n_valid, -1)))
+        complete = np.flatnonzero(success & (n_valid == meas.shape[1]))
+        if complete.size:
+            k = int(complete[0])
     else:
         hits = np.flatnonzero(frame_arr == neutral)
         if hits.size == 0:
@@ -316,7 +347,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         if not success[k]:
             raise ValueError(f"neutral frame {neutral} was not tracked (face lost); "
                              "choose another with --neutral")
-    cal = calibrate(meas[k], heads[k], response.rest)
+    seen = np.isfinite(meas[k]).all(axis=1)
+    cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
     t0 = time.perf_counter()
     disp = cal.model_displacements(meas, heads)
     values = _estimate(disp, response, "joint" if estimator == "flow" else estimator, refine)

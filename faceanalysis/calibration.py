@@ -81,7 +81,7 @@ class Calibration:
 
 
 def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
-              model_rest: np.ndarray) -> Calibration:
+              model_rest: np.ndarray, *, valid: np.ndarray | None = None) -> Calibration:
     """Fit the model-to-head-frame map on the neutral frame.
 
     Parameters
@@ -92,6 +92,9 @@ def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
         Head frame of the neutral frame (x, y, scale, roll).
     model_rest : ndarray, shape (F, 2)
         The same fiducials on the model at rest (cm, x = subject's left, y up).
+    valid : ndarray of bool, shape (F,), optional
+        Fiducials seen on the neutral frame (default: all). The map is fitted on these;
+        the others have no neutral position, so their displacements stay NaN.
 
     Returns
     -------
@@ -121,15 +124,20 @@ def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
                          "have shape (F, 2)")
     if head.shape != (4,):
         raise ValueError(f"neutral head frame must have 4 values, got shape {head.shape}")
-    if not (np.isfinite(p).all() and np.isfinite(r).all() and np.isfinite(head).all()):
+    seen = np.ones(len(p), bool) if valid is None else np.asarray(valid, bool)
+    if seen.shape != (len(p),):
+        raise ValueError(f"valid must have one flag per fiducial ({len(p)})")
+    if not (np.isfinite(p[seen]).all() and np.isfinite(r).all() and np.isfinite(head).all()):
         raise ValueError("calibration needs finite neutral fiducials and head frame")
     if head[2] <= 0:
         raise ValueError(f"head scale must be positive, got {head[2]}")
-    q = to_head_frame(p, head)
-    design = np.c_[r, np.ones(len(r))]
+    q = to_head_frame(np.where(seen[:, None], p, np.nan), head)
+    design = np.c_[r, np.ones(len(r))][seen]
+    if len(design) < 3:
+        raise ValueError("calibration needs at least 3 fiducials on the neutral frame")
     if np.linalg.matrix_rank(design) < 3:
         raise ValueError("neutral fiducials are degenerate (collinear): cannot calibrate")
-    coef, *_ = np.linalg.lstsq(design, q, rcond=None)
+    coef, *_ = np.linalg.lstsq(design, q[seen], rcond=None)
     matrix, offset = coef[:2].T, coef[2]
-    residual = float(np.sqrt(np.mean(np.sum((design @ coef - q) ** 2, axis=1))))
+    residual = float(np.sqrt(np.mean(np.sum((design @ coef - q[seen]) ** 2, axis=1))))
     return Calibration(matrix=matrix, offset=offset, neutral=q, residual=residual)

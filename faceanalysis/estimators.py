@@ -157,16 +157,21 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     w = np.ones(n_f) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != (n_f,) or np.any(w < 0) or not np.isfinite(w).all():
         raise ValueError(f"weights must be {n_f} finite non-negative values")
-    sw = np.repeat(np.sqrt(w), 2)                         # per coordinate
-
-    valid = np.isfinite(d).all(axis=(1, 2))
+    # Points missing on a frame (NaN) get weight 0 there; a frame needs 3 points.
+    seen = np.isfinite(d).all(axis=2)                     # (T, F)
+    valid = seen.sum(axis=1) >= 3
     out = np.full((n_t, n_m), np.nan)
     if not valid.any():
         return out
-    dv = d[valid].reshape(-1, n_f * 2) * sw
+    sw = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)      # (T, K)
+    dv = np.nan_to_num(d[valid].reshape(-1, n_f * 2)) * sw
     upper = response.upper
-    scale = np.mean((response.displacement[:, -1].reshape(n_m, -1) * sw) ** 2) * n_f * 2
+    full = response.displacement[:, -1].reshape(n_m, -1)               # (M, K)
+    scale = np.mean((full * np.repeat(np.sqrt(w), 2)) ** 2) * n_f * 2
     lam = regularization * scale / upper**2               # per control
+    # A control none of whose motion falls on the seen points is not observed there.
+    seen_norm = np.sqrt((sw**2) @ (full**2).T)                          # (T, M)
+    observed = seen_norm >= 0.25 * np.linalg.norm(full * np.repeat(np.sqrt(w), 2), axis=1)
 
     if initial is None:
         c = np.zeros((dv.shape[0], n_m))
@@ -180,7 +185,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
 
     current = objective(c)
     for _ in range(outer_iterations):
-        jac = response.jacobian(c) * sw[None, :, None]    # (T, K, M)
+        jac = response.jacobian(c) * sw[:, :, None]       # (T, K, M)
         res = dv - response.predict(c).reshape(-1, n_f * 2) * sw
         hess = np.einsum("tkm,tkn->tmn", jac, jac) + np.diag(lam)
         grad0 = np.einsum("tkm,tk->tm", jac, res) - lam * c
@@ -199,7 +204,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         c, current = best, best_val
         if np.all(gain <= 1e-6 * np.maximum(current, 1e-12)):
             break
-    out[valid] = c
+    out[valid] = np.where(observed, c, np.nan)
     return out
 
 

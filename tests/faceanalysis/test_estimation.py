@@ -135,3 +135,25 @@ def test_calibration_rejects_degenerate_input():
         calibrate(rest * 10, np.array([0, 0, 1.0, 0]), rest)
     with pytest.raises(ValueError, match="finite"):
         calibrate(np.full((4, 2), np.nan), np.array([0, 0, 1.0, 0]), rest)
+
+
+def test_a_missing_point_hides_only_the_controls_it_observes(rng):
+    resp = _response(rng)
+    truth = rng.uniform(0, 1, size=(20, 4)) * resp.upper
+    d = resp.predict(truth)
+    d[:, 3] = np.nan                  # the chin is out of the frame
+    est = estimate_joint(d, resp, regularization=1e-6)
+    assert np.isnan(est[:, 3]).all()  # the jaw only moves the chin... and a bit the corner
+    np.testing.assert_allclose(est[:, :2], truth[:, :2], atol=0.05)
+
+
+def test_calibration_on_the_points_the_neutral_frame_sees():
+    rest = np.array([[-3.0, 4.0], [3.0, 4.0], [0.0, -5.0], [-2.0, -3.0], [2.0, -3.0]])
+    image = np.c_[100 + 10 * rest[:, 0], 120 - 10 * rest[:, 1]]
+    image[2] = np.nan
+    seen = np.isfinite(image).all(axis=1)
+    cal = calibrate(image, np.array([100.0, 120.0, 10.0, 0.0]), rest, valid=seen)
+    assert cal.residual < 1e-9
+    d = cal.model_displacements(image[None] + [0.0, -10.0], np.array([[100.0, 120, 10, 0]]))
+    np.testing.assert_allclose(d[0, seen], [[0.0, 1.0]] * 4, atol=1e-9)
+    assert np.isnan(d[0, 2]).all()
