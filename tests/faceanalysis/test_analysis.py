@@ -115,3 +115,14 @@ def test_cli_evaluate_prints_scores(run_cli, surprise, tmp_path):
     assert code == 0
     report = json.loads(stdout.strip().splitlines()[-1])
     assert report["frames"] == 8 and "jaw_rotation" in report["controls"]
+
+
+@pytest.mark.real_data
+def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
+    a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4")
+    t = a.table
+    assert t["success"].mean() > 0.8
+    z = t[["zygomaticus_major_l", "zygomaticus_major_r"]].mean(axis=1)
+    crying = z[t["frame"] <= 120].mean()
+    laughing = z[(t["frame"] >= 250) & (t["frame"] <= 470)].mean()
+    assert laughing > crying + 0.05, (crying, laughing)
