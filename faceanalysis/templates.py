@@ -680,10 +680,7 @@ def preview_templates(templates: FlowTemplates, path, *, which: str = "controls"
     exaggerate : float
         Arrow length multiplier.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from faceanalysis.flow import flow_to_colour
 
@@ -700,7 +697,8 @@ def preview_templates(templates: FlowTemplates, path, *, which: str = "controls"
     n = len(names)
     ncol = min(6, n)
     nrow = int(math.ceil(n / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(2.0 * ncol, 2.5 * nrow), squeeze=False)
+    fig = Figure(figsize=(2.0 * ncol, 2.5 * nrow))
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     ext = (grid.u[0], grid.u[1], grid.v[1], grid.v[0])
     for k, ax in enumerate(axes.ravel()):
         ax.set_axis_off()
@@ -724,7 +722,6 @@ def preview_templates(templates: FlowTemplates, path, *, which: str = "controls"
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
     return path
 
 

@@ -213,12 +213,10 @@ class ValidationResult:
 
 def plot_agreement(table: pd.DataFrame, path=None, *, title: str | None = None):
     """Cosine and end-point error per frame (face and regions); saved to ``path`` if given."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    fig = Figure(figsize=(8, 7))
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
     x = table["frame"].to_numpy()
     for name in REGION_GROUPS:
         if f"cosine_{name}" in table:
@@ -246,7 +244,6 @@ def plot_agreement(table: pd.DataFrame, path=None, *, title: str | None = None):
 
         with atomic_path(Path(path)) as tmp:
             fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
     return fig
 
 
