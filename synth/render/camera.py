@@ -237,19 +237,23 @@ def project(points: np.ndarray, camera: Camera, pose: HeadPose | None = None
         raise ValueError(f"points must have shape (K, 3), got {pts.shape}")
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
-    w = apply_pose(pts, pose)
+    return project_posed(apply_pose(pts, pose), camera)
+
+
+def project_posed(world: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Image xy and depth of points already posed in world space (see :func:`project`)."""
     lx, ly, lz = (float(v) for v in camera.look_at)
     cx, cy = camera.centre
-    depth = camera.distance - (w[:, 2] - lz)
+    depth = camera.distance - (world[:, 2] - lz)
     if camera.perspective:
         if np.any(depth <= 1e-6):
             raise ValueError("a point lies behind the perspective camera")
         f = camera.focal / depth
     else:
         f = camera.scale
-    xy = np.empty((len(w), 2))
-    xy[:, 0] = cx + f * (w[:, 0] - lx)
-    xy[:, 1] = cy - f * (w[:, 1] - ly)
+    xy = np.empty((len(world), 2))
+    xy[:, 0] = cx + f * (world[:, 0] - lx)
+    xy[:, 1] = cy - f * (world[:, 1] - ly)
     return xy, depth
 
 

@@ -14,7 +14,14 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from synth.render.camera import Camera, HeadPose, apply_pose, default_camera, pose_matrix
+from synth.render.camera import (
+    Camera,
+    HeadPose,
+    apply_pose,
+    default_camera,
+    pose_matrix,
+    project_posed,
+)
 from synth.render.raster import _normals_kernel, _raster_kernel, _shade_kernel
 from synth.render.shading import FLAT_COLOURS, SKIN, SPECULAR, Light, eye_texture
 
@@ -219,18 +226,7 @@ class Renderer:
         pose = pose or HeadPose()
         v = self._vertices(vertices, inner_vertices)
         world = apply_pose(v, pose)
-        lx, ly, lz = (float(x) for x in cam.look_at)
-        cx, cy = cam.centre
-        depth = cam.distance - (world[:, 2] - lz)
-        if cam.perspective:
-            if np.any(depth <= 1e-6):
-                raise ValueError("a vertex lies behind the perspective camera")
-            f = cam.focal / depth
-        else:
-            f = cam.scale
-        xy = np.empty((len(world), 2))
-        xy[:, 0] = cx + f * (world[:, 0] - lx)
-        xy[:, 1] = cy - f * (world[:, 1] - ly)
+        xy, depth = project_posed(world, cam)
         return world, xy, depth
 
     def _buffers(self, xy, depth, cam):
