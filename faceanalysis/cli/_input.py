@@ -7,30 +7,10 @@ Not a subcommand (it is not listed in ``SUBCOMMANDS``); subcommands call
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
+from faceanalysis.cli._common import non_negative_int, positive_float
 from faceanalysis.video import MIN_FACE_SIZE, VideoSource, open_video
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _frame_number(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a frame number: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"frame numbers start at 0, got {value}")
-    return value
 
 
 def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
@@ -40,12 +20,12 @@ def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = Tru
                             help="video file (anything OpenCV/FFmpeg reads), folder of images "
                                  "(png, jpg, tif, bmp; natural order) or a single image")
     group = parser.add_argument_group("input")
-    group.add_argument("--fps", type=_positive_float, metavar="FPS",
+    group.add_argument("--fps", type=positive_float, metavar="FPS",
                        help="frame rate; overrides the container's and sets timestamps to "
                             "frame/FPS (image folders: 30 by default)")
-    group.add_argument("--start", type=_frame_number, default=0, metavar="FRAME",
+    group.add_argument("--start", type=non_negative_int, default=0, metavar="FRAME",
                        help="first frame to analyse, 0-based (default 0)")
-    group.add_argument("--end", type=_frame_number, metavar="FRAME",
+    group.add_argument("--end", type=non_negative_int, metavar="FRAME",
                        help="stop before this frame (exclusive; default: the last frame)")
 
 

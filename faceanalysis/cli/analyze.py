@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_output_options, add_quiet_option
+from faceanalysis.cli._common import add_output_options, add_quiet_option, non_negative_int
 from faceanalysis.cli._input import add_input_options
 
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
@@ -21,7 +21,7 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                        help="joint: bounded least squares through the face model (default); "
                             "tw93: the paper's per-muscle inversion of eq. 5; flow: dense optical "
                             "flow on the model's per-muscle flow templates")
-    group.add_argument("--neutral", type=int, metavar="FRAME",
+    group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first frame tracked)")
     group.add_argument("--layout", type=Path, metavar="JSON",

@@ -7,6 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
+from faceanalysis.cli._common import positive_int
 from faceanalysis.cli._input import add_input_options
 from faceanalysis.cli.analyze import add_analysis_options
 
@@ -39,7 +40,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="re-analyse every video, replacing finished results")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, metavar="N",
+    where.add_argument("--workers", type=positive_int, metavar="N",
                        help="worker processes of the local cluster (default: all cores)")
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="run on an existing Dask cluster; inputs and OUT must be "

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option
+from faceanalysis.cli._common import add_quiet_option, non_negative_int, positive_float
 from faceanalysis.cli._input import add_input_options
 
 HELP = "name the expression (six primaries or neutral) of a video by flow templates"
@@ -30,11 +30,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--analysis", type=Path, metavar="OUT",
                         help="reuse the head frames and fiducials of an analysis folder "
                              "instead of tracking again")
-    parser.add_argument("--neutral", type=int, metavar="FRAME",
+    parser.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                         help="neutral reference frame (default: the first tracked frame)")
     parser.add_argument("--method", choices=FLOW_METHODS, default="dis",
                         help="optical flow (default dis)")
-    parser.add_argument("--threshold", type=float, metavar="E",
+    parser.add_argument("--threshold", type=positive_float, metavar="E",
                         help="motion energy (RMS head units) of an expression "
                              "(default: the calibrated value)")
     parser.add_argument("--templates", type=Path, metavar="NPZ",

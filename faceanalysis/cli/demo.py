@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option
+from faceanalysis.cli._common import add_quiet_option, non_negative_int, positive_int
 
 HELP = "render a synthetic expression, analyse it and compare with the truth"
 
@@ -24,8 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--expression", default="surprise",
                         help="happiness, sadness, surprise, fear, anger or disgust "
                              "(default: surprise)")
-    parser.add_argument("--frames", type=int, default=48, help="frames (default 48)")
-    parser.add_argument("--seed", type=int, default=7, help="identity seed (default 7)")
+    parser.add_argument("--frames", type=positive_int, default=48, help="frames (default 48)")
+    parser.add_argument("--seed", type=non_negative_int, default=7,
+                        help="identity seed (default 7)")
     add_quiet_option(parser)
 
 

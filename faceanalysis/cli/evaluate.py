@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option
+from faceanalysis.cli._common import add_quiet_option, positive_int
 
 HELP = "compare an analysis with ground truth, or run the standard synthetic suite"
 
@@ -35,9 +35,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="output folder of the suite")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the results already in OUT")
-    parser.add_argument("--identities", type=int, default=10,
+    parser.add_argument("--identities", type=positive_int, default=10,
                         help="identities in the suite (default 10)")
-    parser.add_argument("--frames", type=int, default=30,
+    parser.add_argument("--frames", type=positive_int, default=30,
                         help="frames per sequence (default 30)")
     parser.add_argument("--json", action="store_true", help="print only JSON")
     add_quiet_option(parser)

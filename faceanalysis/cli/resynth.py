@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option
+from faceanalysis.cli._common import add_quiet_option, positive_float
 
 HELP = "render the face model driven by a contraction time series (resynthesis)"
 
@@ -75,7 +75,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shading", choices=SHADINGS, default="textured",
                         help="textured skin, plain skin, or wireframe with the muscles drawn "
                              "(default textured)")
-    parser.add_argument("--fps", type=float, metavar="FPS",
+    parser.add_argument("--fps", type=positive_float, metavar="FPS",
                         help="output frame rate (default: the source's)")
     parser.add_argument("--subject", type=Path, metavar="VIDEO_OR_ANALYSIS_DIR",
                         help="personalise the model to this subject's neutral frame")

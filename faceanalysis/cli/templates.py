@@ -6,19 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_output_options, add_quiet_option
+from faceanalysis.cli._common import (
+    add_output_options,
+    add_quiet_option,
+    non_negative_int,
+    positive_int,
+)
 
 HELP = "make the face model's optical-flow templates (per muscle, per expression)"
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -42,14 +37,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--subject", type=Path, metavar="ANALYSIS",
                         help="analysis folder (contractions.csv) of a subject: also write "
                              "templates personalised to its neutral fiducials")
-    parser.add_argument("--identity", type=_nonneg_int, metavar="SEED",
+    parser.add_argument("--identity", type=non_negative_int, metavar="SEED",
                         help="also make templates with the model of synthetic identity SEED")
     parser.add_argument("--source", choices=("exact", "nodes"), default="exact",
                         help="exact: the renderer's exact flow (default); nodes: projected "
                              "node motion interpolated between vertices")
-    parser.add_argument("--size", type=int, default=256, metavar="PX",
+    parser.add_argument("--size", type=positive_int, default=256, metavar="PX",
                         help="render size of the model (default 256)")
-    parser.add_argument("--steps", type=int, default=6, metavar="N",
+    parser.add_argument("--steps", type=positive_int, default=6, metavar="N",
                         help="instants from neutral to apex in an expression template "
                              "(default 6)")
     parser.add_argument("--no-previews", action="store_true", help="write only the .npz files")

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option
+from faceanalysis.cli._common import add_quiet_option, positive_float
 
 HELP = "compare the optical flow of a video with that of its analysis's resynthesis"
 
@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="optical flow of the input (default dis)")
     parser.add_argument("--generic", action="store_true",
                         help="compare with the generic face's resynthesis (no personalisation)")
-    parser.add_argument("--fps", type=float, metavar="FPS",
+    parser.add_argument("--fps", type=positive_float, metavar="FPS",
                         help="frame rate, as given to analyze")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_quiet_option(parser)

@@ -52,3 +52,14 @@ def test_user_errors_become_one_line_exit_1(monkeypatch, run_cli):
     code, _, err = run_cli("info")
     assert code == 1
     assert err.strip() == "faceanalysis: error: clip.mp4: no such file"
+
+
+def test_numeric_options_are_checked_before_any_work(run_cli, tmp_path):
+    for argv in (["resynth", "x.csv", "-o", tmp_path / "y.mp4", "--fps", "-3"],
+                 ["batch", "a.mp4", "-o", tmp_path / "b", "--workers", "0"],
+                 ["analyze", "a.mp4", "-o", tmp_path / "c", "--neutral", "-1"],
+                 ["demo", "-o", tmp_path / "d", "--frames", "zero"]):
+        code, _, err = run_cli(*argv)
+        assert code == 2, argv
+        assert "Traceback" not in err
+    assert not any(tmp_path.iterdir())
