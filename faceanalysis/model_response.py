@@ -7,14 +7,12 @@ parameters, controls, levels, toolkit version).
 
 from __future__ import annotations
 
-import hashlib
 import logging
-import os
-from pathlib import Path
 
 import numpy as np
 
 from faceanalysis._version import __version__
+from faceanalysis.cache import cache_dir, digest_of, source_digest
 from faceanalysis.outputs import atomic_path
 from faceanalysis.response import FiducialResponse
 from faceanalysis.table import FIDUCIALS
@@ -41,21 +39,17 @@ OBSERVED_CONTROLS: tuple[str, ...] = (
 JAW_MAX = 0.35
 
 
-def cache_dir() -> Path:
-    """Folder for cached tables: ``$FACEANALYSIS_CACHE`` or ``~/.cache/faceanalysis``."""
-    root = os.environ.get("FACEANALYSIS_CACHE")
-    return Path(root) if root else Path.home() / ".cache" / "faceanalysis"
-
-
 def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
                n_samples: int) -> str:
-    h = hashlib.sha1()
-    h.update(__version__.encode())
-    h.update(np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(model.mesh.triangles).tobytes())
-    h.update(repr(getattr(model, "parameters_digest", lambda: "")()).encode())
-    h.update(repr((controls, n_levels, jaw_max, n_samples)).encode())
-    return h.hexdigest()[:16]
+    return digest_of([
+        __version__.encode(),
+        np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
+        np.ascontiguousarray(model.mesh.triangles).tobytes(),
+        repr(getattr(model, "parameters_digest", lambda: "")()).encode(),
+        repr((controls, n_levels, jaw_max, n_samples)).encode(),
+        # the physics code: a solver change makes the table stale
+        source_digest(("synth",), ("model_response.py", "response.py")).encode(),
+    ])
 
 
 #: Measurement points: the 11 fiducials of 004 plus the centre of the lower lip's lower
@@ -64,17 +58,16 @@ def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
 MEASUREMENT_POINTS: tuple[str, ...] = (*FIDUCIALS, "lip_lower_centre")
 
 
-def _fiducial_xy(model, points=MEASUREMENT_POINTS) -> np.ndarray:
-    positions = model.landmark_positions()
-    return np.array([positions[name][:2] for name in points], dtype=float)
-
-
-def _set(model, controls, values, jaw_max):
+def equilibrium_points(model, controls, values, points=MEASUREMENT_POINTS) -> np.ndarray:
+    """Equilibrate ``model`` at ``values`` of ``controls`` (muscles and/or
+    ``"jaw_rotation"``; unlisted muscles at rest) and return the orthographic x-y of
+    ``points`` (cm), shape (P, 2)."""
     muscles = {n: float(v) for n, v in zip(controls, values) if n != "jaw_rotation"}
     jaw = float(dict(zip(controls, values)).get("jaw_rotation", 0.0))
     model.set_contractions(muscles or None, jaw_rotation=jaw)
     model.equilibrate()
-    return _fiducial_xy(model)
+    positions = model.landmark_positions()
+    return np.array([positions[name][:2] for name in points], dtype=float)
 
 
 def _interaction_pairs(main: np.ndarray, threshold: float) -> np.ndarray:
@@ -117,19 +110,12 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
         raise ValueError(f"unknown muscles {unknown}; the model has {list(model.muscle_names)}")
     levels = np.linspace(0.0, 1.0, n_levels)
     model.reset()
-    model.set_contractions(None)
-    model.equilibrate()
-    rest = _fiducial_xy(model)
+    rest = equilibrium_points(model, (), ())
     disp = np.zeros((len(controls), n_levels, len(MEASUREMENT_POINTS), 2))
     upper = np.array([jaw_max if c == "jaw_rotation" else 1.0 for c in controls])
     for m, name in enumerate(controls):
         for k, level in enumerate(levels[1:], start=1):
-            if name == "jaw_rotation":
-                model.set_contractions(None, jaw_rotation=level * jaw_max)
-            else:
-                model.set_contractions({name: level})
-            model.equilibrate()
-            disp[m, k] = _fiducial_xy(model) - rest
+            disp[m, k] = equilibrium_points(model, (name,), (level * upper[m],)) - rest
     additive = FiducialResponse(tuple(controls), MEASUREMENT_POINTS, rest, disp, upper, levels)
     if n_samples <= 0:
         model.reset()
@@ -145,7 +131,7 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
     observed = np.empty((n_samples, len(MEASUREMENT_POINTS), 2))
     model.reset()
     for i in range(n_samples):
-        observed[i] = _set(model, controls, c[i], jaw_max) - rest
+        observed[i] = equilibrium_points(model, controls, c[i]) - rest
     model.reset()
     residual = (observed - additive.predict(c)).reshape(n_samples, -1)
     u = c / upper

@@ -16,21 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from faceanalysis.estimators import box_qp
+from faceanalysis.model_response import equilibrium_points
 from faceanalysis.response import FiducialResponse
-
-
-def _measure(model, response: FiducialResponse, controls: np.ndarray) -> np.ndarray:
-    muscles = {}
-    jaw = 0.0
-    for name, value in zip(response.muscles, controls):
-        if name == "jaw_rotation":
-            jaw = float(value)
-        else:
-            muscles[name] = float(value)
-    model.set_contractions(muscles or None, jaw_rotation=jaw)
-    model.equilibrate()
-    positions = model.landmark_positions()
-    return np.array([positions[n][:2] for n in response.fiducials], dtype=float)
 
 
 def refine_through_model(displacements: np.ndarray, response: FiducialResponse, model,
@@ -74,7 +61,8 @@ def refine_through_model(displacements: np.ndarray, response: FiducialResponse, 
     scale = np.mean(response.displacement[:, -1].reshape(len(upper), -1) ** 2) * n_f * 2
     lam = regularization * scale / upper**2
     model.reset()
-    rest = _measure(model, response, np.zeros(len(upper)))
+    rest = equilibrium_points(model, response.muscles, np.zeros(len(upper)),
+                              response.fiducials)
     for t in range(d.shape[0]):
         c = c_all[t]
         if not (np.isfinite(c).all() and np.isfinite(d[t]).all()):
@@ -82,7 +70,8 @@ def refine_through_model(displacements: np.ndarray, response: FiducialResponse, 
                 progress(1)
             continue
         for _ in range(iterations):
-            predicted = _measure(model, response, c) - rest
+            predicted = equilibrium_points(model, response.muscles, c,
+                                           response.fiducials) - rest
             res = (d[t] - predicted).reshape(-1)
             jac = response.jacobian(c[None])[0]                       # (K, M)
             hess = (jac.T @ jac + np.diag(lam))[None]

@@ -604,41 +604,22 @@ def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> Flo
 # ---------------------------------------------------------------------------- cache + files
 def _model_key(model, grid: FaceGrid, extra) -> str:
     from faceanalysis._version import __version__
+    from faceanalysis.cache import source_digest
 
     h = hashlib.sha1()
     h.update(__version__.encode())
     h.update(np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes())
     h.update(repr(getattr(model, "parameters_digest", lambda: "")()).encode())
     h.update(repr((tuple(model.muscle_names), grid.as_dict(), extra)).encode())
-    h.update(_code_digest().encode())
+    h.update(source_digest(("synth", "trackers"), ("templates.py", "flow.py")).encode())
     return h.hexdigest()[:16]
-
-
-def _code_digest() -> str:
-    """Digest of the code the templates depend on (physics, renderer, tracker head frame,
-    flow), so that a cached table goes stale when any of it changes."""
-    import importlib.util
-
-    h = hashlib.sha1()
-    for pkg in ("synth", "trackers"):
-        spec = importlib.util.find_spec(pkg)
-        if spec is None or not spec.submodule_search_locations:
-            continue
-        root = Path(next(iter(spec.submodule_search_locations)))
-        for f in sorted(root.rglob("*.py")):
-            h.update(f.read_bytes())
-        for f in sorted(root.rglob("*.toml")) + sorted(root.rglob("*.json")):
-            h.update(f.read_bytes())
-    for name in ("templates.py", "flow.py"):
-        h.update((Path(__file__).parent / name).read_bytes())
-    return h.hexdigest()
 
 
 def default_templates(model=None, *, grid: FaceGrid | None = None, use_cache: bool = True,
                       **kwargs) -> FlowTemplates:
     """Templates of ``model`` (default: the generic face), cached on disk like the fiducial
     response (``$FACEANALYSIS_CACHE`` or ``~/.cache/faceanalysis``)."""
-    from faceanalysis.model_response import cache_dir
+    from faceanalysis.cache import cache_dir
 
     if model is None:
         from synth.model import FaceModel
