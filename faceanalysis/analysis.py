@@ -114,17 +114,6 @@ def _load_layout(layout, frame_size):
     return lay
 
 
-def _contour_midpoint(points: np.ndarray) -> np.ndarray:
-    """Point halfway along a polyline, by arc length."""
-    p = np.asarray(points, dtype=float)
-    seg = np.hypot(*np.diff(p, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    half = 0.5 * s[-1]
-    k = min(int(np.searchsorted(s, half, side="right")) - 1, len(seg) - 1)
-    w = 0.0 if seg[k] == 0 else (half - s[k]) / seg[k]
-    return p[k] + w * (p[k + 1] - p[k])
-
-
 #: How a measurement point that is not one of the 11 fiducials is read off the contours.
 _CONTOUR_POINTS = {"lip_lower_centre": "lower_lip"}
 
@@ -144,6 +133,8 @@ MIN_POINTS = 7
 
 
 def _measure(result, names: tuple[str, ...]) -> np.ndarray:
+    from trackers.fiducials import arc_point
+
     out = np.empty((len(names), 2))
     lost = {name for name, q in result.quality.items() if q.lost}
     for j, name in enumerate(names):
@@ -152,7 +143,7 @@ def _measure(result, names: tuple[str, ...]) -> np.ndarray:
         elif name in result.fiducials:
             out[j] = result.fiducials[name]
         elif name in _CONTOUR_POINTS:
-            out[j] = _contour_midpoint(result.contours[_CONTOUR_POINTS[name]])
+            out[j] = arc_point(result.contours[_CONTOUR_POINTS[name]], 0.5)
         else:
             raise ValueError(f"the tracker cannot measure the point {name!r}")
     return out
