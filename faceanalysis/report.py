@@ -8,6 +8,7 @@ table itself, so it always agrees with ``contractions.csv``.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 import math
@@ -52,6 +53,9 @@ def _jsonable(value, key: str = "value"):
         return str(value)
     if isinstance(value, Mapping):
         return {str(k): _jsonable(v, f"{key}.{k}") for k, v in value.items()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        # e.g. trackers.SnakeParams passed in tracker_options
+        return _jsonable(dataclasses.asdict(value), key)
     if isinstance(value, np.ndarray):
         return [_jsonable(v, key) for v in value.tolist()]
     if isinstance(value, (list, tuple, set, frozenset)):

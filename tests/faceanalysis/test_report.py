@@ -106,6 +106,18 @@ def test_nan_becomes_null_and_unknown_types_are_named():
         analysis_metadata({"path": "x"}, versions=VERSIONS, extra={"input": 1})
 
 
+def test_tracker_parameters_given_as_dataclasses_are_recorded():
+    # analyze(..., tracker_options={"params": SnakeParams(...)}) used to fail at the very end,
+    # when analysis.json was assembled
+    from trackers.snakes import SnakeParams
+
+    meta = analysis_metadata({"path": "x.mp4"}, versions=VERSIONS,
+                             parameters={"tracker_options": {"params": SnakeParams(a=0.3)}})
+    params = meta["parameters"]["tracker_options"]["params"]
+    assert params["a"] == 0.3 and params["b"] == SnakeParams().b
+    json.dumps(meta)
+
+
 def test_write_and_read_back(tmp_path):
     meta = analysis_metadata({"path": "x.mp4"}, lost_table(), versions=VERSIONS)
     path = write_analysis(meta, tmp_path / "analysis.json")
