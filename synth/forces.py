@@ -33,6 +33,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir as llvm_ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .lattice import PRISM_QUADS, Lattice, rotate_about_jaw
 
@@ -90,197 +94,314 @@ def _cross(ax, ay, az, bx, by, bz):  # pragma: no cover
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
+#: prisms per block of :func:`_volume_kernel` (its arithmetic runs in SIMD loops over a block)
+_VB = 64
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cover
     """Volume term; ``quads`` must be :data:`~synth.lattice.PRISM_QUADS` (the faces are
-    unrolled: triangles (0, 1, 2), (3, 5, 4) and the three bilinear side quads)."""
-    energy = 0.0
-    for e in range(prisms.shape[0]):
-        n0 = prisms[e, 0]
-        n1 = prisms[e, 1]
-        n2 = prisms[e, 2]
-        n3 = prisms[e, 3]
-        n4 = prisms[e, 4]
-        n5 = prisms[e, 5]
-        cx = (x[n0, 0] + x[n1, 0] + x[n2, 0] + x[n3, 0] + x[n4, 0] + x[n5, 0]) * (1.0 / 6.0)
-        cy = (x[n0, 1] + x[n1, 1] + x[n2, 1] + x[n3, 1] + x[n4, 1] + x[n5, 1]) * (1.0 / 6.0)
-        cz = (x[n0, 2] + x[n1, 2] + x[n2, 2] + x[n3, 2] + x[n4, 2] + x[n5, 2]) * (1.0 / 6.0)
-        q0x = x[n0, 0] - cx
-        q0y = x[n0, 1] - cy
-        q0z = x[n0, 2] - cz
-        q1x = x[n1, 0] - cx
-        q1y = x[n1, 1] - cy
-        q1z = x[n1, 2] - cz
-        q2x = x[n2, 0] - cx
-        q2y = x[n2, 1] - cy
-        q2z = x[n2, 2] - cz
-        q3x = x[n3, 0] - cx
-        q3y = x[n3, 1] - cy
-        q3z = x[n3, 2] - cz
-        q4x = x[n4, 0] - cx
-        q4y = x[n4, 1] - cy
-        q4z = x[n4, 2] - cz
-        q5x = x[n5, 0] - cx
-        q5y = x[n5, 1] - cy
-        q5z = x[n5, 2] - cz
-        vol6 = 0.0
-        jkx = q1y * q2z - q1z * q2y
-        jky = q1z * q2x - q1x * q2z
-        jkz = q1x * q2y - q1y * q2x
-        kix = q2y * q0z - q2z * q0y
-        kiy = q2z * q0x - q2x * q0z
-        kiz = q2x * q0y - q2y * q0x
-        ijx = q0y * q1z - q0z * q1y
-        ijy = q0z * q1x - q0x * q1z
-        ijz = q0x * q1y - q0y * q1x
-        vol6 += q0x * jkx + q0y * jky + q0z * jkz
-        g0x = 4.0 * jkx
-        g1x = 4.0 * kix
-        g2x = 4.0 * ijx
-        g0y = 4.0 * jky
-        g1y = 4.0 * kiy
-        g2y = 4.0 * ijy
-        g0z = 4.0 * jkz
-        g1z = 4.0 * kiz
-        g2z = 4.0 * ijz
-        jkx = q5y * q4z - q5z * q4y
-        jky = q5z * q4x - q5x * q4z
-        jkz = q5x * q4y - q5y * q4x
-        kix = q4y * q3z - q4z * q3y
-        kiy = q4z * q3x - q4x * q3z
-        kiz = q4x * q3y - q4y * q3x
-        ijx = q3y * q5z - q3z * q5y
-        ijy = q3z * q5x - q3x * q5z
-        ijz = q3x * q5y - q3y * q5x
-        vol6 += q3x * jkx + q3y * jky + q3z * jkz
-        g3x = 4.0 * jkx
-        g5x = 4.0 * kix
-        g4x = 4.0 * ijx
-        g3y = 4.0 * jky
-        g5y = 4.0 * kiy
-        g4y = 4.0 * ijy
-        g3z = 4.0 * jkz
-        g5z = 4.0 * kiz
-        g4z = 4.0 * ijz
-        vol24 = 4.0 * vol6
-        sx = q0x + q3x + q4x + q1x
-        d1x = q4x - q0x
-        d2x = q1x - q3x
-        sy = q0y + q3y + q4y + q1y
-        d1y = q4y - q0y
-        d2y = q1y - q3y
-        sz = q0z + q3z + q4z + q1z
-        d1z = q4z - q0z
-        d2z = q1z - q3z
-        c12x = d1y * d2z - d1z * d2y
-        c12y = d1z * d2x - d1x * d2z
-        c12z = d1x * d2y - d1y * d2x
-        c2sx = d2y * sz - d2z * sy
-        c2sy = d2z * sx - d2x * sz
-        c2sz = d2x * sy - d2y * sx
-        cs1x = sy * d1z - sz * d1y
-        cs1y = sz * d1x - sx * d1z
-        cs1z = sx * d1y - sy * d1x
-        vol24 += sx * c12x + sy * c12y + sz * c12z
-        g0x += c12x - c2sx
-        g4x += c12x + c2sx
-        g3x += c12x - cs1x
-        g1x += c12x + cs1x
-        g0y += c12y - c2sy
-        g4y += c12y + c2sy
-        g3y += c12y - cs1y
-        g1y += c12y + cs1y
-        g0z += c12z - c2sz
-        g4z += c12z + c2sz
-        g3z += c12z - cs1z
-        g1z += c12z + cs1z
-        sx = q1x + q4x + q5x + q2x
-        d1x = q5x - q1x
-        d2x = q2x - q4x
-        sy = q1y + q4y + q5y + q2y
-        d1y = q5y - q1y
-        d2y = q2y - q4y
-        sz = q1z + q4z + q5z + q2z
-        d1z = q5z - q1z
-        d2z = q2z - q4z
-        c12x = d1y * d2z - d1z * d2y
-        c12y = d1z * d2x - d1x * d2z
-        c12z = d1x * d2y - d1y * d2x
-        c2sx = d2y * sz - d2z * sy
-        c2sy = d2z * sx - d2x * sz
-        c2sz = d2x * sy - d2y * sx
-        cs1x = sy * d1z - sz * d1y
-        cs1y = sz * d1x - sx * d1z
-        cs1z = sx * d1y - sy * d1x
-        vol24 += sx * c12x + sy * c12y + sz * c12z
-        g1x += c12x - c2sx
-        g5x += c12x + c2sx
-        g4x += c12x - cs1x
-        g2x += c12x + cs1x
-        g1y += c12y - c2sy
-        g5y += c12y + c2sy
-        g4y += c12y - cs1y
-        g2y += c12y + cs1y
-        g1z += c12z - c2sz
-        g5z += c12z + c2sz
-        g4z += c12z - cs1z
-        g2z += c12z + cs1z
-        sx = q2x + q5x + q3x + q0x
-        d1x = q3x - q2x
-        d2x = q0x - q5x
-        sy = q2y + q5y + q3y + q0y
-        d1y = q3y - q2y
-        d2y = q0y - q5y
-        sz = q2z + q5z + q3z + q0z
-        d1z = q3z - q2z
-        d2z = q0z - q5z
-        c12x = d1y * d2z - d1z * d2y
-        c12y = d1z * d2x - d1x * d2z
-        c12z = d1x * d2y - d1y * d2x
-        c2sx = d2y * sz - d2z * sy
-        c2sy = d2z * sx - d2x * sz
-        c2sz = d2x * sy - d2y * sx
-        cs1x = sy * d1z - sz * d1y
-        cs1y = sz * d1x - sx * d1z
-        cs1z = sx * d1y - sy * d1x
-        vol24 += sx * c12x + sy * c12y + sz * c12z
-        g2x += c12x - c2sx
-        g3x += c12x + c2sx
-        g5x += c12x - cs1x
-        g0x += c12x + cs1x
-        g2y += c12y - c2sy
-        g3y += c12y + c2sy
-        g5y += c12y - cs1y
-        g0y += c12y + cs1y
-        g2z += c12z - c2sz
-        g3z += c12z + c2sz
-        g5z += c12z - cs1z
-        g0z += c12z + cs1z
-        vol = vol24 * (1.0 / 24.0)
-        v0 = rest_volume[e]
-        strain = (vol - v0) / v0
-        energy += 0.5 * bulk[e] * v0 * strain * strain
-        cf = bulk[e] * strain * (1.0 / 24.0)
-        out[n0, 0] -= cf * g0x
-        out[n0, 1] -= cf * g0y
-        out[n0, 2] -= cf * g0z
-        out[n1, 0] -= cf * g1x
-        out[n1, 1] -= cf * g1y
-        out[n1, 2] -= cf * g1z
-        out[n2, 0] -= cf * g2x
-        out[n2, 1] -= cf * g2y
-        out[n2, 2] -= cf * g2z
-        out[n3, 0] -= cf * g3x
-        out[n3, 1] -= cf * g3y
-        out[n3, 2] -= cf * g3z
-        out[n4, 0] -= cf * g4x
-        out[n4, 1] -= cf * g4y
-        out[n4, 2] -= cf * g4z
-        out[n5, 0] -= cf * g5x
-        out[n5, 1] -= cf * g5y
-        out[n5, 2] -= cf * g5z
-    return energy
+    unrolled: triangles (0, 1, 2), (3, 5, 4) and the three bilinear side quads).
 
+    Blocks of ``_VB`` prisms: their node positions are gathered into (coordinate, prism)
+    rows, the volume gradients computed by two loops over the block that the compiler turns
+    into SIMD code (one loop would be too large for it: the triangles, then the side quads;
+    all 18 inputs as contiguous rows), and the forces scattered to the nodes."""
+    ne = prisms.shape[0]
+    p = np.empty(18 * _VB)
+    q = np.empty(18 * _VB)
+    gt = np.empty(19 * _VB)
+    gq = np.empty(19 * _VB)
+    energy = 0.0
+    for e0 in range(0, ne, _VB):
+        nb = min(_VB, ne - e0)
+        for t in range(nb):
+            for k in range(6):
+                n = prisms[e0 + t, k]
+                p[3 * k * _VB + t] = x[n, 0]
+                p[(3 * k + 1) * _VB + t] = x[n, 1]
+                p[(3 * k + 2) * _VB + t] = x[n, 2]
+        # end faces (triangles); positions relative to the centroid
+        for t in range(nb):
+            p0x = p[0 * _VB + t]
+            p0y = p[1 * _VB + t]
+            p0z = p[2 * _VB + t]
+            p1x = p[3 * _VB + t]
+            p1y = p[4 * _VB + t]
+            p1z = p[5 * _VB + t]
+            p2x = p[6 * _VB + t]
+            p2y = p[7 * _VB + t]
+            p2z = p[8 * _VB + t]
+            p3x = p[9 * _VB + t]
+            p3y = p[10 * _VB + t]
+            p3z = p[11 * _VB + t]
+            p4x = p[12 * _VB + t]
+            p4y = p[13 * _VB + t]
+            p4z = p[14 * _VB + t]
+            p5x = p[15 * _VB + t]
+            p5y = p[16 * _VB + t]
+            p5z = p[17 * _VB + t]
+            cx = (p0x + p1x + p2x + p3x + p4x + p5x) * (1.0 / 6.0)
+            cy = (p0y + p1y + p2y + p3y + p4y + p5y) * (1.0 / 6.0)
+            cz = (p0z + p1z + p2z + p3z + p4z + p5z) * (1.0 / 6.0)
+            q0x = p0x - cx
+            q0y = p0y - cy
+            q0z = p0z - cz
+            q1x = p1x - cx
+            q1y = p1y - cy
+            q1z = p1z - cz
+            q2x = p2x - cx
+            q2y = p2y - cy
+            q2z = p2z - cz
+            q3x = p3x - cx
+            q3y = p3y - cy
+            q3z = p3z - cz
+            q4x = p4x - cx
+            q4y = p4y - cy
+            q4z = p4z - cz
+            q5x = p5x - cx
+            q5y = p5y - cy
+            q5z = p5z - cz
+            q[0 * _VB + t] = q0x
+            q[1 * _VB + t] = q0y
+            q[2 * _VB + t] = q0z
+            q[3 * _VB + t] = q1x
+            q[4 * _VB + t] = q1y
+            q[5 * _VB + t] = q1z
+            q[6 * _VB + t] = q2x
+            q[7 * _VB + t] = q2y
+            q[8 * _VB + t] = q2z
+            q[9 * _VB + t] = q3x
+            q[10 * _VB + t] = q3y
+            q[11 * _VB + t] = q3z
+            q[12 * _VB + t] = q4x
+            q[13 * _VB + t] = q4y
+            q[14 * _VB + t] = q4z
+            q[15 * _VB + t] = q5x
+            q[16 * _VB + t] = q5y
+            q[17 * _VB + t] = q5z
+            vol6 = 0.0
+            jkx = q1y * q2z - q1z * q2y
+            jky = q1z * q2x - q1x * q2z
+            jkz = q1x * q2y - q1y * q2x
+            kix = q2y * q0z - q2z * q0y
+            kiy = q2z * q0x - q2x * q0z
+            kiz = q2x * q0y - q2y * q0x
+            ijx = q0y * q1z - q0z * q1y
+            ijy = q0z * q1x - q0x * q1z
+            ijz = q0x * q1y - q0y * q1x
+            vol6 += q0x * jkx + q0y * jky + q0z * jkz
+            g0x = 4.0 * jkx
+            g1x = 4.0 * kix
+            g2x = 4.0 * ijx
+            g0y = 4.0 * jky
+            g1y = 4.0 * kiy
+            g2y = 4.0 * ijy
+            g0z = 4.0 * jkz
+            g1z = 4.0 * kiz
+            g2z = 4.0 * ijz
+            jkx = q5y * q4z - q5z * q4y
+            jky = q5z * q4x - q5x * q4z
+            jkz = q5x * q4y - q5y * q4x
+            kix = q4y * q3z - q4z * q3y
+            kiy = q4z * q3x - q4x * q3z
+            kiz = q4x * q3y - q4y * q3x
+            ijx = q3y * q5z - q3z * q5y
+            ijy = q3z * q5x - q3x * q5z
+            ijz = q3x * q5y - q3y * q5x
+            vol6 += q3x * jkx + q3y * jky + q3z * jkz
+            g3x = 4.0 * jkx
+            g5x = 4.0 * kix
+            g4x = 4.0 * ijx
+            g3y = 4.0 * jky
+            g5y = 4.0 * kiy
+            g4y = 4.0 * ijy
+            g3z = 4.0 * jkz
+            g5z = 4.0 * kiz
+            g4z = 4.0 * ijz
+            gt[18 * _VB + t] = 4.0 * vol6
+            gt[0 * _VB + t] = g0x
+            gt[1 * _VB + t] = g0y
+            gt[2 * _VB + t] = g0z
+            gt[3 * _VB + t] = g1x
+            gt[4 * _VB + t] = g1y
+            gt[5 * _VB + t] = g1z
+            gt[6 * _VB + t] = g2x
+            gt[7 * _VB + t] = g2y
+            gt[8 * _VB + t] = g2z
+            gt[9 * _VB + t] = g3x
+            gt[10 * _VB + t] = g3y
+            gt[11 * _VB + t] = g3z
+            gt[12 * _VB + t] = g4x
+            gt[13 * _VB + t] = g4y
+            gt[14 * _VB + t] = g4z
+            gt[15 * _VB + t] = g5x
+            gt[16 * _VB + t] = g5y
+            gt[17 * _VB + t] = g5z
+        # bilinear side quads
+        for t in range(nb):
+            q0x = q[0 * _VB + t]
+            q0y = q[1 * _VB + t]
+            q0z = q[2 * _VB + t]
+            q1x = q[3 * _VB + t]
+            q1y = q[4 * _VB + t]
+            q1z = q[5 * _VB + t]
+            q2x = q[6 * _VB + t]
+            q2y = q[7 * _VB + t]
+            q2z = q[8 * _VB + t]
+            q3x = q[9 * _VB + t]
+            q3y = q[10 * _VB + t]
+            q3z = q[11 * _VB + t]
+            q4x = q[12 * _VB + t]
+            q4y = q[13 * _VB + t]
+            q4z = q[14 * _VB + t]
+            q5x = q[15 * _VB + t]
+            q5y = q[16 * _VB + t]
+            q5z = q[17 * _VB + t]
+            vol24 = 0.0
+            g0x = 0.0
+            g0y = 0.0
+            g0z = 0.0
+            g1x = 0.0
+            g1y = 0.0
+            g1z = 0.0
+            g2x = 0.0
+            g2y = 0.0
+            g2z = 0.0
+            g3x = 0.0
+            g3y = 0.0
+            g3z = 0.0
+            g4x = 0.0
+            g4y = 0.0
+            g4z = 0.0
+            g5x = 0.0
+            g5y = 0.0
+            g5z = 0.0
+            sx = q0x + q3x + q4x + q1x
+            d1x = q4x - q0x
+            d2x = q1x - q3x
+            sy = q0y + q3y + q4y + q1y
+            d1y = q4y - q0y
+            d2y = q1y - q3y
+            sz = q0z + q3z + q4z + q1z
+            d1z = q4z - q0z
+            d2z = q1z - q3z
+            c12x = d1y * d2z - d1z * d2y
+            c12y = d1z * d2x - d1x * d2z
+            c12z = d1x * d2y - d1y * d2x
+            c2sx = d2y * sz - d2z * sy
+            c2sy = d2z * sx - d2x * sz
+            c2sz = d2x * sy - d2y * sx
+            cs1x = sy * d1z - sz * d1y
+            cs1y = sz * d1x - sx * d1z
+            cs1z = sx * d1y - sy * d1x
+            vol24 += sx * c12x + sy * c12y + sz * c12z
+            g0x += c12x - c2sx
+            g4x += c12x + c2sx
+            g3x += c12x - cs1x
+            g1x += c12x + cs1x
+            g0y += c12y - c2sy
+            g4y += c12y + c2sy
+            g3y += c12y - cs1y
+            g1y += c12y + cs1y
+            g0z += c12z - c2sz
+            g4z += c12z + c2sz
+            g3z += c12z - cs1z
+            g1z += c12z + cs1z
+            sx = q1x + q4x + q5x + q2x
+            d1x = q5x - q1x
+            d2x = q2x - q4x
+            sy = q1y + q4y + q5y + q2y
+            d1y = q5y - q1y
+            d2y = q2y - q4y
+            sz = q1z + q4z + q5z + q2z
+            d1z = q5z - q1z
+            d2z = q2z - q4z
+            c12x = d1y * d2z - d1z * d2y
+            c12y = d1z * d2x - d1x * d2z
+            c12z = d1x * d2y - d1y * d2x
+            c2sx = d2y * sz - d2z * sy
+            c2sy = d2z * sx - d2x * sz
+            c2sz = d2x * sy - d2y * sx
+            cs1x = sy * d1z - sz * d1y
+            cs1y = sz * d1x - sx * d1z
+            cs1z = sx * d1y - sy * d1x
+            vol24 += sx * c12x + sy * c12y + sz * c12z
+            g1x += c12x - c2sx
+            g5x += c12x + c2sx
+            g4x += c12x - cs1x
+            g2x += c12x + cs1x
+            g1y += c12y - c2sy
+            g5y += c12y + c2sy
+            g4y += c12y - cs1y
+            g2y += c12y + cs1y
+            g1z += c12z - c2sz
+            g5z += c12z + c2sz
+            g4z += c12z - cs1z
+            g2z += c12z + cs1z
+            sx = q2x + q5x + q3x + q0x
+            d1x = q3x - q2x
+            d2x = q0x - q5x
+            sy = q2y + q5y + q3y + q0y
+            d1y = q3y - q2y
+            d2y = q0y - q5y
+            sz = q2z + q5z + q3z + q0z
+            d1z = q3z - q2z
+            d2z = q0z - q5z
+            c12x = d1y * d2z - d1z * d2y
+            c12y = d1z * d2x - d1x * d2z
+            c12z = d1x * d2y - d1y * d2x
+            c2sx = d2y * sz - d2z * sy
+            c2sy = d2z * sx - d2x * sz
+            c2sz = d2x * sy - d2y * sx
+            cs1x = sy * d1z - sz * d1y
+            cs1y = sz * d1x - sx * d1z
+            cs1z = sx * d1y - sy * d1x
+            vol24 += sx * c12x + sy * c12y + sz * c12z
+            g2x += c12x - c2sx
+            g3x += c12x + c2sx
+            g5x += c12x - cs1x
+            g0x += c12x + cs1x
+            g2y += c12y - c2sy
+            g3y += c12y + c2sy
+            g5y += c12y - cs1y
+            g0y += c12y + cs1y
+            g2z += c12z - c2sz
+            g3z += c12z + c2sz
+            g5z += c12z - cs1z
+            g0z += c12z + cs1z
+            gq[18 * _VB + t] = vol24
+            gq[0 * _VB + t] = g0x
+            gq[1 * _VB + t] = g0y
+            gq[2 * _VB + t] = g0z
+            gq[3 * _VB + t] = g1x
+            gq[4 * _VB + t] = g1y
+            gq[5 * _VB + t] = g1z
+            gq[6 * _VB + t] = g2x
+            gq[7 * _VB + t] = g2y
+            gq[8 * _VB + t] = g2z
+            gq[9 * _VB + t] = g3x
+            gq[10 * _VB + t] = g3y
+            gq[11 * _VB + t] = g3z
+            gq[12 * _VB + t] = g4x
+            gq[13 * _VB + t] = g4y
+            gq[14 * _VB + t] = g4z
+            gq[15 * _VB + t] = g5x
+            gq[16 * _VB + t] = g5y
+            gq[17 * _VB + t] = g5z
+        for t in range(nb):
+            e = e0 + t
+            vol = (gt[18 * _VB + t] + gq[18 * _VB + t]) * (1.0 / 24.0)
+            v0 = rest_volume[e]
+            strain = (vol - v0) / v0
+            energy += 0.5 * bulk[e] * v0 * strain * strain
+            cf = bulk[e] * strain * (1.0 / 24.0)
+            for k in range(6):
+                n = prisms[e, k]
+                for c in range(3):
+                    r = (3 * k + c) * _VB + t
+                    out[n, c] -= cf * (gt[r] + gq[r])
+    return energy
 
 
 @numba.njit(cache=True, nogil=True)
@@ -553,46 +674,112 @@ class TissueSystem:
 # Numba L-BFGS loop (the whole iteration runs compiled; Python only sets it up)
 # ---------------------------------------------------------------------------------------------
 
+#: independent vector accumulators of :func:`_row_dot4` (hides the latency of the adds)
+_ROW_ACC = 4
+
+
+@intrinsic
+def _row_dot4(typingctx, work, idx, val, start, stop):  # pragma: no cover
+    """``sum(val[k] * work[idx[k], 0:4] for k in range(start, stop))`` as a tuple of four
+    floats, computed with 4-wide vector arithmetic (``work`` is C-contiguous ``(n, 4)``
+    float64; one vector load per term instead of three scalar ones).  Numba does not
+    vectorise the three components of a row by itself, hence the LLVM IR.  Terms go
+    round-robin to ``_ROW_ACC`` accumulators, summed pairwise at the end."""
+    sig = types.UniTuple(types.float64, 4)(work, idx, val, start, stop)
+
+    def codegen(context, builder, signature, args):
+        work_v, idx_v, val_v, start_v, stop_v = args
+        wary = context.make_array(signature.args[0])(context, builder, work_v)
+        iary = context.make_array(signature.args[1])(context, builder, idx_v)
+        vary = context.make_array(signature.args[2])(context, builder, val_v)
+        f64 = llvm_ir.DoubleType()
+        i32 = llvm_ir.IntType(32)
+        i64 = llvm_ir.IntType(64)
+        vec = llvm_ir.VectorType(f64, 4)
+        rows = builder.bitcast(wary.data, vec.as_pointer())
+        undef = llvm_ir.Constant(vec, llvm_ir.Undefined)
+        splat = llvm_ir.Constant(llvm_ir.VectorType(i32, 4), [0, 0, 0, 0])
+        accs = [cgutils.alloca_once_value(builder, llvm_ir.Constant(vec, [0.0] * 4))
+                for _ in range(_ROW_ACC)]
+        kptr = cgutils.alloca_once_value(builder, start_v)
+
+        def term(k):
+            j = builder.load(builder.gep(iary.data, [k]))
+            if j.type.width < 64:
+                j = builder.zext(j, i64)          # unsigned indices (uint16)
+            v = builder.load(builder.gep(vary.data, [k]))
+            if v.type != f64:
+                v = builder.fpext(v, f64)
+            v = builder.shuffle_vector(builder.insert_element(undef, v, llvm_ir.Constant(i32, 0)),
+                                       undef, splat)
+            return builder.fmul(v, builder.load(builder.gep(rows, [j]), align=8))
+
+        def add(acc, k):
+            builder.store(builder.fadd(builder.load(acc), term(k)), acc)
+
+        main_cond = builder.append_basic_block("rowdot.cond")
+        main_body = builder.append_basic_block("rowdot.body")
+        tail_cond = builder.append_basic_block("rowdot.tail_cond")
+        tail_body = builder.append_basic_block("rowdot.tail_body")
+        done = builder.append_basic_block("rowdot.done")
+        builder.branch(main_cond)
+        builder.position_at_end(main_cond)
+        k = builder.load(kptr)
+        unroll = llvm_ir.Constant(i64, _ROW_ACC)
+        builder.cbranch(builder.icmp_signed("<=", builder.add(k, unroll), stop_v),
+                        main_body, tail_cond)
+        builder.position_at_end(main_body)
+        k = builder.load(kptr)
+        for u in range(_ROW_ACC):
+            add(accs[u], builder.add(k, llvm_ir.Constant(i64, u)))
+        builder.store(builder.add(k, unroll), kptr)
+        builder.branch(main_cond)
+        builder.position_at_end(tail_cond)
+        k = builder.load(kptr)
+        builder.cbranch(builder.icmp_signed("<", k, stop_v), tail_body, done)
+        builder.position_at_end(tail_body)
+        k = builder.load(kptr)
+        add(accs[0], k)
+        builder.store(builder.add(k, llvm_ir.Constant(i64, 1)), kptr)
+        builder.branch(tail_cond)
+        builder.position_at_end(done)
+        sums = [builder.load(a) for a in accs]
+        while len(sums) > 1:
+            sums = [builder.fadd(sums[i], sums[i + 1]) for i in range(0, len(sums), 2)]
+        out = [builder.extract_element(sums[0], llvm_ir.Constant(i32, c)) for c in range(4)]
+        return context.make_tuple(builder, signature.return_type, out)
+
+    return sig, codegen
+
+
 @numba.njit(cache=True, nogil=True)
 def _ldl_solve3(q, rp, rj, rv, lp, li, lx, dinv, perm, work, out):  # pragma: no cover
     """Solve A z = q for 3 right-hand sides (rows of q are nodes) with a symmetric factor
     ``P A P^T = L D L^T``: the strictly lower part of ``L`` by rows (``rp``, ``rj``, ``rv``)
     for the forward sweep and by columns (``lp``, ``li``, ``lx``) for the backward one, so
     both sweeps gather (dot products, no scattered stores); ``dinv = 1 / diag(D)``; row ``i``
-    of ``A`` is row ``perm[i]`` of the factor."""
+    of ``A`` is row ``perm[i]`` of the factor.  ``work`` is ``(n, 4)`` (C order): a padded
+    row is one vector load in :func:`_row_dot4`."""
     n = q.shape[0]
+    if work.shape[0] < n or work.shape[1] != 4:
+        raise ValueError("_ldl_solve3: work must have shape (n, 4)")
     for i in range(n):
         r = perm[i]
         work[r, 0] = q[i, 0]
         work[r, 1] = q[i, 1]
         work[r, 2] = q[i, 2]
+        work[r, 3] = 0.0
     for i in range(n):
-        y0 = work[i, 0]
-        y1 = work[i, 1]
-        y2 = work[i, 2]
-        for k in range(rp[i], rp[i + 1]):
-            j = rj[k]
-            v = rv[k]
-            y0 -= v * work[j, 0]
-            y1 -= v * work[j, 1]
-            y2 -= v * work[j, 2]
-        work[i, 0] = y0
-        work[i, 1] = y1
-        work[i, 2] = y2
+        a0, a1, a2, _ = _row_dot4(work, rj, rv, rp[i], rp[i + 1])
+        work[i, 0] -= a0
+        work[i, 1] -= a1
+        work[i, 2] -= a2
     for j in range(n - 1, -1, -1):
+        a0, a1, a2, _ = _row_dot4(work, li, lx, lp[j], lp[j + 1])
         d = dinv[j]
-        y0 = work[j, 0] * d
-        y1 = work[j, 1] * d
-        y2 = work[j, 2] * d
-        for k in range(lp[j], lp[j + 1]):
-            i = li[k]
-            v = lx[k]
-            y0 -= v * work[i, 0]
-            y1 -= v * work[i, 1]
-            y2 -= v * work[i, 2]
-        work[j, 0] = y0
-        work[j, 1] = y1
-        work[j, 2] = y2
+        work[j, 0] = work[j, 0] * d - a0
+        work[j, 1] = work[j, 1] * d - a1
+        work[j, 2] = work[j, 2] * d - a2
     for i in range(n):
         r = perm[i]
         out[i, 0] = work[r, 0]
@@ -679,7 +866,7 @@ def _lbfgs_kernel(x, free, forces_args, factor, s_hist, y_hist, rho, state, tol,
     gn = np.empty((nf, 3))
     q = np.empty((nf, 3))
     z = np.empty((nf, 3))
-    work = np.empty((nf, 3))
+    work = np.empty((nf, 4))
     xf = np.empty((nf, 3))
     alphas = np.empty(m)
     n3 = 3 * nf
