@@ -26,6 +26,7 @@ import pandas as pd
 from faceanalysis.calibration import Calibration, calibrate
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimators import ESTIMATORS, estimate
+from faceanalysis.model_response import CURVE_POINTS
 from faceanalysis.response import FiducialResponse
 from faceanalysis.table import (
     FIDUCIALS,
@@ -114,8 +115,9 @@ def _load_layout(layout, frame_size):
     return lay
 
 
-#: How a measurement point that is not one of the 11 fiducials is read off the contours.
-_CONTOUR_POINTS = {"lip_lower_centre": "lower_lip"}
+#: How a measurement point that is not one of the 11 fiducials is read off the contours:
+#: name -> (contour, fraction of its arc length).
+_CONTOUR_POINTS = {"lip_lower_centre": ("lower_lip", 0.5), **CURVE_POINTS}
 
 #: The contour each measurement point comes from: a point is missing on a frame where
 #: its contour is lost (e.g. the chin below the bottom of the frame), while the points
@@ -125,6 +127,7 @@ POINT_CONTOUR = {
     "mouth_corner_l": "upper_lip", "mouth_corner_r": "upper_lip",
     "furrow_top_l": "furrow_l", "furrow_top_r": "furrow_r",
     "chin": "chin_boss", "lip_lower_centre": "lower_lip",
+    **{name: contour for name, (contour, _) in CURVE_POINTS.items()},
 }
 
 #: A frame is tracked (``success = 1``) when its head frame is known and at least this
@@ -143,7 +146,8 @@ def _measure(result, names: tuple[str, ...]) -> np.ndarray:
         elif name in result.fiducials:
             out[j] = result.fiducials[name]
         elif name in _CONTOUR_POINTS:
-            out[j] = arc_point(result.contours[_CONTOUR_POINTS[name]], 0.5)
+            contour, fraction = _CONTOUR_POINTS[name]
+            out[j] = arc_point(result.contours[contour], fraction)
         else:
             raise ValueError(f"the tracker cannot measure the point {name!r}")
     return out

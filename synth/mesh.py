@@ -479,6 +479,72 @@ class FaceMesh:
             raise ValueError(f"vertices must have shape {self.vertices.shape}, got {v.shape}")
         return {name: v[i].copy() for name, i in self.landmarks.items()}
 
+    @functools.cached_property
+    def _curve_embeddings(self) -> dict:
+        return {}
+
+    def curve_embedding(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """The feature curve ``name`` as material points of the surface.
+
+        The uv polyline (:attr:`feature_curves`) is resampled every 0.002 uv units and each
+        sample is located in the uv triangulation, so that the curve follows the skin as the
+        vertices move (cached per curve; it depends on the topology and uv only).
+
+        Returns
+        -------
+        vertices : (K, 3) int array
+            Corners of the triangle holding each sample (samples outside the mesh dropped).
+        weights : (K, 3) float array
+            Barycentric weights of each sample in its triangle.
+        """
+        if name not in self.feature_curves:
+            raise ValueError(f"unknown feature curve {name!r}; choose from "
+                             f"{', '.join(self.feature_curves)}")
+        hit = self._curve_embeddings.get(name)
+        if hit is not None:
+            return hit
+        poly = np.asarray(self.feature_curves[name], dtype=np.float64)
+        seg = np.hypot(*np.diff(poly, axis=0).T)
+        arc = np.r_[0.0, np.cumsum(seg)]
+        t = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1] / 0.002)) + 1))
+        q = np.stack([np.interp(t, arc, poly[:, 0]), np.interp(t, arc, poly[:, 1])], axis=1)
+        tri = np.asarray(self.triangles)
+        uv = np.asarray(self.uv, dtype=np.float64)
+        a = uv[tri[:, 0]]
+        e1, e2 = uv[tri[:, 1]] - a, uv[tri[:, 2]] - a
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        ok = np.abs(det) > 1e-15
+        det = np.where(ok, det, 1.0)
+        d = q[:, None, :] - a[None]                                     # (K, M, 2)
+        l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
+        l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
+        inside = ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+        found = inside.any(axis=1)
+        k = np.flatnonzero(found)
+        m = inside[k].argmax(axis=1)
+        b1, b2 = l1[k, m], l2[k, m]
+        hit = (_readonly(tri[m].astype(np.int64)),
+               _readonly(np.stack([1.0 - b1 - b2, b1, b2], axis=1)))
+        self._curve_embeddings[name] = hit
+        return hit
+
+    def curve_positions(self, name: str, vertices=None) -> np.ndarray:
+        """(K, 3) points of the feature curve ``name`` on the surface ``vertices`` (default:
+        the rest vertices), in order along the curve (see :meth:`curve_embedding`).
+
+        Examples
+        --------
+        >>> mesh = generate_face_mesh(resolution=0.4)
+        >>> p = mesh.curve_positions("furrow_l")
+        >>> bool(p[0, 1] > p[-1, 1])      # the nasolabial furrow runs down from its top
+        True
+        """
+        v = self.vertices if vertices is None else np.asarray(vertices, dtype=np.float64)
+        if v.shape != self.vertices.shape:
+            raise ValueError(f"vertices must have shape {self.vertices.shape}, got {v.shape}")
+        idx, w = self.curve_embedding(name)
+        return np.einsum("kj,kjd->kd", w, v[idx])
+
     def region_mask(self, *regions: Region) -> np.ndarray:
         """(N,) bool: vertices in any of ``regions``."""
         return np.isin(self.region, [int(r) for r in regions])

@@ -287,6 +287,26 @@ def test_landmarks_are_in_sensible_places(mesh):
     assert p["mouth_corner_l"][0] - seam_x.max() < 2 * gap + 1e-9
 
 
+def test_curve_positions_are_material_points_of_the_surface(mesh):
+    furrow = mesh.curve_positions("furrow_l")
+    assert furrow.shape[1] == 3 and len(furrow) > 20 and np.isfinite(furrow).all()
+    # the curve starts on the furrow_top landmark (same uv point) and runs down
+    np.testing.assert_allclose(furrow[0], mesh.vertices[mesh.landmarks["furrow_top_l"]],
+                               atol=1e-9)
+    assert furrow[-1, 1] < furrow[0, 1]
+    # it moves with the vertices: an affine map of the surface maps the curve alike
+    a = np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.05], [0.0, 0.0, 1.0]])
+    moved = mesh.curve_positions("furrow_l", mesh.vertices @ a.T + [1.0, -2.0, 0.5])
+    np.testing.assert_allclose(moved, furrow @ a.T + [1.0, -2.0, 0.5], atol=1e-9)
+    # mirror-symmetric mesh, mirror-symmetric curves
+    np.testing.assert_allclose(mesh.curve_positions("furrow_r")[:, 0], -furrow[:, 0],
+                               atol=1e-6)
+    with pytest.raises(ValueError, match="unknown feature curve 'furrow'"):
+        mesh.curve_positions("furrow")
+    with pytest.raises(ValueError, match="vertices must have shape"):
+        mesh.curve_positions("furrow_l", mesh.vertices[:10])
+
+
 def test_feature_curves_match_landmarks(mesh):
     assert set(mesh.feature_curves) == set(FEATURE_CURVE_NAMES)
     for name, curve in mesh.feature_curves.items():
