@@ -787,57 +787,114 @@ def _ldl_solve3(q, rp, rj, rv, lp, li, lx, dinv, perm, work, out):  # pragma: no
         out[i, 2] = work[r, 2]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _dot(a, b):  # pragma: no cover
-    """``a . b`` with four interleaved partial sums: fast without reassociation flags, and
-    the same result whatever the memory alignment of the arrays."""
-    n = a.shape[0]
-    d0 = 0.0
-    d1 = 0.0
-    d2 = 0.0
-    d3 = 0.0
-    i = 0
-    while i + 4 <= n:
-        d0 += np.float64(a[i]) * np.float64(b[i])
-        d1 += np.float64(a[i + 1]) * np.float64(b[i + 1])
-        d2 += np.float64(a[i + 2]) * np.float64(b[i + 2])
-        d3 += np.float64(a[i + 3]) * np.float64(b[i + 3])
-        i += 4
-    while i < n:
-        d0 += np.float64(a[i]) * np.float64(b[i])
-        i += 1
-    return (d0 + d1) + (d2 + d3)
+def _lanes4(builder, ptr, i, f64):  # pragma: no cover
+    """``<4 x double>`` from ``ptr[i:i + 4]`` (float or double elements)."""
+    elt = ptr.type.pointee
+    vp = builder.bitcast(builder.gep(ptr, [i]), llvm_ir.VectorType(elt, 4).as_pointer())
+    v = builder.load(vp, align=4 if elt != f64 else 8)
+    if elt != f64:
+        v = builder.fpext(v, llvm_ir.VectorType(f64, 4))
+    return v
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _axpy_dot(x, c, u, w):  # pragma: no cover
-    """``x += c u`` in place, then return ``w . x`` (one pass; four partial sums)."""
-    n = x.shape[0]
-    d0 = 0.0
-    d1 = 0.0
-    d2 = 0.0
-    d3 = 0.0
-    i = 0
-    while i + 4 <= n:
-        v0 = x[i] + c * u[i]
-        v1 = x[i + 1] + c * u[i + 1]
-        v2 = x[i + 2] + c * u[i + 2]
-        v3 = x[i + 3] + c * u[i + 3]
-        x[i] = v0
-        x[i + 1] = v1
-        x[i + 2] = v2
-        x[i + 3] = v3
-        d0 += np.float64(w[i]) * v0
-        d1 += np.float64(w[i + 1]) * v1
-        d2 += np.float64(w[i + 2]) * v2
-        d3 += np.float64(w[i + 3]) * v3
-        i += 4
-    while i < n:
-        v0 = x[i] + c * u[i]
-        x[i] = v0
-        d0 += np.float64(w[i]) * v0
-        i += 1
-    return (d0 + d1) + (d2 + d3)
+def _scalar(builder, ptr, i, f64):  # pragma: no cover
+    v = builder.load(builder.gep(ptr, [i]))
+    return v if v.type == f64 else builder.fpext(v, f64)
+
+
+def _dot_codegen(axpy):  # pragma: no cover
+    """LLVM IR of :func:`_dot` / :func:`_axpy_dot`: 4-wide vector loop, lane ``k`` holding
+    the partial sum of the elements ``i = k (mod 4)``, the ``n % 4`` last ones added to lane
+    0, result ``(d0 + d1) + (d2 + d3)``: the four partial sums of a scalar loop, bit for bit,
+    whatever the alignment of the arrays (no reassociation flags)."""
+    def codegen(context, builder, signature, args):
+        f64 = llvm_ir.DoubleType()
+        i64 = llvm_ir.IntType(64)
+        i32 = llvm_ir.IntType(32)
+        vec = llvm_ir.VectorType(f64, 4)
+        if axpy:
+            x_v, c_v, u_v, w_v = args
+            xt, _, ut, wt = signature.args
+            xa = context.make_array(xt)(context, builder, x_v)
+            ua = context.make_array(ut)(context, builder, u_v)
+            wa = context.make_array(wt)(context, builder, w_v)
+            n = cgutils.unpack_tuple(builder, xa.shape)[0]
+            cvec = builder.shuffle_vector(
+                builder.insert_element(llvm_ir.Constant(vec, llvm_ir.Undefined), c_v,
+                                       llvm_ir.Constant(i32, 0)),
+                llvm_ir.Constant(vec, llvm_ir.Undefined),
+                llvm_ir.Constant(llvm_ir.VectorType(i32, 4), [0, 0, 0, 0]))
+        else:
+            a_v, b_v = args
+            at, bt = signature.args
+            aa = context.make_array(at)(context, builder, a_v)
+            ba = context.make_array(bt)(context, builder, b_v)
+            n = cgutils.unpack_tuple(builder, aa.shape)[0]
+        acc = cgutils.alloca_once_value(builder, llvm_ir.Constant(vec, [0.0] * 4))
+        kptr = cgutils.alloca_once_value(builder, llvm_ir.Constant(i64, 0))
+        four = llvm_ir.Constant(i64, 4)
+        bb_cond = builder.append_basic_block("vd.cond")
+        bb_body = builder.append_basic_block("vd.body")
+        bb_tcond = builder.append_basic_block("vd.tcond")
+        bb_tbody = builder.append_basic_block("vd.tbody")
+        bb_tguard = builder.append_basic_block("vd.tguard")
+        bb_done = builder.append_basic_block("vd.done")
+        d0 = cgutils.alloca_once_value(builder, llvm_ir.Constant(f64, 0.0))
+        builder.branch(bb_cond)
+        builder.position_at_end(bb_cond)
+        k = builder.load(kptr)
+        builder.cbranch(builder.icmp_signed("<=", builder.add(k, four), n), bb_body, bb_tcond)
+        builder.position_at_end(bb_body)
+        k = builder.load(kptr)
+        if axpy:
+            xp = builder.bitcast(builder.gep(xa.data, [k]), vec.as_pointer())
+            v = builder.fadd(builder.load(xp, align=8),
+                             builder.fmul(cvec, _lanes4(builder, ua.data, k, f64)))
+            builder.store(v, xp, align=8)
+            t = builder.fmul(_lanes4(builder, wa.data, k, f64), v)
+        else:
+            t = builder.fmul(_lanes4(builder, aa.data, k, f64), _lanes4(builder, ba.data, k, f64))
+        builder.store(builder.fadd(builder.load(acc), t), acc)
+        builder.store(builder.add(k, four), kptr)
+        builder.branch(bb_cond)
+        # remainder (n % 4 elements) into the first partial sum
+        builder.position_at_end(bb_tcond)
+        lanes = builder.load(acc)
+        builder.store(builder.extract_element(lanes, llvm_ir.Constant(i32, 0)), d0)
+        builder.branch(bb_tguard)
+        builder.position_at_end(bb_tguard)
+        k = builder.load(kptr)
+        builder.cbranch(builder.icmp_signed("<", k, n), bb_tbody, bb_done)
+        builder.position_at_end(bb_tbody)
+        k = builder.load(kptr)
+        if axpy:
+            xp = builder.gep(xa.data, [k])
+            v = builder.fadd(builder.load(xp), builder.fmul(c_v, _scalar(builder, ua.data, k, f64)))
+            builder.store(v, xp)
+            t = builder.fmul(_scalar(builder, wa.data, k, f64), v)
+        else:
+            t = builder.fmul(_scalar(builder, aa.data, k, f64), _scalar(builder, ba.data, k, f64))
+        builder.store(builder.fadd(builder.load(d0), t), d0)
+        builder.store(builder.add(k, llvm_ir.Constant(i64, 1)), kptr)
+        builder.branch(bb_tguard)
+        builder.position_at_end(bb_done)
+        e = [builder.extract_element(lanes, llvm_ir.Constant(i32, c)) for c in range(4)]
+        return builder.fadd(builder.fadd(builder.load(d0), e[1]), builder.fadd(e[2], e[3]))
+    return codegen
+
+
+@intrinsic
+def _dot(typingctx, a, b):  # pragma: no cover
+    """``a . b`` (1-D contiguous float32 / float64 arrays of equal length) in double
+    precision with four interleaved partial sums, vectorised (see :func:`_dot_codegen`)."""
+    return types.float64(a, b), _dot_codegen(False)
+
+
+@intrinsic
+def _axpy_dot(typingctx, x, c, u, w):  # pragma: no cover
+    """``x += c u`` in place (``x`` float64), then return ``w . x``; one vectorised pass,
+    four partial sums (see :func:`_dot_codegen`)."""
+    return types.float64(x, c, u, w), _dot_codegen(True)
 
 
 #: a converged L-BFGS step is double-checked against the preconditioned gradient step, which
