@@ -275,7 +275,8 @@ def _trim_start(p, s):
 
 
 def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
-                  half_height: float | None = None, width: float | None = None):
+                  half_height: float | None = None, width: float | None = None,
+                  previous=None, max_shift: float = 0.08):
     """Mouth corners as the lateral ends of the dark mouth line or cavity.
 
     A contour on the mouth line gives the commissures by its ends while the mouth is
@@ -305,6 +306,14 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
         Expected mouth width, pixels (default: the chord's length). The scan
         reaches 30 % of it beyond the ends, plus half of what the contour is short
         of it (a contour on a cavity's border shrinks).
+    previous : pair of (2,) arrays or None, optional
+        The corners found on the previous frame (moved with the head), at the contour's
+        first and last end. Where given, the window across the chord is narrowed to
+        ``+-max_shift * width`` around that corner's height: corners move little from one
+        frame to the next, while something dark beside the mouth (a furrow crossing the
+        window when the upper lip lifts off the teeth) would otherwise win.
+    max_shift : float
+        Half-height of that narrowed window, as a fraction of the mouth width.
 
     Returns
     -------
@@ -343,7 +352,12 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
     step = 0.5
     vs = np.arange(-h, h + 1e-9, 1.0) + 0.5 * off
     # blur only the part of the image the scan samples
-    pad = 0.3 * wid + 0.5 * (wid - L) + h + abs(off) + 4.0 * max(sigma, 0.5) + 2.0
+    across = h + abs(off)
+    for last, end in zip(previous if previous is not None else (), (p[0], p[-1])):
+        if last is not None and np.isfinite(last).all():
+            across = max(across, abs(float((np.asarray(last, float) - end) @ nrm))
+                         + max(max_shift * wid, 2.0))
+    pad = 0.3 * wid + 0.5 * (wid - L) + across + 4.0 * max(sigma, 0.5) + 2.0
     x0 = max(int(np.floor(p[:, 0].min() - pad - origin[0])), 0)
     y0 = max(int(np.floor(p[:, 1].min() - pad - origin[1])), 0)
     x1 = min(int(np.ceil(p[:, 0].max() + pad - origin[0])) + 1, g.shape[1])
@@ -355,9 +369,17 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
     if sigma > 0:
         g = cv2.GaussianBlur(g, (0, 0), float(sigma))
     out = []
-    for end, direction in ((p[0], -u), (p[-1], u)):
+    prev = [None, None] if previous is None else list(previous)
+    if len(prev) != 2:
+        raise ValueError(f"previous must hold two corners (or None), got {len(prev)}")
+    for end, direction, last in ((p[0], -u, prev[0]), (p[-1], u, prev[1])):
         ss = np.arange(-0.35 * L, 0.3 * wid + 0.5 * (wid - L) + 1e-9, step)
-        base = end + ss[:, None, None] * direction + vs[None, :, None] * nrm
+        vs_end = vs
+        if last is not None and np.isfinite(last).all():
+            centre = float((np.asarray(last, float) - end) @ nrm)
+            reach = max(max_shift * wid, 2.0)
+            vs_end = np.arange(centre - reach, centre + reach + 1e-9, 1.0)
+        base = end + ss[:, None, None] * direction + vs_end[None, :, None] * nrm
         mx = (base[..., 0] - origin[0]).astype(np.float32)
         my = (base[..., 1] - origin[1]).astype(np.float32)
         vals = cv2.remap(g, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
@@ -398,12 +420,12 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
         # height: where the window is darkest, just inside the end
         col = vals[max(i - 1, 0)]
         kk = int(k[max(i - 1, 0)])
-        v = vs[kk]
-        if 0 < kk < len(vs) - 1:
+        v = vs_end[kk]
+        if 0 < kk < len(vs_end) - 1:
             den = col[kk - 1] - 2 * col[kk] + col[kk + 1]
             if den > 0:
                 v += float(np.clip(0.5 * (col[kk - 1] - col[kk + 1]) / den, -0.5, 0.5)) \
-                    * (vs[1] - vs[0])
+                    * (vs_end[1] - vs_end[0])
         pt = end + ((1 - t) * ss[i] + t * ss[j]) * direction + v * nrm
         out.append(pt)
     return out
@@ -1298,12 +1320,15 @@ class Tracker:
             width = None
             if self.mouth_width is not None and self.ref_head is not None:
                 width = self.mouth_width * head.scale / self.ref_head.scale
-            corners = mouth_corners(gray, lip, origin=gorigin, width=width,
-                                    sigma=0.5 * float(self.layout.contours["upper_lip"].sigma))
             ex = np.array(head.axes[0])
+            names = ["mouth_corner_l" if (e - lip.mean(axis=0)) @ ex > 0 else "mouth_corner_r"
+                     for e in (lip[0], lip[-1])]
+            previous = [None if self._corners_head.get(n) is None
+                        else head.to_image(self._corners_head[n][None])[0] for n in names]
+            corners = mouth_corners(gray, lip, origin=gorigin, width=width, previous=previous,
+                                    sigma=0.5 * float(self.layout.contours["upper_lip"].sigma))
             reach = 0.25 * max(_polyline_length(lip), width or 0.0)
-            for c, e in zip(corners, (lip[0], lip[-1])):
-                name = "mouth_corner_l" if (e - lip.mean(axis=0)) @ ex > 0 else "mouth_corner_r"
+            for c, e, name in zip(corners, (lip[0], lip[-1]), names):
                 if c is None or np.hypot(*(c - e)) > reach:
                     # no clear end of the mouth this frame (a highlight, a lip pressed
                     # on the teeth): keep the last corner, moved with the head

@@ -160,6 +160,31 @@ def test_mouth_corners_closed_and_open(jaw_px):
     assert np.hypot(*(got[1] - (115, 60))) < 1.5
 
 
+def test_mouth_corners_stay_near_the_previous_corner_when_a_furrow_crosses_the_window():
+    import cv2
+
+    from trackers.tracking import mouth_corners
+
+    # upper lip lifted off the teeth (disgust): the contour sits on the teeth's top edge,
+    # and the nasolabial furrow runs down just outside the corner
+    img = np.full((120, 160), 200, np.uint8)
+    cv2.ellipse(img, (80, 70), (40, 9), 0, 0, 360, 120, -1)      # lips
+    cv2.ellipse(img, (80, 67), (28, 4), 0, 0, 360, 235, -1)      # upper teeth
+    cv2.line(img, (50, 72), (110, 72), 50, 2)                    # where the lips part
+    cv2.line(img, (40, 70), (52, 72), 50, 2)
+    cv2.line(img, (108, 72), (120, 70), 50, 2)                   # corners at x = 40 / 120
+    cv2.line(img, (116, 32), (124, 58), 30, 2)                   # the furrow
+    lip = np.c_[np.linspace(54, 106, 15), np.full(15, 63.0)]
+    blind = mouth_corners(img, lip, width=80)
+    assert np.hypot(*(blind[1] - (120, 70))) > 8                 # the furrow wins
+    prev = [np.array([40.0, 70.0]), np.array([120.0, 70.5])]
+    got = mouth_corners(img, lip, width=80, previous=prev)
+    assert np.hypot(*(got[0] - (40, 70))) < 1.5
+    assert np.hypot(*(got[1] - (120, 70))) < 1.5
+    with pytest.raises(ValueError, match="two corners"):
+        mouth_corners(img, lip, previous=[prev[0]])
+
+
 def test_mouth_corners_validates_and_gives_up():
     from trackers.tracking import mouth_corners
 
