@@ -98,7 +98,7 @@ def _cross(ax, ay, az, bx, by, bz):  # pragma: no cover
 _VB = 64
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True)
 def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cover
     """Volume term; ``quads`` must be :data:`~synth.lattice.PRISM_QUADS` (the faces are
     unrolled: triangles (0, 1, 2), (3, 5, 4) and the three bilinear side quads).
@@ -106,7 +106,9 @@ def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cove
     Blocks of ``_VB`` prisms: their node positions are gathered into (coordinate, prism)
     rows, the volume gradients computed by two loops over the block that the compiler turns
     into SIMD code (one loop would be too large for it: the triangles, then the side quads;
-    all 18 inputs as contiguous rows), and the forces scattered to the nodes."""
+    all 18 inputs as contiguous rows), and the forces scattered to the nodes.  No fastmath:
+    SIMD and scalar iterations then round alike, so the result does not depend on how the
+    compiler vectorised (or inlined) the loops, e.g. fresh compile vs. cached one."""
     ne = prisms.shape[0]
     p = np.empty(18 * _VB)
     q = np.empty(18 * _VB)
