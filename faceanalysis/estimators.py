@@ -25,11 +25,30 @@ Bounds are the only thing that keeps values in [0, 1]: no clipping after the fac
 
 from __future__ import annotations
 
+import contextlib
+import functools
+
 import numpy as np
 
 from faceanalysis.response import FiducialResponse
 
 ESTIMATORS = ("joint", "tw93", "flow")
+
+
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """BLAS limited to one thread: the products of the joint fit are small (tens of
+    controls), and a multi-threaded BLAS on a machine whose other cores are busy made
+    them four times slower (2.3 s instead of 0.52 s for 1159 frames, 2 cores)."""
+    with _blas_controller().limit(limits=1, user_api="blas"):
+        yield
 
 #: Which fiducial each muscle is read from by the tw93 estimator (004, V-D).
 TW93_FIDUCIALS: dict[str, str] = {
@@ -147,6 +166,13 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     >>> np.round(estimate_joint(np.array([[[1.0, 0.5]]]), resp, regularization=0), 3)
     array([[0.5, 0.5]])
     """
+    with _one_blas_thread():
+        return _estimate_joint(displacements, response, weights, regularization,
+                               outer_iterations, inner_iterations, initial)
+
+
+def _estimate_joint(displacements, response, weights, regularization, outer_iterations,
+                    inner_iterations, initial):
     d = _check_displacements(displacements, response)
     if regularization < 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -187,8 +213,9 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     for _ in range(outer_iterations):
         jac = response.jacobian(c) * sw[:, :, None]       # (T, K, M)
         res = dv - response.predict(c).reshape(-1, n_f * 2) * sw
-        hess = np.einsum("tkm,tkn->tmn", jac, jac) + np.diag(lam)
-        grad0 = np.einsum("tkm,tk->tm", jac, res) - lam * c
+        jt = jac.transpose(0, 2, 1)                        # (T, M, K)
+        hess = np.matmul(jt, jac) + np.diag(lam)
+        grad0 = np.matmul(jt, res[:, :, None])[:, :, 0] - lam * c
         step = box_qp(hess, grad0, -c, upper - c, iterations=inner_iterations)
         # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
         # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of
@@ -212,9 +239,9 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
            iterations: int = 300, tol: float = 1e-9) -> np.ndarray:
     """Solve ``min 0.5 x'Hx - g'x`` s.t. ``lo <= x <= hi`` for a batch of small problems.
 
-    Accelerated projected gradient (FISTA) with step ``1 / lambda_max(H)``, vectorised
-    over the leading axis; stops early when no variable moved by more than ``tol``
-    over an iteration.
+    Accelerated projected gradient (FISTA) with step ``1 / ||H||_F`` (Frobenius norm,
+    ``>= lambda_max(H)``), vectorised over the leading axis; stops early when no variable
+    moved by more than ``tol`` over an iteration.
 
     Parameters
     ----------
@@ -228,7 +255,9 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     -------
     ndarray, shape (T, M)
     """
-    lipschitz = np.maximum(np.linalg.eigvalsh(hess)[:, -1], 1e-300)[:, None]
+    # the Frobenius norm bounds the largest eigenvalue from above (and matched it within
+    # 0.1 % on the suite: one direction dominates these Hessians) at 1 % of eigvalsh's cost
+    lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", hess, hess)), 1e-300)[:, None]
     x = np.zeros_like(grad0)
     y = x.copy()
     t = 1.0

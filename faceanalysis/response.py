@@ -16,6 +16,7 @@ random combinations of contractions::
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,7 +105,7 @@ class FiducialResponse:
         if self.pairs is not None and len(self.pairs):
             u = c / self.upper
             prod = u[:, self.pairs[:, 0]] * u[:, self.pairs[:, 1]]     # (T, P)
-            out += np.einsum("tp,pfk->tfk", prod, self.interaction)
+            out += (prod @ self.interaction.reshape(len(self.pairs), -1)).reshape(out.shape)
         return out
 
     def jacobian(self, c: np.ndarray) -> np.ndarray:
@@ -112,21 +113,35 @@ class FiducialResponse:
         c = np.atleast_2d(np.asarray(c, dtype=float))
         idx, _ = self._segments(c)
         m = np.arange(len(self.muscles))
-        step = self.upper / (self.n_levels - 1)   # control units per level
-        slope = (self.displacement[m, idx + 1] - self.displacement[m, idx]) / step[:, None, None]
-        t, mm, f, _ = slope.shape
-        jac = slope.reshape(t, mm, f * 2).transpose(0, 2, 1)
+        slope = self._slopes[m, idx]                                   # (T, M, F*2)
+        jac = slope.transpose(0, 2, 1)
         if self.pairs is not None and len(self.pairs):
+            # d/dc_a of u_a u_b W_ab = u_b W_ab / upper_a, and symmetrically for b: per
+            # control, one product of its partners' u with the W of its pairs
             u = c / self.upper
-            a, b = self.pairs[:, 0], self.pairs[:, 1]
-            w = self.interaction.reshape(len(self.pairs), f * 2)          # (P, K)
-            # d/dc_a of u_a u_b W = u_b W / upper_a, and symmetrically for b
-            ga = u[:, b] / self.upper[a]                                   # (T, P)
-            gb = u[:, a] / self.upper[b]
-            for p in range(len(self.pairs)):
-                jac[:, :, a[p]] += ga[:, p, None] * w[p]
-                jac[:, :, b[p]] += gb[:, p, None] * w[p]
+            for j, (partners, rows) in enumerate(self._pair_groups):
+                if len(rows):
+                    slope[:, j] += (u[:, partners] / self.upper[j]) @ rows
         return jac
+
+    @functools.cached_property
+    def _pair_groups(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per control: (partner controls, their interaction rows (n, F*2))."""
+        w = self.interaction.reshape(len(self.pairs), -1)
+        groups = []
+        for j in range(len(self.muscles)):
+            as_a = np.flatnonzero(self.pairs[:, 0] == j)
+            as_b = np.flatnonzero(self.pairs[:, 1] == j)
+            partners = np.concatenate([self.pairs[as_a, 1], self.pairs[as_b, 0]])
+            groups.append((partners, w[np.concatenate([as_a, as_b])]))
+        return groups
+
+    @functools.cached_property
+    def _slopes(self) -> np.ndarray:
+        """(M, L-1, F*2) slope of every segment, per control unit."""
+        step = self.upper / (self.n_levels - 1)   # control units per level
+        d = self.displacement.reshape(len(self.muscles), self.n_levels, -1)
+        return np.diff(d, axis=1) / step[:, None, None]
 
     def full_displacement(self, muscle: str) -> np.ndarray:
         """Displacement (F, 2) of every fiducial at the muscle's full contraction."""

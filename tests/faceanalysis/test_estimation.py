@@ -157,3 +157,30 @@ def test_calibration_on_the_points_the_neutral_frame_sees():
     d = cal.model_displacements(image[None] + [0.0, -10.0], np.array([[100.0, 120, 10, 0]]))
     np.testing.assert_allclose(d[0, seen], [[0.0, 1.0]] * 4, atol=1e-9)
     assert np.isnan(d[0, 2]).all()
+
+
+def test_box_qp_matches_a_reference_solver(rng):
+    from scipy.optimize import lsq_linear
+
+    from faceanalysis.estimators import box_qp
+
+    # min 0.5 x'Hx - g'x over a box, with H = A'A and g = A'b: bounded least squares
+    a = rng.normal(size=(5, 12, 4))
+    b = rng.normal(size=(5, 12))
+    lo = -rng.random((5, 4))
+    hi = rng.random((5, 4))
+    hess = np.matmul(a.transpose(0, 2, 1), a)
+    grad0 = np.matmul(a.transpose(0, 2, 1), b[:, :, None])[:, :, 0]
+    got = box_qp(hess, grad0, lo, hi, iterations=5000, tol=1e-12)
+    for t in range(5):
+        ref = lsq_linear(a[t], b[t], bounds=(lo[t], hi[t]), tol=1e-12).x
+        np.testing.assert_allclose(got[t], ref, atol=1e-6)
+
+
+def test_joint_fit_leaves_the_blas_thread_setting_alone(rng):
+    from threadpoolctl import threadpool_info
+
+    before = [(i["filepath"], i["num_threads"]) for i in threadpool_info()]
+    resp = _response(rng)
+    estimate_joint(resp.predict(np.array([0.4, 0.2, 0.6, 0.1])), resp)
+    assert [(i["filepath"], i["num_threads"]) for i in threadpool_info()] == before
