@@ -431,6 +431,20 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
     return out
 
 
+#: A contour lost on many consecutive frames is re-placed at least this often (frames).
+REINIT_EVERY = 16
+
+
+def _retry_now(streak: int) -> bool:
+    """Re-place a contour lost for ``streak`` consecutive frames now? On the 1st, 2nd,
+    4th, 8th... lost frame, then every :data:`REINIT_EVERY` frames."""
+    if streak <= 0:
+        return False
+    if streak <= REINIT_EVERY:
+        return streak & (streak - 1) == 0
+    return streak % REINIT_EVERY == 0
+
+
 def _similarity_between(h0: HeadFrame, h1: HeadFrame):
     """Similarity (complex a, b: z -> a z + b) carrying head frame ``h0`` onto ``h1``."""
     a = (h1.scale / h0.scale) * np.exp(1j * (h1.roll - h0.roll))
@@ -900,6 +914,7 @@ class Tracker:
         self.refine_ends = bool(refine_ends)
         self.channel_order = channel_order
         self.names = list(CONTOUR_NAMES)
+        self._lost_streak = dict.fromkeys(self.names, 0)
         self.specs = [(layout.contours[n].kind, float(layout.contours[n].sigma))
                       for n in self.names]
         contours = []
@@ -1271,6 +1286,12 @@ class Tracker:
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         head = self._head(frame, first)
         lost = [k for k, n in enumerate(self.names) if quality[n].lost]
+        for n in self.names:
+            self._lost_streak[n] = self._lost_streak[n] + 1 if quality[n].lost else 0
+        # a contour lost frame after frame (the chin below the picture, a hand held over
+        # the mouth) is re-placed on its 1st, 2nd, 4th, 8th... lost frame, at least every
+        # REINIT_EVERY frames: each re-placement costs a second relaxation of all contours
+        lost = [k for k in lost if _retry_now(self._lost_streak[self.names[k]])]
         reinit = set()
         if lost and not first:
             base = self.last_head if quality["hairline"].lost or quality["nose_tip"].lost \

@@ -262,3 +262,13 @@ def test_real_video_few_lost_frames(real_video_dir):
     # checks and re-detection; 131-181 with them (the count is chaotic: a small
     # change anywhere changes which frames lose a contour)
     assert lost <= 300, lost
+
+
+def test_a_contour_lost_frame_after_frame_is_replaced_less_and_less_often():
+    from trackers.tracking import REINIT_EVERY, _retry_now
+
+    tries = [s for s in range(1, 100) if _retry_now(s)]
+    assert tries[:5] == [1, 2, 4, 8, 16]
+    gaps = np.diff(tries)
+    assert gaps.max() == REINIT_EVERY and (gaps[4:] == REINIT_EVERY).all()
+    assert not _retry_now(0)
