@@ -36,16 +36,14 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from faceanalysis.table import FIDUCIALS
+
 log = logging.getLogger(__name__)
 
 __all__ = ["FLOW_METHODS", "STABILIZATION", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales",
            "head_array", "grid_image_points", "vectors_to_head", "image_flow_to_grid",
            "stabilize", "face_flow", "rigid_basis", "remove_rigid", "track_heads",
            "heads_from_table", "video_face_flow", "flow_to_colour"]
-
-_FIDUCIAL_NAMES = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
-                   "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
-                   "furrow_top_r", "chin")
 
 #: Optical-flow methods, first = default.
 FLOW_METHODS = ("dis", "farneback", "tvl1")
@@ -676,7 +674,7 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
             rec = {"frame": frame.index, "timestamp": frame.timestamp, "success": 0,
                    "head_x": np.nan, "head_y": np.nan, "head_scale": np.nan,
                    "head_roll": np.nan}
-            rec.update({f"fid_{n}_{k}": np.nan for n in _FIDUCIAL_NAMES for k in "xy"})
+            rec.update({f"fid_{n}_{k}": np.nan for n in FIDUCIALS for k in "xy"})
             if frame.ok:
                 res = None
                 try:
@@ -697,7 +695,7 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
                 if res is not None and res.success:
                     rec.update(success=1, head_x=res.head.x, head_y=res.head.y,
                                head_scale=res.head.scale, head_roll=res.head.roll)
-                    for n in _FIDUCIAL_NAMES:
+                    for n in FIDUCIALS:
                         x, y = res.fiducials[n]
                         rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = float(x), float(y)
             rows.append(rec)

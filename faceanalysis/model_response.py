@@ -80,14 +80,19 @@ def model_points(model, vertices: np.ndarray, points=MEASUREMENT_POINTS) -> np.n
     from trackers.fiducials import arc_point
 
     mesh = model.mesh
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.shape != np.shape(mesh.vertices):
+        raise ValueError(f"vertices must have shape {np.shape(mesh.vertices)}, got {v.shape}")
     out = np.empty((len(points), 2))
-    landmarks = mesh.landmark_positions(vertices)
+    curves: dict[str, np.ndarray] = {}                 # each curve once per call
     for j, name in enumerate(points):
         if name in CURVE_POINTS:
             curve, fraction = CURVE_POINTS[name]
-            out[j] = arc_point(mesh.curve_positions(curve, vertices)[:, :2], fraction)
-        elif name in landmarks:
-            out[j] = landmarks[name][:2]
+            if curve not in curves:
+                curves[curve] = mesh.curve_positions(curve, v)[:, :2]
+            out[j] = arc_point(curves[curve], fraction)
+        elif name in mesh.landmarks:
+            out[j] = v[mesh.landmarks[name], :2]
         else:
             raise ValueError(f"the face model has no measurement point {name!r}")
     return out

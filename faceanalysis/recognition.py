@@ -414,7 +414,8 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
 
     imgs = seq.images
     bgr = [cv2.cvtColor(im, cv2.COLOR_RGB2BGR) if im.ndim == 3 else im for im in imgs]
-    from faceanalysis.flow import _FIDUCIAL_NAMES, heads_from_table
+    from faceanalysis.flow import heads_from_table
+    from faceanalysis.table import FIDUCIALS
 
     tracker = Tracker(detect_layout(bgr[0], channel_order="bgr"), channel_order="bgr")
     rows = []
@@ -422,7 +423,7 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
         r = tracker.track(im)
         rec = {"frame": t, "success": int(bool(r.success)), "head_x": r.head.x,
                "head_y": r.head.y, "head_scale": r.head.scale, "head_roll": r.head.roll}
-        for n in _FIDUCIAL_NAMES:
+        for n in FIDUCIALS:
             rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = (float(v) for v in r.fiducials[n])
         rows.append(rec)
     table = pd.DataFrame(rows)

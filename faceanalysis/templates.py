@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanalysis.flow import FaceGrid, grid_image_points, image_flow_to_grid, rigid_basis
+from faceanalysis.table import FIDUCIALS
 
 log = logging.getLogger(__name__)
 
@@ -70,9 +71,6 @@ REGION_GROUPS = {
     "mouth": (8, 9),
     "chin": (10,),
 }
-_FIDUCIALS = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
-              "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
-              "furrow_top_r", "chin")
 
 
 @dataclass(eq=False)
@@ -313,7 +311,7 @@ class ModelView:
         region = np.asarray(mesh.region)[near].reshape(grid.shape).astype(np.int8)
         region[~self.mask] = -1
         self.region = region
-        fid_xy, _ = project(np.array([lm[n] for n in _FIDUCIALS]), cam)
+        fid_xy, _ = project(np.array([lm[n] for n in FIDUCIALS]), cam)
         self.fiducials = to_head_frame(fid_xy, head)
 
     def to_grid(self, result) -> np.ndarray:
@@ -588,13 +586,13 @@ def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> Flo
     from faceanalysis.calibration import to_head_frame
     from faceanalysis.flow import heads_from_table
 
-    cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
+    cols = [c for n in FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
     if any(c not in table.columns for c in cols):
         return templates
     row = np.flatnonzero(table["frame"].to_numpy(int) == neutral)
     if row.size == 0:
         raise ValueError(f"neutral frame {neutral} is not in the table")
-    fid = table[cols].to_numpy(float)[row[0]].reshape(len(_FIDUCIALS), 2)
+    fid = table[cols].to_numpy(float)[row[0]].reshape(len(FIDUCIALS), 2)
     head = heads_from_table(table)[row[0]]
     if not (np.isfinite(fid).all() and np.isfinite(head).all()):
         return templates

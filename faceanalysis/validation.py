@@ -320,8 +320,8 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     """
     from faceanalysis.calibration import to_head_frame
     from faceanalysis.flow import heads_from_table, video_face_flow
-    from faceanalysis.table import read_contractions
-    from faceanalysis.templates import _FIDUCIALS, ModelView, SubjectWarp
+    from faceanalysis.table import FIDUCIALS, read_contractions
+    from faceanalysis.templates import ModelView, SubjectWarp
 
     folder = Path(analysis)
     csv = folder / "contractions.csv"
@@ -363,9 +363,9 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     else:
         view = ModelView(model, grid=templates.grid)
         pred = resynthesis_flow(drive, view=view)
-        cols = [c for n in _FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
+        cols = [c for n in FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
         if personalised and all(c in table.columns for c in cols):
-            fid = table[cols].to_numpy(float)[k].reshape(len(_FIDUCIALS), 2)
+            fid = table[cols].to_numpy(float)[k].reshape(len(FIDUCIALS), 2)
             if np.isfinite(fid).all():
                 # 2-D landmark warp of the generic resynthesis flow onto the subject
                 q = to_head_frame(fid, heads[k])

@@ -487,8 +487,9 @@ class FaceMesh:
         """The feature curve ``name`` as material points of the surface.
 
         The uv polyline (:attr:`feature_curves`) is resampled every 0.002 uv units and each
-        sample is located in the uv triangulation, so that the curve follows the skin as the
-        vertices move (cached per curve; it depends on the topology and uv only).
+        sample is located in the uv triangulation (:func:`locate_uv`), so that the curve
+        follows the skin as the vertices move (cached per curve; it depends on the topology
+        and uv only).
 
         Returns
         -------
@@ -501,31 +502,13 @@ class FaceMesh:
             raise ValueError(f"unknown feature curve {name!r}; choose from "
                              f"{', '.join(self.feature_curves)}")
         hit = self._curve_embeddings.get(name)
-        if hit is not None:
-            return hit
-        poly = np.asarray(self.feature_curves[name], dtype=np.float64)
-        seg = np.hypot(*np.diff(poly, axis=0).T)
-        arc = np.r_[0.0, np.cumsum(seg)]
-        t = np.linspace(0.0, arc[-1], max(2, int(np.ceil(arc[-1] / 0.002)) + 1))
-        q = np.stack([np.interp(t, arc, poly[:, 0]), np.interp(t, arc, poly[:, 1])], axis=1)
-        tri = np.asarray(self.triangles)
-        uv = np.asarray(self.uv, dtype=np.float64)
-        a = uv[tri[:, 0]]
-        e1, e2 = uv[tri[:, 1]] - a, uv[tri[:, 2]] - a
-        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-        ok = np.abs(det) > 1e-15
-        det = np.where(ok, det, 1.0)
-        d = q[:, None, :] - a[None]                                     # (K, M, 2)
-        l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
-        l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
-        inside = ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
-        found = inside.any(axis=1)
-        k = np.flatnonzero(found)
-        m = inside[k].argmax(axis=1)
-        b1, b2 = l1[k, m], l2[k, m]
-        hit = (_readonly(tri[m].astype(np.int64)),
-               _readonly(np.stack([1.0 - b1 - b2, b1, b2], axis=1)))
-        self._curve_embeddings[name] = hit
+        if hit is None:
+            q = resample_polyline_uv(np.asarray(self.feature_curves[name], dtype=np.float64))
+            tri, bary = locate_uv(q, self.uv, self.triangles)
+            found = tri >= 0
+            hit = (_readonly(np.asarray(self.triangles, dtype=np.int64)[tri[found]]),
+                   _readonly(bary[found]))
+            self._curve_embeddings[name] = hit
         return hit
 
     def curve_positions(self, name: str, vertices=None) -> np.ndarray:
@@ -1340,6 +1323,49 @@ def _feature_curves() -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------------------------
 # Public entry point
 # ----------------------------------------------------------------------------------------------
+
+
+def resample_polyline_uv(poly: np.ndarray, step: float = 0.002) -> np.ndarray:
+    """Resample a uv polyline every ``step`` (uv units), keeping both ends."""
+    poly = np.asarray(poly, dtype=np.float64)
+    seg = np.hypot(*np.diff(poly, axis=0).T)
+    s = np.r_[0.0, np.cumsum(seg)]
+    t = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / step)) + 1))
+    return np.stack([np.interp(t, s, poly[:, 0]), np.interp(t, s, poly[:, 1])], axis=1)
+
+
+def locate_uv(points, uv, triangles) -> tuple[np.ndarray, np.ndarray]:
+    """Locate uv ``points`` (K, 2) in the uv triangulation (``uv`` per vertex, ``triangles``).
+
+    Returns
+    -------
+    triangle : (K,) int array
+        Index of the first triangle holding each point, -1 outside every triangle.
+    bary : (K, 3) float array
+        Barycentric weights in that triangle (NaN outside).
+    """
+    q = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    tri = np.asarray(triangles)
+    uv = np.asarray(uv, dtype=np.float64)
+    a = uv[tri[:, 0]]
+    e1, e2 = uv[tri[:, 1]] - a, uv[tri[:, 2]] - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ok = np.abs(det) > 1e-15
+    det = np.where(ok, det, 1.0)
+    index = np.full(len(q), -1, dtype=np.int64)
+    bary = np.full((len(q), 3), np.nan)
+    chunk = max(1, 4_000_000 // max(len(tri), 1))       # bounded (K, M) temporaries
+    for start in range(0, len(q), chunk):
+        d = q[start:start + chunk, None, :] - a[None]
+        l1 = (d[..., 0] * e2[:, 1] - d[..., 1] * e2[:, 0]) / det
+        l2 = (e1[:, 0] * d[..., 1] - e1[:, 1] * d[..., 0]) / det
+        inside = ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
+        rows = np.flatnonzero(inside.any(axis=1))
+        m = inside[rows].argmax(axis=1)
+        b1, b2 = l1[rows, m], l2[rows, m]
+        index[start + rows] = m
+        bary[start + rows] = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+    return index, bary
 
 
 def _check_resolution(resolution) -> float:

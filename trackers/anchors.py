@@ -25,7 +25,7 @@ import cv2
 import numba
 import numpy as np
 
-from trackers.potentials import to_gray
+from trackers.potentials import bilinear_nb, to_gray
 
 __all__ = ["IrisAnchors", "find_iris", "similarity_from_pairs"]
 
@@ -135,7 +135,6 @@ def _lk_nb(win, rows, cols, J, tm, x, y, h):
     normalisation and robust (Cauchy) weights; returns the refined (x, y) or the
     start when it wanders off by more than 1.5 px."""
     n = rows.shape[0]
-    H, W = win.shape
     tsd = 0.0
     for i in range(n):
         tsd += tm[i] * tm[i]
@@ -147,16 +146,9 @@ def _lk_nb(win, rows, cols, J, tm, x, y, h):
     for _ in range(8):
         s = 0.0
         for i in range(n):
-            xf = cols[i] + px - h
-            yf = rows[i] + py - h
-            if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+            w[i] = bilinear_nb(win, cols[i] + px - h, rows[i] + py - h, 0.0, 0.0)
+            if np.isnan(w[i]):
                 return x, y
-            x0 = min(int(xf), W - 2)
-            y0 = min(int(yf), H - 2)
-            tx = xf - x0
-            ty = yf - y0
-            w[i] = ((1 - ty) * ((1 - tx) * win[y0, x0] + tx * win[y0, x0 + 1])
-                    + ty * ((1 - tx) * win[y0 + 1, x0] + tx * win[y0 + 1, x0 + 1]))
             s += w[i]
         mean = s / n
         v = 0.0

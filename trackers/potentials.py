@@ -237,22 +237,28 @@ def _force_nb(P, p, F):
             F[y, x, 1] = -p * (P[y1, x] - P[y0, x]) / (y1 - y0)
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def bilinear_nb(P, x, y, ox, oy):  # pragma: no cover
+    """Bilinear sample of the 2-D array ``P`` at image point (x, y), ``P[0, 0]`` being at
+    (ox, oy); NaN outside (compiled helper shared by the trackers' kernels)."""
+    H, W = P.shape
+    xf = x - ox
+    yf = y - oy
+    if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
+        return np.nan
+    x0 = min(int(xf), W - 2)
+    y0 = min(int(yf), H - 2)
+    tx = xf - x0
+    ty = yf - y0
+    return ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
+            + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _sample_nb(P, pts, ox, oy, out):
     """Bilinear samples of P at (x, y) - (ox, oy); NaN outside."""
-    H, W = P.shape
     for i in range(pts.shape[0]):
-        xf = pts[i, 0] - ox
-        yf = pts[i, 1] - oy
-        if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
-            out[i] = np.nan
-            continue
-        x0 = min(int(xf), W - 2)
-        y0 = min(int(yf), H - 2)
-        tx = xf - x0
-        ty = yf - y0
-        out[i] = ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
-                  + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
+        out[i] = bilinear_nb(P, pts[i, 0], pts[i, 1], ox, oy)
 
 
 def sample_or_nan(P, points, origin=(0.0, 0.0)) -> np.ndarray:

@@ -61,6 +61,7 @@ from trackers.fiducials import (
     head_frame,
 )
 from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
+from trackers.potentials import bilinear_nb as _bil
 from trackers.potentials import potentials_in_boxes, sample_or_nan, to_gray
 from trackers.snakes import (
     Contour,
@@ -534,21 +535,6 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
                               float(sigma), bool(inset), g, float(go[0]), float(go[1]),
                               has_gray, float(np.deg2rad(fan)))
     return np.array([x, y]) if ok else None
-
-
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _bil(P, x, y, ox, oy):
-    H, W = P.shape
-    xf = x - ox
-    yf = y - oy
-    if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
-        return np.nan
-    x0 = min(int(xf), W - 2)
-    y0 = min(int(yf), H - 2)
-    tx = xf - x0
-    ty = yf - y0
-    return ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
-            + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
 
 
 @numba.njit(cache=True, error_model="numpy")

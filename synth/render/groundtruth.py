@@ -43,6 +43,7 @@ import math
 
 import numpy as np
 
+from synth.mesh import FIDUCIALS, locate_uv, resample_polyline_uv
 from synth.render.camera import HeadPose, project
 from synth.render.raster import _flow_kernel
 
@@ -50,10 +51,6 @@ __all__ = ["forward_flow", "flow_and_occlusion", "head_frame", "project_landmark
            "surface_points_from_uv",
            "warp_backward", "FIDUCIALS", "HAIRLINE_LANDMARKS"]
 
-#: The 11 fiducial points of 004 V-D, in the order of DESIGN.md.
-FIDUCIALS = ("brow_inner_l", "brow_mid_l", "brow_outer_l", "brow_inner_r", "brow_mid_r",
-             "brow_outer_r", "mouth_corner_l", "mouth_corner_r", "furrow_top_l",
-             "furrow_top_r", "chin")
 HAIRLINE_LANDMARKS = ("hairline_l", "hairline_centre", "hairline_r")
 
 
@@ -193,25 +190,12 @@ def surface_points_from_uv(mesh, uv_points) -> np.ndarray:
     >>> surface_points_from_uv(s, [[0.5, 0.5], [0.9, 0.9]]).round(3).tolist()
     [[1.0, 1.0, 0.5], [nan, nan, nan]]
     """
-    uvq = np.atleast_2d(np.asarray(uv_points, dtype=np.float64))
     V = np.asarray(mesh.vertices, dtype=np.float64)
     T = np.asarray(mesh.triangles)
-    UV = np.asarray(mesh.uv, dtype=np.float64)
-    a, b, c = UV[T[:, 0]], UV[T[:, 1]], UV[T[:, 2]]
-    e1, e2 = b - a, c - a
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    ok = np.abs(det) > 1e-15
-    out = np.full((len(uvq), 3), np.nan)
-    for k, q in enumerate(uvq):
-        d = q - a
-        with np.errstate(divide="ignore", invalid="ignore"):
-            l1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
-            l2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
-        inside = ok & (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
-        hits = np.nonzero(inside)[0]
-        if len(hits):
-            t = hits[0]
-            out[k] = (1 - l1[t] - l2[t]) * V[T[t, 0]] + l1[t] * V[T[t, 1]] + l2[t] * V[T[t, 2]]
+    tri, bary = locate_uv(uv_points, mesh.uv, T)
+    out = np.full((len(tri), 3), np.nan)
+    found = tri >= 0
+    out[found] = np.einsum("kj,kjd->kd", bary[found], V[T[tri[found]]])
     return out
 
 
@@ -219,14 +203,6 @@ _FRAME_CACHE: dict = {}
 #: Half-width of the hairline part that defines the head frame, in inter-eye distances (the
 #: span of the trackers' hairline template, trackers.layout.TEMPLATE['hairline']).
 HAIRLINE_HALF_SPAN = 0.76
-
-
-def _dense(poly: np.ndarray, step: float = 0.002) -> np.ndarray:
-    """Resample a uv polyline every ``step`` (uv units) so that clipping it is precise."""
-    seg = np.hypot(*np.diff(poly, axis=0).T)
-    s = np.r_[0.0, np.cumsum(seg)]
-    t = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / step)) + 1))
-    return np.stack([np.interp(t, s, poly[:, 0]), np.interp(t, s, poly[:, 1])], axis=1)
 
 
 def _frame_points(mesh):
@@ -240,7 +216,7 @@ def _frame_points(mesh):
     V = np.asarray(mesh.vertices, dtype=np.float64)
     hair = None
     if "hairline" in curves:
-        h = surface_points_from_uv(mesh, _dense(np.asarray(curves["hairline"], float)))
+        h = surface_points_from_uv(mesh, resample_polyline_uv(curves["hairline"]))
         h = h[np.all(np.isfinite(h), axis=1)]
         if "eye_centre_l" in lm and "eye_centre_r" in lm and len(h) >= 2:
             # the central part that the trackers' hairline contour spans
