@@ -176,6 +176,11 @@ class FlowTemplates:
 #: The trackers' head frame on model renders relative to the landmark one (measured on the
 #: generic face and three random identities, spread ~1 %): reference length = this times
 #: the hairline-to-nose-tip distance, origin this many (landmark) units higher.
+#: Largest distance, in head units, between a subject's neutral fiducial and the
+#: model's after the best similarity: the synthetic suite's identities reach 0.075;
+#: on a real video whose furrow contours had slid onto the mouth line, 0.12-0.16.
+MAX_FIDUCIAL_RESIDUAL = 0.1
+
 _TRACKER_SCALE = 1.137
 _TRACKER_RISE = 0.046
 
@@ -580,9 +585,39 @@ def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
                    expression=expr, energy=energy, fiducials=q.copy(), meta=meta)
 
 
+def implausible_fiducials(templates: FlowTemplates, fiducials_head) -> list[str]:
+    """Names of the fiducials that a similarity (translation, rotation, scale) of the
+    templates' own fiducials leaves more than :data:`MAX_FIDUCIAL_RESIDUAL` head units
+    away: a contour tracked onto the wrong feature, not a face of another shape.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from faceanalysis.table import FIDUCIALS
+    >>> t = default_templates()
+    >>> q = 1.1 * t.fiducials + [0.02, -0.03]            # another scale, another place
+    >>> implausible_fiducials(t, q)
+    []
+    >>> q[FIDUCIALS.index("furrow_top_l"), 1] += 0.25    # the furrow's top at the mouth
+    >>> implausible_fiducials(t, q)
+    ['furrow_top_l']
+    """
+    q = np.asarray(fiducials_head, dtype=float)
+    g = np.asarray(templates.fiducials, dtype=float)
+    if q.shape != g.shape:
+        raise ValueError(f"fiducials must have shape {g.shape}, got {q.shape}")
+    zg = (g - g.mean(0)) @ [1, 1j]
+    zq = (q - q.mean(0)) @ [1, 1j]
+    a = (np.conj(zg) @ zq) / (np.conj(zg) @ zg)
+    far = np.abs(zq - a * zg) > MAX_FIDUCIAL_RESIDUAL
+    return [n for n, f in zip(FIDUCIALS, far) if f]
+
+
 def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> FlowTemplates:
     """Templates warped onto the subject's neutral fiducials of ``table`` (frame ``neutral``);
-    the generic ones when the fiducials are missing."""
+    the generic ones when the fiducials are missing or implausible
+    (:func:`implausible_fiducials`: warping the templates onto a mistracked feature
+    would move the expressions' flow onto the wrong part of the face)."""
     from faceanalysis.calibration import to_head_frame
     from faceanalysis.flow import heads_from_table
 
@@ -596,7 +631,14 @@ def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> Flo
     head = heads_from_table(table)[row[0]]
     if not (np.isfinite(fid).all() and np.isfinite(head).all()):
         return templates
-    return personalize(templates, to_head_frame(fid, head))
+    q = to_head_frame(fid, head)
+    bad = implausible_fiducials(templates, q)
+    if bad:
+        log.warning("neutral frame %d: %s too far from where the face model puts %s; the "
+                    "templates are not personalised", neutral, ", ".join(bad),
+                    "it" if len(bad) == 1 else "them")
+        return templates
+    return personalize(templates, q)
 
 
 # ---------------------------------------------------------------------------- cache + files

@@ -98,11 +98,16 @@ def _build_template():
 TEMPLATE: dict[str, np.ndarray] = _build_template()
 
 #: Per-contour defaults: (closed, kind, sigma in inter-eye units, search window (x, y)
-#: in inter-eye units, ends, parent). ``ends``: 'free' (left to the snake), 'tip'
-#: (relocated on the end of the line each frame), 'centre' (the tip moved back by
-#: the line's half-width, i.e. the end of a thick band's centre line) or 'corner'
-#: (the farthest end of the dark region within 45 degrees of the end tangent: the
-#: commissure, also when the open mouth makes the contour follow its lower border). The search of a
+#: in inter-eye units, ends, parent). ``ends`` (one mode for both ends, or a pair
+#: (first end, last end)): 'free' (left to the snake), 'tip' (relocated on the end of
+#: the line each frame), 'centre' (the tip moved back by the line's half-width, i.e.
+#: the end of a thick band's centre line), 'line' (the end of a thin line's centre
+#: line, found on the step of the grey level along the line: for line ends beyond
+#: which the ravine runs on, as the furrows' tops run into the shading beside the
+#: nose) or 'corner' (the farthest end of the dark region within 45 degrees of the
+#: end tangent: the commissure, also when the open mouth makes the contour follow its
+#: lower border). The furrows' lower ends stay 'tip': when the jaw opens the lower
+#: furrow stretches and fades, and the grey step then cuts it short. The search of a
 #: contour is centred on the template moved by its parent's offset (the mouth follows
 #: the nose, the chin follows the lower lip), in this order.
 CONTOUR_DEFAULTS = {
@@ -110,13 +115,13 @@ CONTOUR_DEFAULTS = {
     "brow_l": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
     "brow_r": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
     "nose_tip": (False, "valley", 0.035, (0.05, 0.25), "free", None),
-    "furrow_l": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
-    "furrow_r": (False, "valley", 0.022, (0.08, 0.10), "tip", "nose_tip"),
+    "furrow_l": (False, "valley", 0.022, (0.08, 0.10), ("line", "tip"), "nose_tip"),
+    "furrow_r": (False, "valley", 0.022, (0.08, 0.10), ("line", "tip"), "nose_tip"),
     "upper_lip": (False, "valley", 0.022, (0.05, 0.15), "tip", "nose_tip"),
     "lower_lip": (False, "edge", 0.022, (0.0, 0.10), "free", "upper_lip"),
     "chin_boss": (True, "valley", 0.022, (0.05, 0.20), "free", "lower_lip"),
 }
-ENDS = ("free", "tip", "centre", "corner")
+ENDS = ("free", "tip", "centre", "line", "corner")
 
 #: Where the eye centres lie inside a Haar ``frontalface_default`` box, as fractions of
 #: its width / height (x from the box's left, y from its top).
@@ -136,19 +141,21 @@ class LayoutContour:
         Potential the contour follows.
     sigma : float
         Width of that potential, pixels.
-    ends : {'free', 'tip', 'centre', 'corner'}
-        How the tracker treats the two ends of an open contour each frame: left to
-        the snake, relocated on the end of the line, relocated on the end of the
-        line's centre line (tip moved back by the half-width, for thick bands), or
-        relocated on the farthest end of the dark region within 45 degrees of the end
-        tangent (mouth corners).
+    ends : {'free', 'tip', 'centre', 'line', 'corner'} or a pair of them
+        How the tracker treats the ends of an open contour each frame (one mode for
+        both, or (first end, last end)): left to the snake, relocated on the end of
+        the line, relocated on the end of the line's centre line (tip moved back by
+        the half-width, for thick bands), relocated on the end of a thin line's
+        centre line found on the step of the grey level along it (for line ends
+        beyond which the potential's ravine runs on), or relocated on the farthest
+        end of the dark region within 45 degrees of the end tangent (mouth corners).
     """
 
     points: np.ndarray
     closed: bool = False
     kind: str = "valley"
     sigma: float = 2.0
-    ends: str = "free"
+    ends: str | tuple[str, str] = "free"
 
     def __post_init__(self):
         self.points = np.asarray(self.points, dtype=np.float64)
@@ -162,10 +169,21 @@ class LayoutContour:
         if not np.isfinite(self.sigma) or self.sigma <= 0:
             raise ValueError(f"sigma must be positive, got {self.sigma}")
         self.closed = bool(self.closed)
-        if self.ends not in ENDS:
-            raise ValueError(f"ends must be one of {ENDS}, got {self.ends!r}")
+        if isinstance(self.ends, (list, tuple)):
+            if len(self.ends) != 2 or any(e not in ENDS for e in self.ends):
+                raise ValueError(f"ends must be one of {ENDS} or a pair of them, got "
+                                 f"{self.ends!r}")
+            self.ends = tuple(self.ends) if self.ends[0] != self.ends[1] else self.ends[0]
+        elif self.ends not in ENDS:
+            raise ValueError(f"ends must be one of {ENDS} or a pair of them, got "
+                             f"{self.ends!r}")
         if self.closed:
             self.ends = "free"
+
+    @property
+    def end_modes(self) -> tuple[str, str]:
+        """(first end, last end) modes."""
+        return self.ends if isinstance(self.ends, tuple) else (self.ends, self.ends)
 
 
 @dataclass
@@ -233,7 +251,8 @@ class FaceLayout:
             "source": self.source,
             "contours": {
                 n: {"closed": c.closed, "kind": c.kind, "sigma": round(float(c.sigma), 4),
-                    "ends": c.ends, "points": c.points.round(3).tolist()}
+                    "ends": list(c.ends) if isinstance(c.ends, tuple) else c.ends,
+                    "points": c.points.round(3).tolist()}
                 for n, c in self.contours.items()},
         }
 

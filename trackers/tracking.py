@@ -28,7 +28,12 @@ it samples the potential along the contour's end tangent and puts the end where
 the ravine has risen to half its depth (the end of a blurred line), then inset by
 the line's half-width measured across it (so the end lies on the centre line,
 e.g. the centre of a round-capped eyebrow stroke), and redistributes the nodes
-evenly. This is recorded in ``LayoutContour.ends`` and can be switched off.
+evenly. Where the ravine runs on past the line's end (the furrows' tops run into the
+shading beside the nose, where the ravine of the face model's renders ran on up to
+6 px) the end is instead the half-level point of the strongest step of the grey
+level along the line, inset by the half-width (``ends='line'``, see
+:func:`refine_end`). This is recorded in ``LayoutContour.ends`` and can be switched
+off.
 
 Image forces act along the contour normal only (``Contour.normal_forces``): along
 an uneven ravine (a tapering eyebrow) the tangential part of eq. 12 would slide the
@@ -471,7 +476,8 @@ def _sample_safe(P, pts, origin):
 
 
 def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int = 0,
-               gray=None, gray_origin=None, inset: bool = True, fan: float = 0.0):
+               gray=None, gray_origin=None, inset: bool = True, fan: float = 0.0,
+               step: bool = False):
     """Relocate one end of an open contour on the end of the dark line it follows.
 
     The potential is sampled along the contour (inside) and along its end tangent
@@ -504,6 +510,15 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         Half-angle in degrees of a fan of search directions around the end tangent;
         the farthest end found wins (the corner of an open mouth lies off the
         tangent of a contour that follows the mouth's lower border). 0: tangent only.
+    step : bool
+        Locate a thin line's end on the grey level instead (needs ``gray``, excludes
+        ``inset``): the half-level crossing of the strongest dark-to-bright step
+        along the line, searched from the ravine's end (or, where the ravine runs on
+        without fading, from the contour's end) back into the line over 10 sigma,
+        then moved back by the line's half-width onto its centre line. A step that
+        rises less than half-way from the line to the skin beside it (a line that
+        merely weakens) is no end. For line ends beyond which the ravine runs on
+        into shading or texture (the furrows' tops).
 
     Returns
     -------
@@ -519,12 +534,23 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     >>> pts = np.c_[np.linspace(20, 55, 16), np.full(16, 20.0)]
     >>> refine_end(pts, P, 1.5, end=-1, inset=False).tolist()  # the band ends at x = 59.5
     [59.5, 20.0]
+
+    A faint shadow prolongs the line: the ravine runs on, the grey step does not.
+
+    >>> img[19:22, 60:75] = 170
+    >>> P = valley_potential(img, 1.5)
+    >>> refine_end(pts, P, 1.5, end=-1, inset=False) is None
+    True
+    >>> refine_end(pts, P, 1.5, end=-1, inset=False, step=True, gray=img).round(1).tolist()
+    [58.5, 20.0]
     """
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
         raise ValueError(f"points must have shape (n >= 2, 2), got {p.shape}")
     if end not in (0, -1):
         raise ValueError(f"end must be 0 or -1, got {end}")
+    if step and (gray is None or inset):
+        raise ValueError("step=True needs gray and inset=False")
     if end == -1:
         p = p[::-1]
     P = np.ascontiguousarray(potential, dtype=np.float32)
@@ -533,7 +559,7 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     go = origin if gray_origin is None else gray_origin
     ok, x, y = _refine_end_nb(np.ascontiguousarray(p), P, float(origin[0]), float(origin[1]),
                               float(sigma), bool(inset), g, float(go[0]), float(go[1]),
-                              has_gray, float(np.deg2rad(fan)))
+                              has_gray, float(np.deg2rad(fan)), bool(step))
     return np.array([x, y]) if ok else None
 
 
@@ -596,7 +622,99 @@ def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
+def _flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma):
+    """Grey level beside a line through (cx, cy) running across (nx, ny): the median
+    of the samples 3.5 to 5 sigma out on both sides (NaN off the image)."""
+    m = int(np.floor(5.0 * sigma / 0.5))
+    outer = []
+    for i in range(-m, m + 1):
+        r = i * 0.5
+        if abs(r) >= 3.5 * sigma:
+            v = _bil(gray, cx + r * nx, cy + r * ny, gox, goy)
+            if np.isnan(v):
+                return np.nan
+            outer.append(v)
+    if len(outer) == 0:
+        return np.nan
+    return np.median(np.array(outer))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_min, fail):
+    """Arc position of a thin dark line's end: the half-level crossing of the
+    strongest dark-to-bright step of the grey level along the path, searched from
+    ``s_coarse + 0.75 sigma`` back to ``reach`` before ``s_coarse`` (not beyond
+    ``s_min``).
+
+    The ravine of a Hessian potential outlives the line's end: at scale sigma it
+    decays over about 2 sigma, and skin texture or a shadow in the line's
+    prolongation keeps it at half depth for several pixels more (on the face
+    model's renders the ravine of a furrow ran on up to 6 px past the drawn line's
+    top, and never faded). The grey level steps from line to skin within a pixel
+    or two. Returns ``s_coarse`` (NaN with ``fail``) when no step of at least 5
+    grey levels is found.
+    """
+    w = max(2.0 * sigma, 2.0)
+    reach = min(reach, -s_min)
+    lo = s_coarse - reach - w
+    hi = s_coarse + 0.75 * sigma + w
+    if lo < s_min:
+        lo = s_min
+    cnt = int(np.floor((hi - lo) / 0.25)) + 1
+    k = int(round(w / 0.25))
+    if cnt < 2 * k + 2:
+        return np.nan if fail else s_coarse
+    nx, ny = -ty, tx
+    g = np.empty(cnt)
+    ss = np.empty(cnt)
+    for i in range(cnt):
+        ss[i] = lo + i * 0.25
+        x, y = _path_xy(p, arc, tx, ty, ss[i])
+        acc = 0.0
+        for o in (-0.5 * sigma, 0.0, 0.5 * sigma):
+            v = _bil(gray, x + o * nx, y + o * ny, gox, goy)
+            if np.isnan(v):
+                return np.nan if fail else s_coarse
+            acc += v
+        g[i] = acc / 3.0
+    csum = np.zeros(cnt + 1)
+    for i in range(cnt):
+        csum[i + 1] = csum[i] + g[i]
+    best = 5.0
+    ib = -1
+    for i in range(k, cnt - k + 1):
+        if ss[i] > s_coarse + 0.75 * sigma:
+            break
+        d = (csum[i + k] - csum[i]) / k - (csum[i] - csum[i - k]) / k
+        if d > best:
+            best = d
+            ib = i
+    if ib < 0:
+        return np.nan if fail else s_coarse
+    # a step in a line that merely weakens (a real furrow fading out, texture) is
+    # no end: it must rise at least half-way from the line to the skin beside it
+    # (on the face model's renders 0.5-0.9 of the way; on real furrows mostly less)
+    cx, cy = _path_xy(p, arc, tx, ty, ss[ib] - w)
+    rise = (best / (_flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma)
+                    - (csum[ib] - csum[ib - k]) / k))
+    if not 0.5 <= rise <= 1.5:
+        return np.nan if fail else s_coarse
+    half = 0.5 * ((csum[ib + k] - csum[ib]) / k + (csum[ib] - csum[ib - k]) / k)
+    # the half-level crossing next to the step
+    j = ib
+    while j > ib - k + 1 and g[j - 1] >= half:
+        j -= 1
+    while j < ib + k - 1 and g[j] < half:
+        j += 1
+    if g[j] == g[j - 1]:
+        return ss[j]
+    f = (half - g[j - 1]) / (g[j] - g[j - 1])
+    f = min(max(f, 0.0), 1.0)
+    return ss[j - 1] + f * 0.25
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan, step):
     n = p.shape[0]
     k = min(3, n - 1)
     tx = p[0, 0] - p[k, 0]
@@ -608,7 +726,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
     ty /= norm
     if fan <= 0.0:
         ok, s_end, x, y = _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy,
-                                         has_gray, tx, ty)
+                                         has_gray, tx, ty, step)
         return ok, x, y
     # a fan of directions around the tangent: the farthest end of the dark region
     best = -np.inf
@@ -620,7 +738,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
         a = fan * j / m
         ca, sa = np.cos(a), np.sin(a)
         ok, s_end, x, y = _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy,
-                                         has_gray, ca * tx - sa * ty, sa * tx + ca * ty)
+                                         has_gray, ca * tx - sa * ty, sa * tx + ca * ty, step)
         # prefer the tangent itself among (nearly) equal reaches
         score = s_end - 0.05 * abs(j)
         if ok and score > best:
@@ -632,7 +750,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty):
+def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty, step):
     n = p.shape[0]
     arc = np.zeros(n)
     for i in range(1, n):
@@ -714,6 +832,21 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty)
         if fades:
             s_end = cand
         break
+    if step and has_gray:
+        # where the ravine never fades the search starts from the contour's end: the
+        # grey step only ever moves an end back along the ravine (on real furrows,
+        # which fade gradually, extending on a step made the contours wander)
+        fail = not np.isfinite(s_end)
+        s_end = _gray_step_end_nb(p, arc, tx, ty, 0.0 if fail else s_end,
+                                  10.0 * sigma,
+                                  sigma, gray, gox, goy, s[0], fail)
+        if np.isfinite(s_end):
+            # the half-level point of a round-capped stroke lies one half-width
+            # beyond its centre line's end
+            cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
+            hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
+            if not np.isnan(hw):
+                s_end -= min(hw, 2.0 * sigma)
     if not np.isfinite(s_end):
         return False, 0.0, 0.0, 0.0
     if inset and has_gray:
@@ -1005,9 +1138,12 @@ class Tracker:
             n = len(pts)
             new = pts
             for end in (0, -1):
+                mode = c.end_modes[0 if end == 0 else 1]
+                if mode == "free":
+                    continue
                 q = refine_end(new, Ps[k], c.sigma, origin=origins[k], end=end, gray=gray,
-                               gray_origin=gorigin, inset=c.ends == "centre",
-                               fan=45.0 if c.ends == "corner" else 0.0)
+                               gray_origin=gorigin, inset=mode == "centre",
+                               fan=45.0 if mode == "corner" else 0.0, step=mode == "line")
                 if q is None:
                     continue
                 e = new[0] if end == 0 else new[-1]

@@ -16,8 +16,10 @@ from faceanalysis.recognition import (
 from faceanalysis.templates import (
     EXPRESSION_NAMES,
     FlowTemplates,
+    implausible_fiducials,
     make_templates,
     personalize,
+    personalize_from_table,
     preview_templates,
 )
 
@@ -93,6 +95,38 @@ def test_personalize_moves_features_with_the_fiducials(templates):
     assert (mag1 * v).sum() / mag1.sum() > (mag0 * v).sum() / mag0.sum() + 0.02
     with pytest.raises(ValueError, match="fiducials"):
         personalize(templates, f[:5])
+
+
+def test_personalize_from_table_refuses_a_mistracked_neutral_frame(templates, caplog):
+    import pandas as pd
+
+    from faceanalysis.table import FIDUCIALS
+
+    head = dict(head_x=128.0, head_y=40.0, head_scale=90.0, head_roll=0.0)
+
+    def table(fid_head):
+        xy = np.asarray(fid_head) * 90.0 + [128.0, 40.0]
+        row = {"frame": 0, "success": 1, **head}
+        for n, (x, y) in zip(FIDUCIALS, xy):
+            row[f"fid_{n}_x"], row[f"fid_{n}_y"] = x, y
+        return pd.DataFrame([row])
+
+    # another face's proportions: personalised
+    f = templates.fiducials * [1.05, 0.97] + [0.0, 0.02]
+    f[FIDUCIALS.index("chin"), 1] += 0.05
+    assert implausible_fiducials(templates, f) == []
+    assert personalize_from_table(templates, table(f), 0).meta.get("personalised")
+    # the furrow contours slid down onto the mouth line (seen on a real video)
+    bad = f.copy()
+    for s in "lr":
+        bad[FIDUCIALS.index(f"furrow_top_{s}"), 1] = f[FIDUCIALS.index(f"mouth_corner_{s}"), 1]
+    assert implausible_fiducials(templates, bad) == ["furrow_top_l", "furrow_top_r"]
+    with caplog.at_level("WARNING"):
+        got = personalize_from_table(templates, table(bad), 0)
+    assert got is templates
+    assert "furrow_top_l, furrow_top_r too far" in caplog.text
+    with pytest.raises(ValueError, match="shape"):
+        implausible_fiducials(templates, f[:5])
 
 
 def test_flow_estimator_recovers_contractions_under_rigid_nuisance(templates, rng):

@@ -129,3 +129,17 @@ def test_detect_layout_on_real_video(real_video_dir):
     for n in ("brow_l", "brow_r", "nose_tip", "upper_lip"):
         cx, cy = lay.contours[n].points.mean(0)
         assert x <= cx <= x + w and y <= cy <= y + h, n
+
+
+def test_ends_one_mode_or_a_pair():
+    pts = np.c_[np.linspace(0, 20, 8), np.zeros(8)]
+    c = LayoutContour(pts, ends=("line", "tip"))
+    assert c.end_modes == ("line", "tip")
+    assert LayoutContour(pts, ends="tip").end_modes == ("tip", "tip")
+    assert LayoutContour(pts, ends=["tip", "tip"]).ends == "tip"
+    for bad in ("lines", ("line",), ("line", "tip", "tip"), ("line", "nope")):
+        with pytest.raises(ValueError, match="ends must be one of"):
+            LayoutContour(pts, ends=bad)
+    # the furrows' tops are found on the grey step, their lower ends on the ravine
+    lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
+    assert lay.contours["furrow_l"].end_modes == ("line", "tip")
