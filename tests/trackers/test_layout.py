@@ -143,3 +143,17 @@ def test_ends_one_mode_or_a_pair():
     # the furrows' tops are found on the grey step, their lower ends on the ravine
     lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
     assert lay.contours["furrow_l"].end_modes == ("line", "tip")
+
+
+def test_haar_cascades_load_once_per_thread():
+    import threading
+
+    from trackers.layout import _cascade
+
+    a = _cascade("haarcascade_eye.xml")
+    assert _cascade("haarcascade_eye.xml") is a
+    other = []
+    t = threading.Thread(target=lambda: other.append(_cascade("haarcascade_eye.xml")))
+    t.start()
+    t.join()
+    assert other[0] is not a and not other[0].empty()
