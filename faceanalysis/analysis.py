@@ -153,6 +153,20 @@ def _measure(result, names: tuple[str, ...]) -> np.ndarray:
     return out
 
 
+def measure_frame(result, names: tuple[str, ...]):
+    """Head frame (4,), points (len(names), 2) and success of one tracked frame.
+
+    A point is NaN when the contour it lies on is lost; the frame succeeds when its
+    head frame is finite and at least :data:`MIN_POINTS` points are known.
+    """
+    head = result.head
+    head_row = np.array([head.x, head.y, head.scale, head.roll], float)
+    points = _measure(result, names)
+    good = bool(np.isfinite(head_row).all()
+                and np.isfinite(points).all(axis=1).sum() >= MIN_POINTS)
+    return head_row, points, good
+
+
 def _confidence(result) -> float:
     """Smallest relative potential depth over the contours that are not lost, in [0, 1]."""
     depths = [q.depth for q in result.quality.values() if not q.lost]
@@ -282,11 +296,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                                                channel_order="bgr", **(tracker_options or {}))
                     res = tracker.track(frame.image)
                     t_track += time.perf_counter() - t0
-                    head = res.head
-                    head_row = np.array([head.x, head.y, head.scale, head.roll], float)
-                    points = _measure(res, response.fiducials)
-                    n_points = int(np.isfinite(points).all(axis=1).sum())
-                    good = bool(np.isfinite(head_row).all() and n_points >= MIN_POINTS)
+                    head_row, points, good = measure_frame(res, response.fiducials)
                     ok.append(good)
                     conf.append(_confidence(res))
                     fids = np.array([res.fiducials[n] for n in FIDUCIALS], float)

@@ -658,10 +658,10 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
                 end: int | None = None, layout=None) -> pd.DataFrame:
     """Head frames and fiducials of a video from the contour tracker (no muscle estimation).
 
-    A frame succeeds, as in :func:`faceanalysis.analysis.analyze`, when its head frame is
-    known and at least :data:`~faceanalysis.analysis.MIN_POINTS` fiducials are (a
-    fiducial is unknown when the contour it lies on is lost): the flow needs the head
-    frame, not every contour.
+    A frame succeeds as in :func:`faceanalysis.analysis.analyze`
+    (:func:`~faceanalysis.analysis.measure_frame`: head frame and at least
+    :data:`~faceanalysis.analysis.MIN_POINTS` fiducials known; a fiducial is unknown when
+    the contour it lies on is lost): the flow needs the head frame, not every contour.
 
     Returns
     -------
@@ -669,7 +669,7 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
     ``fid_<name>_x, fid_<name>_y`` for the 11 fiducials (NaN where the face or the
     fiducial's contour is lost).
     """
-    from faceanalysis.analysis import MIN_POINTS, POINT_CONTOUR
+    from faceanalysis.analysis import measure_frame
     from faceanalysis.video import MIN_FACE_SIZE, open_video
     from trackers import Tracker, detect_layout
 
@@ -700,14 +700,11 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
                     if layout is None:
                         tracker = None          # look for the face again on the next frame
                 if res is not None:
-                    lost = {k for k, q in res.quality.items() if q.lost}
-                    known = [n for n in FIDUCIALS if POINT_CONTOUR[n] not in lost]
-                    head = (res.head.x, res.head.y, res.head.scale, res.head.roll)
-                    if len(known) >= MIN_POINTS and np.isfinite(head).all():
+                    head, points, good = measure_frame(res, FIDUCIALS)
+                    if good:
                         rec.update(success=1, head_x=head[0], head_y=head[1],
                                    head_scale=head[2], head_roll=head[3])
-                        for n in known:
-                            x, y = res.fiducials[n]
+                        for n, (x, y) in zip(FIDUCIALS, points):
                             rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = float(x), float(y)
             rows.append(rec)
     if not rows:

@@ -644,10 +644,10 @@ def _flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_min, fail):
+def _gray_step_end_nb(p, arc, tx, ty, s_coarse, sigma, gray, gox, goy, s_min):
     """Arc position of a thin dark line's end: the half-level crossing of the
     strongest dark-to-bright step of the grey level along the path, searched from
-    ``s_coarse + 0.75 sigma`` back to ``reach`` before ``s_coarse`` (not beyond
+    ``s_coarse + 0.75 sigma`` back to ``10 sigma`` before ``s_coarse`` (not beyond
     ``s_min``).
 
     The ravine of a Hessian potential outlives the line's end: at scale sigma it
@@ -655,11 +655,10 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_
     prolongation keeps it at half depth for several pixels more (on the face
     model's renders the ravine of a furrow ran on up to 6 px past the drawn line's
     top, and never faded). The grey level steps from line to skin within a pixel
-    or two. Returns ``s_coarse`` (NaN with ``fail``) when no step of at least 5
-    grey levels is found.
+    or two. Returns NaN when no step of at least 5 grey levels is found.
     """
     w = max(2.0 * sigma, 2.0)
-    reach = min(reach, -s_min)
+    reach = min(10.0 * sigma, -s_min)
     lo = s_coarse - reach - w
     hi = s_coarse + 0.75 * sigma + w
     if lo < s_min:
@@ -667,7 +666,7 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_
     cnt = int(np.floor((hi - lo) / 0.25)) + 1
     k = int(round(w / 0.25))
     if cnt < 2 * k + 2:
-        return np.nan if fail else s_coarse
+        return np.nan
     nx, ny = -ty, tx
     g = np.empty(cnt)
     ss = np.empty(cnt)
@@ -678,7 +677,7 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_
         for o in (-0.5 * sigma, 0.0, 0.5 * sigma):
             v = _bil(gray, x + o * nx, y + o * ny, gox, goy)
             if np.isnan(v):
-                return np.nan if fail else s_coarse
+                return np.nan
             acc += v
         g[i] = acc / 3.0
     csum = np.zeros(cnt + 1)
@@ -694,7 +693,7 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_
             best = d
             ib = i
     if ib < 0:
-        return np.nan if fail else s_coarse
+        return np.nan
     # a step in a line that merely weakens (a real furrow fading out, texture) is
     # no end: it must rise at least half-way from the line to the skin beside it
     # (on the face model's renders 0.5-0.9 of the way; on real furrows mostly less)
@@ -702,7 +701,7 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, reach, sigma, gray, gox, goy, s_
     rise = (best / (_flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma)
                     - (csum[ib] - csum[ib - k]) / k))
     if not 0.5 <= rise <= 1.5:
-        return np.nan if fail else s_coarse
+        return np.nan
     half = 0.5 * ((csum[ib + k] - csum[ib]) / k + (csum[ib] - csum[ib - k]) / k)
     # the half-level crossing next to the step
     j = ib
@@ -840,13 +839,14 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty,
         # where the ravine never fades the search starts from the contour's end: the
         # grey step only ever moves an end back along the ravine (on real furrows,
         # which fade gradually, extending on a step made the contours wander)
-        fail = not np.isfinite(s_end)
-        s_end = _gray_step_end_nb(p, arc, tx, ty, 0.0 if fail else s_end,
-                                  10.0 * sigma,
-                                  sigma, gray, gox, goy, s[0], fail)
+        s_step = _gray_step_end_nb(p, arc, tx, ty, s_end if np.isfinite(s_end) else 0.0,
+                                   sigma, gray, gox, goy, s[0])
+        if np.isfinite(s_step):
+            s_end = s_step
         if np.isfinite(s_end):
             # the half-level point of a round-capped stroke lies one half-width
-            # beyond its centre line's end
+            # beyond its centre line's end (one measurement, capped: the band's
+            # two-step measurement below moved the real furrows' tops more)
             cx, cy = _path_xy(p, arc, tx, ty, s_end - 2.0 * sigma)
             hw = _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma)
             if not np.isnan(hw):
