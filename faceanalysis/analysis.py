@@ -17,6 +17,7 @@ import logging
 import os
 import sys
 import time
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from faceanalysis.table import (
     empty_table,
     with_au_columns,
 )
-from faceanalysis.video import MIN_FACE_SIZE, open_video
+from faceanalysis.video import MIN_FACE_SIZE, open_video, read_ahead
 
 log = logging.getLogger(__name__)
 
@@ -274,8 +275,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     t_track = 0.0
     bar = _progress(source.n_frames, progress, "analyze")
     try:
-        with source:
-            for frame in source:
+        # decoding runs ahead in a thread; closing() stops it before the source closes
+        with source, closing(read_ahead(source)) as decoded:
+            for frame in decoded:
                 frames.append(frame.index)
                 stamps.append(frame.timestamp)
                 if not frame.ok:

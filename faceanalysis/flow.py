@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from contextlib import closing
 from dataclasses import dataclass, field
 
 import cv2
@@ -670,14 +671,14 @@ def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: in
     fiducial's contour is lost).
     """
     from faceanalysis.analysis import measure_frame
-    from faceanalysis.video import MIN_FACE_SIZE, open_video
+    from faceanalysis.video import MIN_FACE_SIZE, open_video, read_ahead
     from trackers import Tracker, detect_layout
 
     source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE)
     rows = []
     tracker = None
-    with source:
-        for frame in source:
+    with source, closing(read_ahead(source)) as decoded:
+        for frame in decoded:
             rec = {"frame": frame.index, "timestamp": frame.timestamp, "success": 0,
                    "head_x": np.nan, "head_y": np.nan, "head_scale": np.nan,
                    "head_roll": np.nan}

@@ -10,6 +10,10 @@ the iteration with a warning and is recorded in :attr:`VideoSource.missing_tail`
 
 :func:`to_gray_float` and :func:`to_bgr_uint8` normalise any frame (grey, BGR,
 BGRA; 8-bit, 16-bit or float) for the trackers and for drawing.
+
+:func:`read_ahead` decodes in a background thread while the caller works on the
+frames already decoded (decoding releases the interpreter lock, so on a machine with
+two cores it costs the analysis almost nothing).
 """
 
 from __future__ import annotations
@@ -17,8 +21,10 @@ from __future__ import annotations
 import logging
 import math
 import os
+import queue
 import re
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +43,7 @@ __all__ = [
     "Frame",
     "VideoSource",
     "open_video",
+    "read_ahead",
     "to_bgr_uint8",
     "to_gray_float",
 ]
@@ -382,6 +389,99 @@ def _open_file(path: Path, fps: float | None) -> dict:
             fps, fps_origin = DEFAULT_FPS, "default"
     return dict(kind="video", fps=fps, fps_origin=fps_origin, first=first,
                 frame_count=frame_count, files=None)
+
+
+_DONE = object()
+
+
+class _Failed:
+    __slots__ = ("error",)
+
+    def __init__(self, error: Exception):
+        self.error = error
+
+
+def read_ahead(frames: Iterable, depth: int = 4) -> Iterator:
+    """Iterate over ``frames`` with up to ``depth`` items produced ahead in a thread.
+
+    The items and their order are those of ``frames``; an exception raised while
+    producing them is raised here, at the item where it happened. Memory stays
+    bounded: at most ``depth`` items wait. Stopping early (``break``, an exception
+    in the loop, closing the generator) stops the thread and closes the iterator of
+    ``frames`` (a :class:`VideoSource` then releases its decoder).
+
+    Parameters
+    ----------
+    frames : iterable
+        E.g. a :class:`VideoSource`; its ``iter()`` is called in the thread.
+    depth : int
+        Items decoded ahead (at least 1).
+
+    Yields
+    ------
+    The items of ``frames``.
+
+    Examples
+    --------
+    >>> list(read_ahead(range(5), depth=2))
+    [0, 1, 2, 3, 4]
+    >>> def broken():
+    ...     yield 1
+    ...     raise ValueError("frame 1: damaged")
+    >>> it = read_ahead(broken())
+    >>> next(it)
+    1
+    >>> next(it)
+    Traceback (most recent call last):
+    ...
+    ValueError: frame 1: damaged
+    """
+    return _read_ahead(frames, _check_int(depth, "depth", minimum=1))
+
+
+def _read_ahead(frames: Iterable, depth: int) -> Iterator:
+    waiting: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                waiting.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce():
+        outcome = _DONE
+        try:
+            it = iter(frames)
+            try:
+                for item in it:
+                    if not put(item):
+                        break
+            finally:
+                close = getattr(it, "close", None)
+                if close is not None:
+                    close()
+        except Exception as exc:  # noqa: BLE001 - handed over to the consumer
+            outcome = _Failed(exc)
+        finally:
+            put(outcome)
+
+    worker = threading.Thread(target=produce, name="read_ahead", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item = waiting.get()
+            if item is _DONE:
+                return
+            if isinstance(item, _Failed):
+                raise item.error
+            yield item
+    finally:
+        stop.set()
+        worker.join()
 
 
 def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int = 0,

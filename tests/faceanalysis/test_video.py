@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import gc
+import threading
 import tracemalloc
+from contextlib import closing
 
 import cv2
 import numpy as np
@@ -14,6 +16,7 @@ from faceanalysis.video import (
     DEFAULT_FPS,
     Frame,
     open_video,
+    read_ahead,
     to_bgr_uint8,
     to_gray_float,
 )
@@ -213,6 +216,75 @@ def test_abandoned_iteration_releases_decoder(video):
             if frame.index == 2:
                 break
     assert src._capture is None
+
+
+# -- reading ahead --------------------------------------------------------------------------
+
+def _read_ahead_threads():
+    return [t for t in threading.enumerate() if t.name == "read_ahead"]
+
+
+def test_read_ahead_yields_the_same_frames_in_order(video):
+    direct = [(f.index, f.timestamp, brightness_index(f.image)) for f in open_video(video)]
+    src = open_video(video)
+    ahead = [(f.index, f.timestamp, brightness_index(f.image)) for f in read_ahead(src, 3)]
+    assert ahead == direct
+    assert src.n_failed == 0 and not _read_ahead_threads()
+
+
+def test_read_ahead_keeps_the_counts_of_a_damaged_video(tmp_path):
+    path = make_video(tmp_path / "dmg.mp4", 30, noise=True)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3:len(data) // 3 + 2000] = bytes(2000)
+    path.write_bytes(bytes(data))
+    direct = open_video(path)
+    expect = [(f.index, f.ok) for f in direct]
+    src = open_video(path)
+    assert [(f.index, f.ok) for f in read_ahead(src)] == expect
+    assert (src.n_failed, src.missing_tail) == (direct.n_failed, direct.missing_tail)
+
+
+def test_read_ahead_raises_the_error_at_its_item():
+    def frames():
+        yield from range(3)
+        raise ValueError("clip.mp4: frame 3 cannot be decoded")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 3"):
+        for item in read_ahead(frames(), 2):
+            got.append(item)
+    assert got == [0, 1, 2]
+
+
+def test_read_ahead_stops_early_and_releases_the_decoder(video):
+    with open_video(video) as src, closing(read_ahead(src, 2)) as decoded:
+        for frame in decoded:
+            if frame.index == 2:
+                break
+    assert src._capture is None
+    assert not _read_ahead_threads()
+
+
+def test_read_ahead_memory_stays_bounded(tmp_path):
+    path = make_video(tmp_path / "long.avi", 60, fourcc="MJPG", size=(320, 240))
+    frame_bytes = 320 * 240 * 3
+    gc.collect()
+    tracemalloc.start()
+    try:
+        n = 0
+        for frame in read_ahead(open_video(path), 4):
+            n += frame.ok
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert n == 60
+    assert peak < 10 * frame_bytes, f"peak {peak} bytes for {frame_bytes}-byte frames"
+
+
+@pytest.mark.parametrize("depth", [0, -1, 1.5, "4"])
+def test_read_ahead_refuses_a_bad_depth(depth):
+    with pytest.raises(ValueError, match="depth"):
+        read_ahead(range(3), depth)
 
 
 # -- image folders -------------------------------------------------------------------------
