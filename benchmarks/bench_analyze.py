@@ -1,12 +1,16 @@
-"""Analysis: frames per second of `faceanalysis analyze` on 640x360 video, one core.
+"""Analysis: frames per second of `faceanalysis analyze` on 640x360 video.
+
+Tracking and estimation run on one thread (OpenCV limited to one thread); decoding
+runs ahead in a second thread (:func:`faceanalysis.video.read_ahead`), so the end to
+end figure uses up to two cores.
 
 Two figures per video, from the same run of :func:`faceanalysis.analysis.analyze`:
 
 * ``analysis``: tracking (potentials, snake relaxation, fiducials) + calibration +
   estimation, decode excluded: frames / (tracking time + estimation time);
 * ``end to end``: the wall time of the whole call (decode + tracking + estimation
-  + table), no overlay. The model's response table is built beforehand (it is
-  cached on disk once per model).
+  + table), no overlay; decoding overlaps with tracking. The model's response table
+  is built beforehand (it is cached on disk once per model).
 
 Cases: a rendered 640x360 happiness sequence of the project's face model (with head
 motion and noise), and ``WolfgangLanger_Pexels.mp4`` from ``../shared/data/real``

@@ -128,6 +128,10 @@ def _scores(pairs: dict) -> dict:
     jaw = controls.get(JAW)
     out["jaw_rmse_deg"] = None if not jaw or jaw["rmse"] is None else float(
         np.degrees(jaw["rmse"]))
+    if "_fiducials" not in pairs:          # exact measurements (faceanalysis.ceiling)
+        out["fiducial_error_px"] = None
+        out["fiducial_error_by_point"] = None
+        return out
     dist, visible = pairs["_fiducials"]
     valid = visible & np.isfinite(dist)
     out["fiducial_error_px"] = float(dist[valid].mean()) if valid.any() else None
@@ -144,8 +148,9 @@ def pool(reports: list[dict]) -> dict:
     names = [k for k in reports[0]["_pairs"] if not k.startswith("_")]
     pairs = {n: (np.concatenate([r["_pairs"][n][0] for r in reports]),
                  np.concatenate([r["_pairs"][n][1] for r in reports])) for n in names}
-    pairs["_fiducials"] = (np.concatenate([r["_pairs"]["_fiducials"][0] for r in reports]),
-                           np.concatenate([r["_pairs"]["_fiducials"][1] for r in reports]))
+    if all("_fiducials" in r["_pairs"] for r in reports):
+        pairs["_fiducials"] = tuple(np.concatenate([r["_pairs"]["_fiducials"][k]
+                                                    for r in reports]) for k in (0, 1))
     out = _scores(pairs)
     out["frames"] = int(sum(r["frames"] for r in reports))
     out["frames_compared"] = int(sum(r["frames_compared"] for r in reports))
@@ -177,7 +182,7 @@ def format_table(reports: dict[str, dict], *, controls=None) -> str:
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     for label, key in (("jaw error (deg)", "jaw_rmse_deg"),
                        ("fiducial error (px)", "fiducial_error_px")):
-        cells = " | ".join(f"{_fmt(reports[n][key])} | " for n in names)
+        cells = " | ".join(f"{_fmt(reports[n].get(key))} | " for n in names)
         lines.append(f"| {label} | {cells}|")
     return "\n".join(lines)
 

@@ -19,18 +19,27 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "jaw error in degrees, fiducial error in pixels), printed as a table and JSON. With "
         "--suite standard -o OUT: render the standard suite (six expressions and mixed action "
         "units over several identities, with head motion, noise and illumination change), "
-        "analyse it with every estimator and write report.json, report.md and report.png.")
+        "analyse it with every estimator and write report.json, report.md and report.png. With "
+        "--suite ceiling: score the fiducial estimators on perfect measurements of the "
+        "suite's faces (no rendering, no tracking): the best any tracker of these points "
+        "can reach.")
     parser.epilog = (
         "examples:\n"
         "  faceanalysis synth --expression surprise -o seq/ && "
         "faceanalysis analyze seq/video.mp4 -o res/\n"
         "  faceanalysis evaluate --truth seq/ --estimate res/\n"
-        "  faceanalysis evaluate --suite standard -o suite/ --identities 10")
+        "  faceanalysis evaluate --suite standard -o suite/ --identities 10\n"
+        "  faceanalysis evaluate --suite ceiling --identities 10")
     parser.add_argument("--truth", type=Path, metavar="DIR",
                         help="folder of a synthetic sequence (truth.csv)")
     parser.add_argument("--estimate", type=Path, metavar="DIR",
                         help="analysis folder (contractions.csv)")
-    parser.add_argument("--suite", choices=["standard"], help="run a whole suite")
+    parser.add_argument("--suite", choices=["standard", "ceiling"],
+                        help="run a whole suite: 'standard' renders and analyses it; "
+                             "'ceiling' estimates from its exact measurement points")
+    parser.add_argument("--own-response", action="store_true",
+                        help="with --suite ceiling: invert each face's own response table "
+                             "(about 10 s per identity) instead of the generic face's")
     parser.add_argument("-o", "--output", type=Path, metavar="OUT",
                         help="output folder of the suite")
     parser.add_argument("--overwrite", action="store_true",
@@ -46,6 +55,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from faceanalysis import evaluation
 
+    if args.suite == "ceiling":
+        from faceanalysis.ceiling import measurement_ceiling
+
+        if args.truth or args.estimate:
+            raise ValueError("--suite runs its own sequences; do not combine it with "
+                             "--truth/--estimate")
+        if args.output is not None:
+            raise ValueError("--suite ceiling writes nothing; it prints its table "
+                             "(use --json for JSON)")
+        config = evaluation.SuiteConfig(identities=args.identities, frames=args.frames)
+        reports = measurement_ceiling(config, own_response=args.own_response,
+                                      progress=not args.quiet)
+        if not args.json:
+            print(evaluation.format_table(reports))
+        print(json.dumps(reports))
+        return 0
+    if args.own_response:
+        raise ValueError("--own-response goes with --suite ceiling")
     if args.suite:
         if args.truth or args.estimate:
             raise ValueError("--suite runs its own sequences; do not combine it with "
