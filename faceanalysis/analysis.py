@@ -24,7 +24,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from faceanalysis.calibration import Calibration, calibrate
+from faceanalysis.calibration import (
+    MAX_POINT_RESIDUAL,
+    Calibration,
+    calibrate,
+    find_suspect,
+)
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimators import ESTIMATORS, estimate
 from faceanalysis.model_response import CURVE_POINTS
@@ -187,7 +192,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
             tracker_options: dict | None = None, backend: str = "numpy",
-            device: str | None = None,
+            device: str | None = None, suspect_points: str = "exclude",
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
@@ -224,6 +229,16 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         (the ``[torch]`` extra; same contours within 1e-6 px).
     device : str, optional
         Torch device (``'cpu'``, ``'cuda'``, ``'cuda:N'``) with ``backend='torch'``.
+    suspect_points : {'exclude', 'keep'}, keyword-only
+        What to do with measurement points that the neutral frame puts more than
+        :data:`~faceanalysis.calibration.MAX_POINT_RESIDUAL` head units from where the
+        calibrated face model has them (a contour on the wrong feature: the mouth line
+        on the lower lip, a furrow's top on the mouth). They are named in a warning and
+        in ``analysis.json`` (``calibration.suspect_points``) either way; ``'exclude'``
+        (default) also leaves them out of the calibration and the estimation (their
+        :attr:`Analysis.measurements` are NaN), since their motion is not the motion the
+        model predicts for them. No point of the rendered test faces comes near the
+        limit.
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -248,6 +263,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
 
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    if suspect_points not in ("exclude", "keep"):
+        raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     try:
         check_backend(backend, device)
     except ImportError as exc:
@@ -356,6 +373,22 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                              "choose another with --neutral")
     seen = np.isfinite(meas[k]).all(axis=1)
     cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
+    drop = find_suspect(meas[k], heads[k], response.rest, valid=seen)
+    suspect = [n for n, d in zip(response.fiducials, drop) if d]
+    excluded_names: list[str] = []
+    if suspect:
+        if suspect_points == "exclude":
+            meas = meas.copy()
+            meas[:, drop] = np.nan
+            cal = calibrate(meas[k], heads[k], response.rest, valid=seen & ~drop)
+            excluded_names = suspect
+        log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
+                    "where the face model puts %s (a contour on the wrong feature?); %s. "
+                    "Check the overlay (--overlay), or give another --neutral frame or a "
+                    "corrected --layout", video, int(frame_arr[k]), ", ".join(suspect),
+                    "s" if len(suspect) == 1 else "", MAX_POINT_RESIDUAL,
+                    "it" if len(suspect) == 1 else "them",
+                    "left out of the estimation" if excluded_names else "kept")
     t0 = time.perf_counter()
     disp = cal.model_displacements(meas, heads)
     values = _estimate(disp, response, "joint" if estimator == "flow" else estimator, refine)
@@ -384,7 +417,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         "controls_at_rest": [m for m in (*MUSCLES, JAW) if m not in estimated],
     }
     calib = {"neutral_frame": int(frame_arr[k]), "residual": cal.residual,
-             "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist()}
+             "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
+             "suspect_points": suspect, "excluded_points": excluded_names}
     metadata = analysis_metadata(source, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib})
     timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}

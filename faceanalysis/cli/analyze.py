@@ -30,6 +30,11 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--refine", action="store_true",
                        help="joint estimator: refine every frame through the face model itself "
                             "(more accurate where muscles interact, about ten times slower)")
+    group.add_argument("--keep-suspect-points", action="store_true",
+                       help="keep measurement points that the neutral frame puts far from "
+                            "the calibrated face model (a contour on the wrong feature) in "
+                            "the estimation; by default they are left out (and named in a "
+                            "warning either way)")
     group.add_argument("--backend", choices=["numpy", "torch"], default="numpy",
                        help="snake relaxation: compiled NumPy (default) or batched torch "
                             "(needs the [torch] extra)")
@@ -63,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, layout=args.layout, refine=args.refine,
-        backend=args.backend, device=args.device)
+        backend=args.backend, device=args.device,
+        suspect_points="keep" if args.keep_suspect_points else "exclude")
     q = result.metadata.get("quality", {})
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
           f"({q.get('frames_lost', 0)} lost) -> {args.output}", file=sys.stderr)

@@ -81,6 +81,8 @@ def analysis_options(args: argparse.Namespace) -> dict:
         if value is None:
             continue
         options[name] = str(Path(value).resolve()) if isinstance(value, Path) else value
+    if getattr(args, "keep_suspect_points", False):
+        options["suspect_points"] = "keep"
     return options
 
 

@@ -121,6 +121,62 @@ def test_cli_evaluate_prints_scores(run_cli, surprise, tmp_path):
     assert report["frames"] == 8 and "jaw_rotation" in report["controls"]
 
 
+def test_rendered_faces_have_no_suspect_points(analysed):
+    assert analysed.metadata["calibration"]["suspect_points"] == []
+    assert np.nanmax(analysed.calibration.point_residuals) < 0.06
+
+
+@pytest.fixture(scope="module")
+def furrows_misplaced(surprise, tmp_path_factory):
+    """A layout whose furrows start on the mouth, 0.3 inter-eye distances too low."""
+    from trackers import detect_layout
+    from trackers.layout import FaceLayout, LayoutContour
+
+    cap = cv2.VideoCapture(str(surprise["video"]))
+    ok, img = cap.read()
+    cap.release()
+    lay = detect_layout(img, channel_order="bgr")
+    cs = dict(lay.contours)
+    for n in ("furrow_l", "furrow_r"):
+        c = cs[n]
+        cs[n] = LayoutContour(c.points + [0.0, 0.3 * lay.inter_eye], c.closed, c.kind, c.sigma,
+                              c.ends)
+    path = tmp_path_factory.mktemp("layout") / "furrows_low.json"
+    FaceLayout(cs, lay.image_size, lay.eyes, lay.face_box, lay.source, dict(lay.meta)).to_json(
+        path)
+    return path
+
+
+def test_points_on_the_wrong_feature_are_named_and_left_out(surprise, furrows_misplaced,
+                                                            caplog):
+    with caplog.at_level("WARNING", logger="faceanalysis.analysis"):
+        a = analyze(surprise["video"], layout=furrows_misplaced, end=10)
+    suspect = a.metadata["calibration"]["suspect_points"]
+    assert suspect and all(n.startswith("furrow_") for n in suspect)
+    assert a.metadata["calibration"]["excluded_points"] == suspect
+    cols = [a.response.fiducials.index(n) for n in suspect]
+    assert np.isnan(a.measurements[:, cols]).all()
+    assert "neutral frame 0" in caplog.text and suspect[0] in caplog.text
+    kept = analyze(surprise["video"], layout=furrows_misplaced, end=10, suspect_points="keep")
+    assert kept.metadata["calibration"]["suspect_points"] == suspect
+    assert kept.metadata["calibration"]["excluded_points"] == []
+    assert np.isfinite(kept.measurements[:, cols]).all()
+
+
+def test_cli_keeps_suspect_points_on_request(run_cli, surprise, furrows_misplaced, tmp_path):
+    out = tmp_path / "res"
+    code, _, err = run_cli("analyze", surprise["video"], "-o", out, "--end", "6", "-q",
+                           "--layout", furrows_misplaced, "--keep-suspect-points")
+    assert code == 0 and "kept" in err
+    meta = json.loads((out / "analysis.json").read_text())
+    assert meta["calibration"]["suspect_points"] and not meta["calibration"]["excluded_points"]
+
+
+def test_suspect_points_option_is_checked(surprise):
+    with pytest.raises(ValueError, match="'exclude' or 'keep'"):
+        analyze(surprise["video"], suspect_points="drop")
+
+
 @pytest.mark.real_data
 def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
     a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from faceanalysis.calibration import calibrate, to_head_frame
+from faceanalysis.calibration import calibrate, find_suspect, to_head_frame
 from faceanalysis.estimators import estimate, estimate_joint, estimate_tw93
 from faceanalysis.response import FiducialResponse
 
@@ -211,3 +211,21 @@ def test_robust_fit_discounts_a_point_stuck_where_it_was():
             estimate_joint(d, resp, robust=bad)
     with pytest.raises(ValueError, match="robust_rounds"):
         estimate_joint(d, resp, robust_rounds=-1)
+
+
+def test_point_residuals_and_suspect_points(rng):
+    rest = rng.normal(size=(12, 2)) * 4
+    head = np.array([100.0, 120.0, 10.0, 0.0])
+    image = np.c_[100 + 10 * rest[:, 0], 120 - 10 * rest[:, 1]]
+    image += rng.normal(scale=0.1, size=image.shape)       # another face: small residuals
+    image[11] = np.nan
+    seen = np.isfinite(image).all(axis=1)
+    cal = calibrate(image, head, rest, valid=seen)
+    assert np.isnan(cal.point_residuals[11]) and np.nanmax(cal.point_residuals) < 0.05
+    assert not find_suspect(image, head, rest, valid=seen).any()
+    # two contours on the wrong feature: both found, not their neighbours
+    image[[2, 7]] += [[0.0, 25.0], [-20.0, 10.0]]
+    one_fit = calibrate(image, head, rest, valid=seen).point_residuals
+    assert np.sum(one_fit > 0.08) > 2             # one fit drags good points off too
+    np.testing.assert_array_equal(np.flatnonzero(find_suspect(image, head, rest, valid=seen)),
+                                  [2, 7])
