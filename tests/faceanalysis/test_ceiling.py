@@ -102,3 +102,14 @@ def test_cli_ceiling_prints_table_and_json(run_cli):
 def test_cli_ceiling_usage_errors(run_cli, argv, match):
     code, _, err = run_cli("evaluate", *argv)
     assert code == 1 and match in err
+
+
+def test_own_response_tables_each_face():
+    cfg = SuiteConfig(identities=1, frames=6, sequences=(("au", "12:0.7,26:0.6"),))
+    generic = measurement_ceiling(cfg, estimators=("joint",))["joint"]
+    own = measurement_ceiling(cfg, estimators=("joint",), own_response=True)["joint"]
+    assert own["own_response"] and not generic["own_response"]
+    assert own["jaw_rmse_deg"] < 0.5
+    zyg_own, zyg_gen = (r["controls"]["zygomaticus_major_l"] for r in (own, generic))
+    assert zyg_own["r"] > 0.95
+    assert zyg_own["estimate_max"] != zyg_gen["estimate_max"]     # another table was used
