@@ -372,16 +372,16 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
             raise ValueError(f"neutral frame {neutral} was not tracked (face lost); "
                              "choose another with --neutral")
     seen = np.isfinite(meas[k]).all(axis=1)
-    cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
     drop = find_suspect(meas[k], heads[k], response.rest, valid=seen)
     suspect = [n for n, d in zip(response.fiducials, drop) if d]
     excluded_names: list[str] = []
+    if suspect and suspect_points == "exclude":
+        meas = meas.copy()
+        meas[:, drop] = np.nan
+        seen = seen & ~drop
+        excluded_names = suspect
+    cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
     if suspect:
-        if suspect_points == "exclude":
-            meas = meas.copy()
-            meas[:, drop] = np.nan
-            cal = calibrate(meas[k], heads[k], response.rest, valid=seen & ~drop)
-            excluded_names = suspect
         log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
                     "where the face model puts %s (a contour on the wrong feature?); %s. "
                     "Check the overlay (--overlay), or give another --neutral frame or a "

@@ -26,7 +26,7 @@ import pandas as pd
 
 from faceanalysis.calibration import calibrate
 from faceanalysis.estimators import ESTIMATORS, estimate
-from faceanalysis.evaluation import SuiteConfig, pool, public
+from faceanalysis.evaluation import SuiteConfig, pool, public, script_kwargs
 from faceanalysis.response import FiducialResponse
 from faceanalysis.table import JAW, MUSCLES
 
@@ -155,9 +155,8 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                 table = tabulate_response(model, response.muscles,
                                           n_levels=len(response.levels))
             for kind, spec in config.sequences:
-                truth = contraction_timeline(
-                    list(model.muscle_names), frames=config.frames,
-                    **({"expression": spec} if kind == "expression" else {"au": spec}))
+                truth = contraction_timeline(list(model.muscle_names), frames=config.frames,
+                                             **script_kwargs(kind, spec))
                 disp = _displacements(perfect_measurements(model, truth, table.fiducials),
                                       table)
                 for est in estimators:

@@ -191,6 +191,12 @@ def _fmt(v) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
+def script_kwargs(kind: str, spec: str) -> dict:
+    """Keyword arguments of the renderer's timeline for one entry of a suite's sequences
+    (``("expression", name)`` or ``("au", script)``)."""
+    return {"expression": spec} if kind == "expression" else {"au": spec}
+
+
 @dataclass(frozen=True)
 class SuiteConfig:
     """What the standard suite renders."""
@@ -243,7 +249,7 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
         label = spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(
             ",", "_")
         d = seq_dir / f"id{seed:03d}_{label}"
-        kwargs = {"expression": spec} if kind == "expression" else {"au": spec}
+        kwargs = script_kwargs(kind, spec)
         render_sequence(d, overwrite=True, frames=config.frames, size=config.size, seed=seed,
                         head_motion=config.head_motion, noise=config.noise,
                         illumination=config.illumination, flow=False, **kwargs)

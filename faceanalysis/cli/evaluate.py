@@ -55,12 +55,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from faceanalysis import evaluation
 
+    if args.suite and (args.truth or args.estimate):
+        raise ValueError("--suite runs its own sequences; do not combine it with "
+                         "--truth/--estimate")
     if args.suite == "ceiling":
         from faceanalysis.ceiling import measurement_ceiling
 
-        if args.truth or args.estimate:
-            raise ValueError("--suite runs its own sequences; do not combine it with "
-                             "--truth/--estimate")
         if args.output is not None:
             raise ValueError("--suite ceiling writes nothing; it prints its table "
                              "(use --json for JSON)")
@@ -74,9 +74,6 @@ def run(args: argparse.Namespace) -> int:
     if args.own_response:
         raise ValueError("--own-response goes with --suite ceiling")
     if args.suite:
-        if args.truth or args.estimate:
-            raise ValueError("--suite runs its own sequences; do not combine it with "
-                             "--truth/--estimate")
         if args.output is None:
             raise ValueError("--suite needs -o OUT")
         config = evaluation.SuiteConfig(identities=args.identities, frames=args.frames)

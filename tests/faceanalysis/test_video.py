@@ -194,18 +194,22 @@ def test_tiny_frames_refused_with_min_size(tmp_path):
     assert len(list(open_video(path))) == 3  # readable when no minimum is asked
 
 
-def test_streaming_memory_stays_flat(tmp_path):
-    path = make_video(tmp_path / "long.avi", 120, fourcc="MJPG", size=(320, 240))
-    frame_bytes = 320 * 240 * 3
+def _good_frames_and_peak_memory(frames) -> tuple[int, int]:
+    """Frames decoded and the peak of traced memory (bytes) while iterating ``frames``."""
     gc.collect()
     tracemalloc.start()
     try:
-        n = 0
-        for frame in open_video(path):
-            n += frame.ok
+        n = sum(frame.ok for frame in frames)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
+    return n, peak
+
+
+def test_streaming_memory_stays_flat(tmp_path):
+    path = make_video(tmp_path / "long.avi", 120, fourcc="MJPG", size=(320, 240))
+    frame_bytes = 320 * 240 * 3
+    n, peak = _good_frames_and_peak_memory(open_video(path))
     assert n == 120
     assert peak < 6 * frame_bytes, f"peak {peak} bytes for {frame_bytes}-byte frames"
 
@@ -268,15 +272,7 @@ def test_read_ahead_stops_early_and_releases_the_decoder(video):
 def test_read_ahead_memory_stays_bounded(tmp_path):
     path = make_video(tmp_path / "long.avi", 60, fourcc="MJPG", size=(320, 240))
     frame_bytes = 320 * 240 * 3
-    gc.collect()
-    tracemalloc.start()
-    try:
-        n = 0
-        for frame in read_ahead(open_video(path), 4):
-            n += frame.ok
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
+    n, peak = _good_frames_and_peak_memory(read_ahead(open_video(path), 4))
     assert n == 60
     assert peak < 10 * frame_bytes, f"peak {peak} bytes for {frame_bytes}-byte frames"
 
