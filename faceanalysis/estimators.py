@@ -318,6 +318,53 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     return x
 
 
+def fit_residual(displacements: np.ndarray, response: FiducialResponse,
+                 contractions: np.ndarray) -> np.ndarray:
+    """How far the measured points lie from where the model puts them, frame by frame.
+
+    Parameters
+    ----------
+    displacements : ndarray, shape (T, F, 2)
+        Measured displacements from neutral in model cm (NaN rows: points not seen).
+    response : FiducialResponse
+    contractions : ndarray, shape (T, M)
+        Estimated controls (``response.muscles`` order); NaN entries count as at rest,
+        rows all NaN (lost frames) give NaN.
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        Root-mean-square distance, over the points seen on each frame, between the
+        measured displacement and the response's prediction at ``contractions``, in
+        model cm; NaN where no point is seen or nothing was estimated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from faceanalysis.response import FiducialResponse
+    >>> levels = np.linspace(0, 1, 3)
+    >>> disp = np.zeros((1, 3, 2, 2))
+    >>> disp[0, :, :, 1] = levels[:, None]      # one muscle lifts both points by 1 cm
+    >>> resp = FiducialResponse(("a",), ("p", "q"), np.zeros((2, 2)), disp, np.ones(1),
+    ...                         levels)
+    >>> seen = np.array([[[0.0, 0.5], [0.0, 0.5]], [[0.3, 0.5], [-0.3, 0.5]]])
+    >>> fit_residual(seen, resp, np.array([[0.5], [0.5]])).round(3).tolist()
+    [0.0, 0.3]
+    """
+    d = _check_displacements(displacements, response)
+    c = np.asarray(contractions, dtype=float)
+    if c.shape != (d.shape[0], len(response.muscles)):
+        raise ValueError(f"contractions must have shape ({d.shape[0]}, "
+                         f"{len(response.muscles)}), got {c.shape}")
+    r2 = np.sum((d - response.predict(np.nan_to_num(c))) ** 2, axis=2)    # (T, F)
+    seen = np.isfinite(r2)
+    n = seen.sum(axis=1)
+    out = np.full(d.shape[0], np.nan)
+    ok = (n > 0) & np.isfinite(c).any(axis=1)
+    out[ok] = np.sqrt(np.where(seen, r2, 0.0).sum(axis=1)[ok] / n[ok])
+    return out
+
+
 def estimate(displacements: np.ndarray, response: FiducialResponse, *,
              estimator: str = "joint", **kwargs) -> np.ndarray:
     """Dispatch to :func:`estimate_joint` or :func:`estimate_tw93` by name."""

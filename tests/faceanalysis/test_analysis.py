@@ -49,6 +49,41 @@ def test_surprise_raises_brows_and_drops_jaw(analysed, surprise):
     assert est.loc[0, "jaw_rotation"] < 0.02 < est.loc[apex, "jaw_rotation"]
 
 
+def test_the_model_explains_a_rendered_face(analysed):
+    from faceanalysis.analysis import MAX_FIT_RESIDUAL
+
+    fit = analysed.metadata["model_fit"]
+    ok = analysed.table["success"].to_numpy() == 1
+    assert fit["frames_over_limit"] == 0 and fit["max_cm"] < MAX_FIT_RESIDUAL
+    assert analysed.fit_residual.shape == (24,)
+    assert np.isfinite(analysed.fit_residual[ok]).all()
+    # within the limit the confidence is the tracker's own
+    assert np.allclose(analysed.table["confidence"], analysed.track_confidence)
+
+
+def test_points_the_model_cannot_explain_lower_the_confidence(analysed):
+    from dataclasses import replace
+
+    from faceanalysis.analysis import MAX_FIT_RESIDUAL
+
+    # the mouth's points dragged 30 px sideways on frames 10-15 (the mouth contours on
+    # another feature): no contraction of the model moves the whole mouth sideways
+    meas = analysed.measurements.copy()
+    names = ("mouth_corner_l", "mouth_corner_r", "lip_lower_centre")
+    j = [analysed.response.fiducials.index(n) for n in names]
+    meas[10:16, j, 0] += 30.0
+    bad = reestimate(replace(analysed, measurements=meas), "joint")
+    frames = np.arange(24)
+    hit = (frames >= 10) & (frames < 16)
+    assert (bad.fit_residual[hit] > MAX_FIT_RESIDUAL).all()
+    assert bad.metadata["model_fit"]["frames_over_limit"] == 6
+    conf = bad.table["confidence"].to_numpy()
+    allowed = MAX_FIT_RESIDUAL / bad.fit_residual[hit]
+    assert np.allclose(conf[hit], np.minimum(analysed.track_confidence[hit], allowed))
+    assert (conf[hit] < analysed.track_confidence[hit]).all()
+    assert np.allclose(conf[~hit], analysed.table["confidence"].to_numpy()[~hit])
+
+
 def test_joint_beats_tw93_on_the_brows(analysed, surprise):
     truth = pd.read_csv(surprise["truth"])
     tw = reestimate(analysed, "tw93")
