@@ -417,8 +417,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "
                     "stay under 0.41): a head turned out of the image plane, contours on "
                     "other features or motion beyond the model's. Their confidence is "
-                    "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"], int(success.sum()),
-                    MAX_FIT_RESIDUAL, fit["median_cm"])
+                    "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"],
+                    int(success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"])
 
     table = empty_table(n, frames=frames, timestamps=stamps)
     table["success"] = success.astype(np.int64)
