@@ -132,7 +132,8 @@ def to_gray(image, *, channel_order: str = "rgb") -> np.ndarray:
         gray = img.astype(np.float32)  # always a copy
     if scale != 1.0:
         gray *= np.float32(scale)
-    if not np.isfinite(gray).all():
+    # integer and boolean pixels are finite by construction
+    if img.dtype.kind == "f" and not np.isfinite(gray).all():
         bad = np.argwhere(~np.isfinite(gray))[0]
         raise ValueError(f"image has NaN or infinite pixels (first at row {bad[0]}, "
                          f"col {bad[1]})")
