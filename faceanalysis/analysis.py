@@ -50,8 +50,8 @@ log = logging.getLogger(__name__)
 #: (root mean square, model cm) is one the face model does not explain, and its
 #: ``confidence`` is lowered to ``MAX_FIT_RESIDUAL / residual``. On 110 rendered
 #: sequences of the standard suite (10 faces) the worst frame was 0.41 cm away and the
-#: median 0.05; on the real clips the median frame is 1.0-1.7 cm away (heads that turn
-#: out of the image plane, contours on other features).
+#: median 0.05; on the three real clips the median frame is 1.1-1.7 cm away (heads that
+#: turn out of the image plane, contours on other features).
 MAX_FIT_RESIDUAL = 0.5
 
 __all__ = ["Analysis", "analyze", "analyze_to_folder", "reestimate", "ESTIMATORS"]
@@ -531,6 +531,13 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
     metadata["parameters"] = {**metadata.get("parameters", {}), "estimator": estimator,
                               "refine": bool(refine), "estimated_controls": estimated}
     metadata["model_fit"] = fit
+    if "quality" in metadata:
+        # the confidence changed with the estimate: so do its mean and minimum
+        from faceanalysis.report import quality_summary
+
+        q = quality_summary(table, frames_missing=metadata["quality"].get("frames_missing", 0))
+        metadata["quality"] = {**metadata["quality"], "mean_confidence": q["mean_confidence"],
+                               "min_confidence": q["min_confidence"]}
     return Analysis(table=table, contours=analysis.contours, metadata=metadata,
                     calibration=analysis.calibration, response=analysis.response,
                     measurements=analysis.measurements, timings=dict(analysis.timings),

@@ -82,6 +82,8 @@ def test_points_the_model_cannot_explain_lower_the_confidence(analysed):
     assert np.allclose(conf[hit], np.minimum(analysed.track_confidence[hit], allowed))
     assert (conf[hit] < analysed.track_confidence[hit]).all()
     assert np.allclose(conf[~hit], analysed.table["confidence"].to_numpy()[~hit])
+    tracked = bad.table["success"].to_numpy() == 1
+    assert bad.metadata["quality"]["mean_confidence"] == pytest.approx(conf[tracked].mean())
 
 
 def test_joint_beats_tw93_on_the_brows(analysed, surprise):
