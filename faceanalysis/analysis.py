@@ -474,9 +474,9 @@ def _model_fit(disp, response, values, success, track_conf):
     """Per-frame fit residual, the confidence it allows, and their summary for
     ``analysis.json`` (``model_fit``)."""
     residual = np.where(success, fit_residual(disp, response, values), np.nan)
-    allowed = np.where(np.isfinite(residual),
-                       np.clip(MAX_FIT_RESIDUAL / np.maximum(np.nan_to_num(residual), 1e-12),
-                               0.0, 1.0), 1.0)
+    with np.errstate(divide="ignore"):
+        # fmin skips NaN: a frame without a residual keeps the tracker's confidence
+        allowed = np.fmin(1.0, MAX_FIT_RESIDUAL / residual)
     confidence = np.where(success, np.minimum(track_conf, allowed), 0.0)
     r = residual[np.isfinite(residual)]
     summary = {"limit_cm": MAX_FIT_RESIDUAL,
