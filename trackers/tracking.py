@@ -57,6 +57,7 @@ import numba
 import numpy as np
 
 from trackers.anchors import IrisAnchors, similarity_from_pairs
+from trackers.head_motion import FeatureAnchors, gray_u8
 from trackers.fiducials import (
     HeadFrame,
     apex_fraction,
@@ -436,6 +437,10 @@ def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
         out.append(pt)
     return out
 
+
+#: While the features give the head frame, the irises are searched for on every
+#: this many frames only.
+IRIS_RETRY_EVERY = 4
 
 #: A contour lost on many consecutive frames is re-placed at least this often (frames).
 REINIT_EVERY = 16
@@ -933,23 +938,29 @@ class Tracker:
     redetect_interval : int
         Least number of frames between two detections; doubled (up to 16 times)
         after each detection that finds no face or does not help.
-    head_anchor : {'auto', 'eyes', 'contours'}
+    head_anchor : {'auto', 'eyes', 'features', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
         hairline and nose). 'contours' recomputes it from the contours on every
         frame, as 004 does; but expressions move the hairline and the nostrils (in
         the face model the frontalis lifts the hairline ~2 mm in surprise, the
         nostrils move ~3 mm), so that frame moves with the expression and biases
-        every fiducial displacement measured in it. 'eyes' moves the first frame's
-        frame by a similarity: scale and translation from the two irises
+        every fiducial displacement measured in it, and a contour that slides onto
+        another feature (a hand) swings it. 'eyes' moves the first frame's frame by
+        a similarity: scale and translation from the two irises
         (:class:`~trackers.anchors.IrisAnchors`; eyeballs sit in the skull),
         rotation from the turn of the line between the eyebrows' centroids (level
         under symmetric expressions; the irises' own line when a brow is lost). On
-        frames where an iris is not found (closed eyes, occlusion) the contours'
-        frame-to-frame motion is chained on to the last frame the irises gave.
-        'auto' (default): 'eyes' when the layout has eye centres and both irises
-        are found on the first frame, else 'contours'. ``TrackResult.extra
-        ['head_source']`` says which was used per frame.
+        frames where an iris is not found (closed eyes, occlusion) corner features
+        on the eyes and nose take over (:class:`~trackers.head_motion.
+        FeatureAnchors`, seeded on the last frame the irises gave; the irises are
+        then looked for every :data:`IRIS_RETRY_EVERY` frames); where those do not
+        agree either, the contours' frame-to-frame motion is chained on to the last
+        frame the irises or features gave. 'features': the features alone, from the
+        first frame on. 'auto' (default): 'eyes' when the layout has eye centres and
+        both irises are found on the first frame, else 'features' when it has eye
+        centres, else 'contours'. ``TrackResult.extra['head_source']`` says which
+        was used per frame ('eyes', 'features', 'contours' or 'detection').
 
     Examples
     --------
@@ -996,11 +1007,11 @@ class Tracker:
             raise ValueError(f"brow_mid must be 'apex' or a fraction in [0, 1], got "
                              f"{brow_mid!r}")
         self.brow_mid = brow_mid
-        if head_anchor not in ("auto", "eyes", "contours"):
-            raise ValueError(f"head_anchor must be 'auto', 'eyes' or 'contours', got "
-                             f"{head_anchor!r}")
-        if head_anchor == "eyes" and layout.eyes is None:
-            raise ValueError("head_anchor='eyes' needs a layout with eye centres")
+        if head_anchor not in ("auto", "eyes", "features", "contours"):
+            raise ValueError(f"head_anchor must be 'auto', 'eyes', 'features' or 'contours', "
+                             f"got {head_anchor!r}")
+        if head_anchor in ("eyes", "features") and layout.eyes is None:
+            raise ValueError(f"head_anchor={head_anchor!r} needs a layout with eye centres")
         self.head_anchor = head_anchor
         if mouth_corner not in ("profile", "ends"):
             raise ValueError(f"mouth_corner must be 'profile' or 'ends', got {mouth_corner!r}")
@@ -1015,7 +1026,14 @@ class Tracker:
         self._redetect_wait = self.redetect_interval
         self._sim_cache: tuple | None = None
         self._corners_head: dict[str, np.ndarray] = {}
+        self._corner_misses: dict[str, int] = {}
         self.anchors = None
+        self.features: FeatureAnchors | None = None
+        self._feature_base: HeadFrame | None = None
+        self._last_gray: np.ndarray | None = None
+        self._last_gray_index = -1
+        self._feature_index = -1
+        self._feature_cache: tuple = (-1, None)
         self._anchor_base: tuple | None = None
         self._ref_brow_angle: float | None = None
         self._brows_lost = False
@@ -1238,9 +1256,11 @@ class Tracker:
         self._held = 0
         self.head_source = "detection"
         if self.anchors is not None:
-            a2, b2 = _similarity_between(self.ref_head, head)
-            z = a2 * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b2
-            self.anchors.last = np.c_[z.real, z.imag]
+            self._move_iris_search(head)
+        # the features are seeded again on this frame, from the detection's frame
+        self.features = None
+        self._feature_cache = (self.index, head)
+        self._keep_gray(frame)
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         return quality, head, r.iterations
@@ -1275,7 +1295,7 @@ class Tracker:
         hc = self._contour_head()
         if first:
             self.head_source = "contours"
-            if self.head_anchor != "contours" and self.layout.eyes is not None:
+            if self.head_anchor in ("auto", "eyes") and self.layout.eyes is not None:
                 try:
                     self.anchors = IrisAnchors(frame, self.layout.eyes,
                                                channel_order=self.channel_order)
@@ -1286,40 +1306,108 @@ class Tracker:
             if hc is not None:
                 self._anchor_base = (hc, hc)
             self._ref_brow_angle = _brow_angle(self.system, self.names)
+            self._keep_gray(frame)
             return hc if hc is not None else self.last_head
-        if self.anchors is not None and self.ref_head is not None:
-            # search around the irises last found (a wider window after a miss)
-            pred = None
-            wide = self.head_source != "eyes"
-            if self._sim_cache is not None and self._sim_cache[0] == self.index:
-                sim = self._sim_cache[1]  # the irises do not depend on the contours
-            else:
-                sim = self.anchors.similarity(
-                    frame, pred, search=3.0 * self.anchors.radius if wide else None)
-                self._sim_cache = (self.index, sim)
-            if sim is not None and self._ref_brow_angle is not None and not self._brows_lost:
-                # the brow line's turn, unless it disagrees with the irises' (a brow
-                # contour that slid away)
-                rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
-                rot = (rot + np.pi) % (2 * np.pi) - np.pi
-                if abs(rot - np.angle(sim[0])) < 0.05:
-                    sim = self.anchors.similarity_with_rotation(sim, rot)
-            if sim is not None:
-                head = _apply_similarity(self.ref_head, *sim)
-                if self._plausible(head, hc):
-                    self.head_source = "eyes"
-                    if hc is not None:
-                        self._anchor_base = (hc, head)
-                    return head
-            fallback = self._chained(hc)
-            if fallback is not None:
-                # search the irises again where the fallback frame puts them
-                a, b = _similarity_between(self.ref_head, fallback)
-                z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
-                self.anchors.last = np.c_[z.real, z.imag]
-            self.head_source = "contours"
-            return fallback
-        return self._chained(hc)
+        # the irises first; while the features stand in for them, searched for only
+        # every few frames (a search that fails costs as much as the features)
+        if self.anchors is not None and self.ref_head is not None and (
+                self.features is None or self.index % IRIS_RETRY_EVERY == 0):
+            head = self._iris_head(frame, hc)
+            if head is not None:
+                self.head_source = "eyes"
+                if hc is not None:
+                    self._anchor_base = (hc, head)
+                self.features = None  # seeded again from here when the irises go
+                self._keep_gray(frame)
+                return head
+        head = self._feature_head(frame)
+        if head is not None:
+            self.head_source = "features"
+            if hc is not None:
+                self._anchor_base = (hc, head)
+            if self.anchors is not None:
+                self._move_iris_search(head)
+            return head
+        fallback = self._chained(hc)
+        if fallback is not None and self.anchors is not None:
+            self._move_iris_search(fallback)
+        self.head_source = "contours"
+        self._keep_gray(frame)
+        return fallback
+
+    def _keep_gray(self, frame):
+        """Keep this frame's 8-bit grey while the features may be seeded on it."""
+        if self._features_wanted():
+            self._last_gray = gray_u8(frame, self.channel_order)
+            self._last_gray_index = self.index
+
+    def _features_wanted(self):
+        return self.head_anchor != "contours" and self.layout.eyes is not None
+
+    def _move_iris_search(self, head):
+        """Search the irises next where ``head`` puts them."""
+        a, b = _similarity_between(self.ref_head, head)
+        z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
+        self.anchors.last = np.c_[z.real, z.imag]
+
+    def _iris_head(self, frame, hc):
+        """Head frame from the irises, or None (not found, or implausible)."""
+        # search around the irises last found (a wider window after a miss)
+        wide = self.head_source != "eyes"
+        if self._sim_cache is not None and self._sim_cache[0] == self.index:
+            sim = self._sim_cache[1]  # the irises do not depend on the contours
+        else:
+            sim = self.anchors.similarity(
+                frame, None, search=3.0 * self.anchors.radius if wide else None)
+            self._sim_cache = (self.index, sim)
+        if sim is not None and self._ref_brow_angle is not None and not self._brows_lost:
+            # the brow line's turn, unless it disagrees with the irises' (a brow
+            # contour that slid away)
+            rot = _brow_angle(self.system, self.names) - self._ref_brow_angle
+            rot = (rot + np.pi) % (2 * np.pi) - np.pi
+            if abs(rot - np.angle(sim[0])) < 0.05:
+                sim = self.anchors.similarity_with_rotation(sim, rot)
+        if sim is None:
+            return None
+        head = _apply_similarity(self.ref_head, *sim)
+        return head if self._plausible(head, hc) else None
+
+    def _feature_head(self, frame):
+        """Head frame from the features on the eyes and nose (:class:`~trackers.
+        head_motion.FeatureAnchors`), seeded on the last frame whose head frame came
+        from elsewhere; None when they do not agree or the frame jumps."""
+        if not self._features_wanted() or self.last_head is None or self.ref_head is None:
+            return None
+        if self._feature_cache[0] == self.index:
+            return self._feature_cache[1]  # asked again after contours were re-placed
+        head = self._follow_features(frame)
+        self._feature_cache = (self.index, head)
+        return head
+
+    def _follow_features(self, frame):
+        if self.features is None or self._feature_index != self.index - 1:
+            if self._last_gray is None or self._last_gray_index != self.index - 1:
+                return None
+            a, b = _similarity_between(self.ref_head, self.last_head)
+            e = np.asarray(self.layout.eyes, float)
+            z = a * (e[:, 0] + 1j * e[:, 1]) + b
+            try:
+                self.features = FeatureAnchors(self._last_gray, np.c_[z.real, z.imag])
+            except ValueError:
+                self.features = None
+                return None
+            self._feature_base = self.last_head
+        self._feature_index = self.index
+        self._last_gray = None
+        sim = self.features.similarity(gray_u8(frame, self.channel_order))
+        if sim is None:
+            self.features = None
+            return None
+        head = _apply_similarity(self._feature_base, *sim)
+        if not self._plausible(head, None):
+            self.features = None
+            return None
+        return head
 
     def _plausible(self, head, hc):
         """Whether a head frame from the irises agrees with the contours' frame (scale,
@@ -1470,7 +1558,11 @@ class Tracker:
             ex = np.array(head.axes[0])
             names = ["mouth_corner_l" if (e - lip.mean(axis=0)) @ ex > 0 else "mouth_corner_r"
                      for e in (lip[0], lip[-1])]
+            # a corner narrows the next search only while it is fresh: one carried on
+            # for frames (a hand over the mouth) would hold the search at a height
+            # where the mouth no longer is, and no corner would be found again
             previous = [None if self._corners_head.get(n) is None
+                        or self._corner_misses.get(n, 0) > 1
                         else head.to_image(self._corners_head[n][None])[0] for n in names]
             corners = mouth_corners(gray, lip, origin=gorigin, width=width, previous=previous,
                                     sigma=0.5 * float(self.layout.contours["upper_lip"].sigma))
@@ -1478,17 +1570,23 @@ class Tracker:
             for c, e, name in zip(corners, (lip[0], lip[-1]), names):
                 if c is None or np.hypot(*(c - e)) > reach:
                     # no clear end of the mouth this frame (a highlight, a lip pressed
-                    # on the teeth): keep the last corner, moved with the head
+                    # on the teeth): keep the last corner, moved with the head (the
+                    # contour's end can be far off: 35 px on a rendered AU 15)
+                    self._corner_misses[name] = self._corner_misses.get(name, 0) + 1
                     last = self._corners_head.get(name)
                     if last is not None:
                         q = head.to_image(last[None])[0]
                         fids[name] = (float(q[0]), float(q[1]))
                     continue
+                self._corner_misses[name] = 0
                 fids[name] = (float(c[0]), float(c[1]))
                 self._corners_head[name] = head.to_head(np.asarray(c, float)[None])[0]
             if first:
                 self.mouth_width = float(np.hypot(*np.subtract(fids["mouth_corner_l"],
                                                                fids["mouth_corner_r"])))
+        elif self.mouth_corner_mode == "profile":
+            for name in ("mouth_corner_l", "mouth_corner_r"):
+                self._corner_misses[name] = self._corner_misses.get(name, 0) + 1
         out = TrackResult(self.index, contours, quality, int(iters), bool(res.converged),
                           head, fids, {"head_source": self.head_source})
         self.index += 1

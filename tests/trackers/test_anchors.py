@@ -154,3 +154,44 @@ def test_head_frame_chains_contours_when_the_eyes_close():
     h2 = _head(tr, closed)
     assert tr.head_source == "contours"
     assert abs(h2[0] - h0[0] - 1.5) < 0.5 and abs(h2[1] - h0[1]) < 0.5
+
+
+def _skin(img, angle=0.0, shift=(0.0, 0.0)):
+    """``img`` with a fine skin texture that moves rigidly with the eyes."""
+    rng = np.random.default_rng(11)
+    t = cv2.GaussianBlur(rng.normal(0, 1, (256, 256)).astype(np.float32), (0, 0), 1.2)
+    c = np.mean(EYES, axis=0)
+    M = cv2.getRotationMatrix2D(tuple(c), -math.degrees(angle), 1.0)
+    M[:, 2] += shift
+    t = cv2.warpAffine(t, M, (256, 256), borderMode=cv2.BORDER_REFLECT)
+    return np.clip(img + 40 * t, 0, 255).astype(np.uint8)
+
+
+def test_head_frame_from_features_follows_the_head_not_the_expression():
+    # eyes not drawn (closed): the features on the eyes and nose carry the head frame
+    # (what 'auto' falls back on when no iris is found), and unlike the contours'
+    # frame it does not follow the hairline and nostrils that the expression moves
+    lay = layout_from_eyes(*EYES, (256, 256))
+    heads = {}
+    for mode in ("features", "contours"):
+        tr = Tracker(lay, head_anchor=mode)
+        h0 = _head(tr, _skin(draw_face(noise=1.0)[0]))
+        assert tr.anchors is None
+        angle, shift = 0.02, (1.5, -1.0)
+        for k in range(1, 6):
+            img = draw_face(eyes=_moved_eyes(angle * k / 5, tuple(np.multiply(shift, k / 5))),
+                            noise=1.0, rng=np.random.default_rng(k),
+                            **{n: v * k / 5 for n, v in EXPRESSION.items() if n != "lid_open"})
+            h1 = _head(tr, _skin(img[0], angle * k / 5, np.multiply(shift, k / 5)))
+        heads[mode] = (h0, h1, tr.head_source)
+    h0, h1, source = heads["features"]
+    assert source == "features"
+    c = np.mean(EYES, axis=0)
+    R = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    expect = (h0[:2] - c) @ R.T + c + shift
+    assert np.hypot(*(h1[:2] - expect)) < 0.3
+    assert abs(h1[3] - h0[3] - angle) < 0.003 and abs(h1[2] / h0[2] - 1) < 0.003
+    h0c, h1c, source = heads["contours"]
+    assert source == "contours"
+    err_contours = np.hypot(*(h1c[:2] - ((h0c[:2] - c) @ R.T + c + shift)))
+    assert err_contours > 1.0  # what the features save the head frame from
