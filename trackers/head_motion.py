@@ -187,10 +187,22 @@ class FeatureAnchors:
         self.inliers = len(pts)
 
     def _seed(self, gray, mask, n):
-        p = cv2.goodFeaturesToTrack(gray, maxCorners=int(n), qualityLevel=0.01,
-                                    minDistance=self._min_distance, mask=mask,
+        # on the mask's bounding box only: the corner response of a whole frame costs
+        # ten times as much
+        ys, xs = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        if len(ys) == 0:
+            return np.zeros((0, 2), np.float32)
+        m = self._block
+        y0, y1 = max(ys[0] - m, 0), min(ys[-1] + m + 1, mask.shape[0])
+        x0, x1 = max(xs[0] - m, 0), min(xs[-1] + m + 1, mask.shape[1])
+        p = cv2.goodFeaturesToTrack(np.ascontiguousarray(gray[y0:y1, x0:x1]),
+                                    maxCorners=int(n), qualityLevel=0.01,
+                                    minDistance=self._min_distance,
+                                    mask=np.ascontiguousarray(mask[y0:y1, x0:x1]),
                                     blockSize=self._block)
-        return np.zeros((0, 2), np.float32) if p is None else p.reshape(-1, 2).astype(np.float32)
+        if p is None:
+            return np.zeros((0, 2), np.float32)
+        return (p.reshape(-1, 2) + [x0, y0]).astype(np.float32)
 
     def _box(self, H, W):
         """Crop around the features that leaves room for a frame's motion and the
