@@ -57,7 +57,6 @@ import numba
 import numpy as np
 
 from trackers.anchors import IrisAnchors, similarity_from_pairs
-from trackers.head_motion import FeatureAnchors, gray_u8
 from trackers.fiducials import (
     HeadFrame,
     apex_fraction,
@@ -66,6 +65,7 @@ from trackers.fiducials import (
     fiducials,
     head_frame,
 )
+from trackers.head_motion import FeatureAnchors, gray_u8
 from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
 from trackers.potentials import bilinear_nb as _bil
 from trackers.potentials import potentials_in_boxes, sample_or_nan, to_gray
