@@ -35,6 +35,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from trackers.layout import _eye_similarity
 from trackers.potentials import to_gray
 
 __all__ = ["FeatureAnchors", "gray_u8", "rigid_face_region"]
@@ -47,17 +48,6 @@ RIGID_REGION = (
     np.array([(-0.78, -0.14), (0.78, -0.14), (0.78, 0.22), (-0.78, 0.22)]),
     np.array([(-0.22, 0.22), (0.22, 0.22), (0.26, 0.85), (-0.26, 0.85)]),
 )
-
-
-def _eye_frame(eyes):
-    e = np.asarray(eyes, float).reshape(2, 2)
-    d = e[1] - e[0]
-    iod = float(np.hypot(*d))
-    if not np.isfinite(iod) or iod < 10:
-        raise ValueError(f"eye centres {e.tolist()} are too close (or not finite)")
-    ex = d / iod
-    ey = np.array([-ex[1], ex[0]])
-    return 0.5 * (e[0] + e[1]), ex, ey, iod
 
 
 def rigid_face_region(eyes, image_size) -> np.ndarray:
@@ -79,13 +69,13 @@ def rigid_face_region(eyes, image_size) -> np.ndarray:
     >>> bool(m[50, 60]), bool(m[50, 5]), bool(m[90, 60])
     (True, False, False)
     """
-    o, ex, ey, iod = _eye_frame(eyes)
+    M = _eye_similarity(*np.asarray(eyes, float).reshape(2, 2))
     W, H = (int(v) for v in image_size)
     if W < 1 or H < 1:
         raise ValueError(f"image_size must be positive, got {image_size}")
     mask = np.zeros((H, W), np.uint8)
     for poly in RIGID_REGION:
-        pts = o + iod * (poly[:, :1] * ex + poly[:, 1:] * ey)
+        pts = poly @ M[:, :2].T + M[:, 2]
         cv2.fillPoly(mask, [np.round(pts * 16).astype(np.int32)], 255, shift=4)
     return mask
 
@@ -165,7 +155,10 @@ class FeatureAnchors:
         H, W = gray.shape[:2]
         self.image_size = (W, H)
         self.eyes = np.asarray(eyes, float).reshape(2, 2)
-        _, _, _, self.iod = _eye_frame(self.eyes)
+        self.iod = float(np.hypot(*(self.eyes[1] - self.eyes[0])))
+        if not self.iod >= 10:
+            raise ValueError(f"eye centres {self.eyes.tolist()} are too close (or not finite) "
+                             f"for features between them")
         self.max_features = int(max_features)
         self.min_inliers = int(min_inliers)
         self.tol = max(1.0, float(threshold) * self.iod)

@@ -1346,9 +1346,7 @@ class Tracker:
 
     def _move_iris_search(self, head):
         """Search the irises next where ``head`` puts them."""
-        a, b = _similarity_between(self.ref_head, head)
-        z = a * (self.anchors.centres[:, 0] + 1j * self.anchors.centres[:, 1]) + b
-        self.anchors.last = np.c_[z.real, z.imag]
+        self.anchors.last = head.to_image(self.ref_head.to_head(self.anchors.centres))
 
     def _iris_head(self, frame, hc):
         """Head frame from the irises, or None (not found, or implausible)."""
@@ -1388,11 +1386,9 @@ class Tracker:
         if self.features is None or self._feature_index != self.index - 1:
             if self._last_gray is None or self._last_gray_index != self.index - 1:
                 return None
-            a, b = _similarity_between(self.ref_head, self.last_head)
-            e = np.asarray(self.layout.eyes, float)
-            z = a * (e[:, 0] + 1j * e[:, 1]) + b
+            eyes = self.last_head.to_image(self.ref_head.to_head(self.layout.eyes))
             try:
-                self.features = FeatureAnchors(self._last_gray, np.c_[z.real, z.imag])
+                self.features = FeatureAnchors(self._last_gray, eyes)
             except ValueError:
                 self.features = None
                 return None
