@@ -932,8 +932,9 @@ class Tracker:
         When three or more contours have been lost for three frames in a row, detect
         the face again (:func:`~trackers.layout.detect_layout`, at most every
         ``redetect_interval`` frames) and place all contours from it; kept only if
-        fewer contours are lost afterwards. The head frame is then the first
-        frame's moved by the similarity between the two detections' eyes
+        fewer contours are lost afterwards. The head frame stays the irises' or the
+        features' when they give it on that frame; otherwise it is the first frame's
+        moved by the similarity between the two detections' eyes
         (``extra['head_source'] == 'detection'``).
     redetect_interval : int
         Least number of frames between two detections; doubled (up to 16 times)
@@ -1209,10 +1210,12 @@ class Tracker:
         W, H = self.frame_size
         return np.clip(pts, 0, [W - 1, H - 1])
 
-    def _redetect(self, frame, n_lost):
+    def _redetect(self, frame, n_lost, anchored=None):
         """Place all contours again from a new face detection (many contours lost for
         several frames: a turned head, a hand over the face). Kept only when fewer
-        contours are lost afterwards; returns (quality, head, iterations) or None."""
+        contours are lost afterwards; returns (quality, head, iterations) or None.
+        ``anchored``: this frame's head frame when the irises or the features gave it;
+        it is kept rather than replaced by the detection's."""
         # faces much smaller than the tracked one are not searched for (the Haar
         # cascade's cost is in its small scales); the contours' own relaxation then
         # fits the template, so the detector's grid refinement is skipped
@@ -1247,13 +1250,22 @@ class Tracker:
             self._redetect_wait = min(2 * self._redetect_wait, 16 * self.redetect_interval)
             return None
         self._redetect_wait = self.redetect_interval
+        hc = self._contour_head()
+        self._held = 0
+        if anchored is not None:
+            # the irises or features followed the head through whatever lost the
+            # contours; two detections' eyes (Haar boxes, or where the face box puts
+            # them) turned WolfgangLanger's frame by 5 and 3.5 degrees at frames 136
+            # and 231, for the rest of the video
+            self._anchor_base = (hc, anchored) if hc is not None else None
+            self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
+            self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
+            return quality, anchored, r.iterations
         # the head frame: the first frame's moved by the similarity between the eyes
         # of the two detections; the contours' later motion is chained on from here
         a, b = similarity_from_pairs(self.layout.eyes, new.eyes)
         head = _apply_similarity(self.ref_head, a, b)
-        hc = self._contour_head()
         self._anchor_base = (hc, head) if hc is not None else None
-        self._held = 0
         self.head_source = "detection"
         if self.anchors is not None:
             self._move_iris_search(head)
@@ -1526,7 +1538,8 @@ class Tracker:
             if (self.redetect and self._failing >= 3
                     and self.index - self._last_detect >= self._redetect_wait):
                 self._last_detect = self.index
-                got = self._redetect(frame, n_lost)
+                got = self._redetect(frame, n_lost, head if self.head_source in (
+                    "eyes", "features") else None)
                 if got is not None:
                     quality, head, more = got
                     iters += more

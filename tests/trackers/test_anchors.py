@@ -195,3 +195,30 @@ def test_head_frame_from_features_follows_the_head_not_the_expression():
     assert source == "contours"
     err_contours = np.hypot(*(h1c[:2] - ((h0c[:2] - c) @ R.T + c + shift)))
     assert err_contours > 1.0  # what the features save the head frame from
+
+
+@pytest.mark.parametrize("mode", ["features", "contours"])
+def test_redetection_keeps_the_head_frame_the_features_give(monkeypatch, mode):
+    # a re-detection re-places the contours; with the features following the head its
+    # frame stays theirs, not the two detections' eyes (here turned by 5 degrees)
+    import trackers.tracking as tracking
+
+    lay = layout_from_eyes(*EYES, (256, 256))
+    turned = layout_from_eyes(*_moved_eyes(math.radians(5.0)), (256, 256))
+    monkeypatch.setattr(tracking, "detect_layout", lambda *a, **k: turned)
+    tr = Tracker(lay, head_anchor=mode)
+    img = _skin(draw_face(noise=1.0)[0])
+    h0 = _head(tr, img)
+    _head(tr, img)
+    source = tr.head_source
+    got = tr._redetect(img, n_lost=len(tr.names) + 1,
+                       anchored=tr.last_head if source in ("eyes", "features") else None)
+    assert got is not None
+    h1 = got[1]
+    if mode == "features":
+        assert source == "features" and tr.head_source == "features"
+        assert abs(h1.roll - h0[3]) < 1e-3 and np.hypot(h1.x - h0[0], h1.y - h0[1]) < 0.3
+        assert tr.features is not None  # still followed, not seeded again
+    else:
+        assert tr.head_source == "detection"
+        assert abs(h1.roll - h0[3] - math.radians(5.0)) < 1e-3
