@@ -76,7 +76,6 @@ class Calibration:
     residual: float
     point_residuals: np.ndarray | None = None
 
-
     def model_displacements(self, fiducials: np.ndarray, head: np.ndarray) -> np.ndarray:
         """Fiducial displacements from neutral, in model cm, for tracked frames.
 

@@ -176,11 +176,6 @@ class FlowTemplates:
 #: The trackers' head frame on model renders relative to the landmark one (measured on the
 #: generic face and three random identities, spread ~1 %): reference length = this times
 #: the hairline-to-nose-tip distance, origin this many (landmark) units higher.
-#: Largest distance, in head units, between a subject's neutral fiducial and the
-#: model's after the best similarity: the synthetic suite's identities reach 0.075;
-#: on a real video whose furrow contours had slid onto the mouth line, 0.12-0.16.
-MAX_FIDUCIAL_RESIDUAL = 0.1
-
 _TRACKER_SCALE = 1.137
 _TRACKER_RISE = 0.046
 
@@ -583,6 +578,12 @@ def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
     meta = dict(templates.meta, personalised=True)
     return replace(templates, control=control, nuisance=nuis, mask=mask_w, region=region,
                    expression=expr, energy=energy, fiducials=q.copy(), meta=meta)
+
+
+#: Largest distance, in head units, between a subject's neutral fiducial and the
+#: model's after the best similarity: the synthetic suite's identities reach 0.075;
+#: on a real video whose furrow contours had slid onto the mouth line, 0.12-0.16.
+MAX_FIDUCIAL_RESIDUAL = 0.1
 
 
 def implausible_fiducials(templates: FlowTemplates, fiducials_head) -> list[str]:

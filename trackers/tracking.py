@@ -233,21 +233,13 @@ def _shape_nb(cur, ref, closed):
 
 @numba.njit(cache=True, error_model="numpy")
 def _mean_depth_nb(P, pts, ox, oy):
-    H, W = P.shape
     total = 0.0
     cnt = 0
     for i in range(pts.shape[0]):
-        xf = pts[i, 0] - ox
-        yf = pts[i, 1] - oy
-        if not (xf >= 0.0 and yf >= 0.0 and xf <= W - 1 and yf <= H - 1):
-            continue
-        x0 = min(int(xf), W - 2)
-        y0 = min(int(yf), H - 2)
-        tx = xf - x0
-        ty = yf - y0
-        total += ((1 - ty) * ((1 - tx) * P[y0, x0] + tx * P[y0, x0 + 1])
-                  + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
-        cnt += 1
+        v = _bil(P, pts[i, 0], pts[i, 1], ox, oy)
+        if not np.isnan(v):             # nodes off the potential's box do not count
+            total += v
+            cnt += 1
     return -total / cnt if cnt else 0.0
 
 
@@ -1250,29 +1242,27 @@ class Tracker:
             self._redetect_wait = min(2 * self._redetect_wait, 16 * self.redetect_interval)
             return None
         self._redetect_wait = self.redetect_interval
-        hc = self._contour_head()
-        self._held = 0
         if anchored is not None:
             # the irises or features followed the head through whatever lost the
             # contours; two detections' eyes (Haar boxes, or where the face box puts
             # them) turned WolfgangLanger's frame by 5 and 3.5 degrees at frames 136
             # and 231, for the rest of the video
-            self._anchor_base = (hc, anchored) if hc is not None else None
-            self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
-            self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
-            return quality, anchored, r.iterations
-        # the head frame: the first frame's moved by the similarity between the eyes
-        # of the two detections; the contours' later motion is chained on from here
-        a, b = similarity_from_pairs(self.layout.eyes, new.eyes)
-        head = _apply_similarity(self.ref_head, a, b)
+            head = anchored
+        else:
+            # the first frame's moved by the similarity between the eyes of the two
+            # detections; the features are seeded again on this frame from it
+            a, b = similarity_from_pairs(self.layout.eyes, new.eyes)
+            head = _apply_similarity(self.ref_head, a, b)
+            self.head_source = "detection"
+            if self.anchors is not None:
+                self._move_iris_search(head)
+            self.features = None
+            self._feature_cache = (self.index, head)
+            self._keep_gray(frame)
+        # the contours' later motion is chained on from here
+        hc = self._contour_head()
         self._anchor_base = (hc, head) if hc is not None else None
-        self.head_source = "detection"
-        if self.anchors is not None:
-            self._move_iris_search(head)
-        # the features are seeded again on this frame, from the detection's frame
-        self.features = None
-        self._feature_cache = (self.index, head)
-        self._keep_gray(frame)
+        self._held = 0
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         return quality, head, r.iterations
