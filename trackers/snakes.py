@@ -785,6 +785,27 @@ class ContourSystem:
         """Copy of the per-node image-force strengths of contour ``k``."""
         return self.p_n[self.contour_slice(k)].copy()
 
+    def outside_fields(self, shapes, origin) -> np.ndarray:
+        """Per node, whether it lies outside the field its contour uses.
+
+        Parameters
+        ----------
+        shapes : sequence of (H, W)
+            Shape of each field.
+        origin : array_like, (K, 2)
+            Image position (x, y) of each field's ``[0, 0]``.
+
+        Returns
+        -------
+        ndarray of bool, (n_nodes,)
+            :meth:`relax` refuses to start while any is true.
+        """
+        g = np.c_[np.asarray(origin, dtype=np.float64).reshape(-1, 2),
+                  np.asarray(shapes, dtype=np.float64).reshape(-1, 2)][self.fidx]
+        rel = self.X - g[:, :2]
+        return ((rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > g[:, 3] - 1)
+                | (rel[:, 1] > g[:, 2] - 1))
+
     # ------------------------------------------------------------------ dynamics
     def relax(self, forces=None, *, potentials=None, origin=(0.0, 0.0), user_forces=None,
               tol: float = 1e-3, max_iter: int = 1000, min_iter: int = 1,
@@ -875,14 +896,11 @@ class ContourSystem:
         fgeom[:, 2:] = np.asarray(shapes, dtype=np.float64)
         if not np.isfinite(data).all():
             raise ValueError("forces / potentials contain NaN or infinite values")
-        g = fgeom[self.fidx]
-        rel = self.X - g[:, :2]
-        bad = ((rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > g[:, 3] - 1)
-               | (rel[:, 1] > g[:, 2] - 1))
+        bad = self.outside_fields(shapes, org)
         if bad.any():
             i = int(np.argmax(bad))
             k = int(self.node_contour[i])
-            ox, oy, Hk, Wk = g[i]
+            ox, oy, Hk, Wk = fgeom[self.fidx[i]]
             raise ValueError(f"node {i - int(self.starts[k])} of contour {self.names[k]!r} "
                              f"at (x={self.X[i, 0]:.2f}, y={self.X[i, 1]:.2f}) lies outside the"
                              f" image (x in [{ox:g}, {ox + Wk - 1:g}], y in [{oy:g}, "

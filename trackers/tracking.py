@@ -1110,16 +1110,6 @@ class Tracker:
         Ps = potentials_in_boxes(gray, self.specs, boxes)
         return Ps, origins, gray, (float(X0), float(Y0))
 
-    def _left_boxes(self, Ps, origins) -> bool:
-        """Does a node lie outside the box of its contour's potential?"""
-        X = self.system.X
-        for k in range(len(self.names)):
-            q = X[self.system.contour_slice(k)] - origins[k]
-            h, w = Ps[k].shape
-            if (q < 0).any() or (q[:, 0] > w - 1).any() or (q[:, 1] > h - 1).any():
-                return True
-        return False
-
     def _depths(self, Ps, origins):
         out = {}
         for k, name in enumerate(self.names):
@@ -1486,7 +1476,7 @@ class Tracker:
         iters = res.iterations
         if first and self.strength_mode == "auto":
             self._auto_strength(Ps, origins)
-            if self._left_boxes(Ps, origins):
+            if self.system.outside_fields([P.shape for P in Ps], origins).any():
                 # the first frame's long settling carried nodes out of their boxes,
                 # where the next relaxation would refuse to start: new boxes
                 Ps, origins, gray, gorigin = self._fields(frame)
