@@ -364,11 +364,15 @@ def _pgrad(P, k, y, x, h, w):
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, fgeom, from_potential, gdt, dt,
                   tol, min_iter, max_iter, outside, split, max_step, prv, normal_only,
-                  use_rms, starts):
+                  use_rms, starts, each):
     n = X.shape[0]
+    K = starts.shape[0] - 1
     R = np.empty((n, 2))
+    done = np.zeros(K, np.bool_)
+    cmove = np.zeros(K)
     it = 0
     move = np.inf
+    rms = np.inf
     while it < max_iter:
         # right-hand side: gamma/dt x + p F(x) + f_user + anchors
         for i in range(n):
@@ -463,7 +467,10 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
         _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts)
         move2 = 0.0
         sum2 = 0.0
+        cmove[:] = 0.0
         for i in range(n):
+            if each and done[node_contour[i]]:
+                continue
             dx = R[i, 0] - X[i, 0]
             dy = R[i, 1] - X[i, 1]
             d2 = dx * dx + dy * dy
@@ -475,12 +482,26 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             sum2 += d2
             if d2 > move2:
                 move2 = d2
+            if d2 > cmove[node_contour[i]]:
+                cmove[node_contour[i]] = d2
             X[i, 0] = R[i, 0]
             X[i, 1] = R[i, 1]
         move = np.sqrt(move2)
         rms = np.sqrt(sum2 / n)
         it += 1
-        if it >= min_iter and (rms if use_rms else move) < tol:
+        if each:
+            # a contour stops at its own equilibrium, not when the slowest one does
+            if it >= min_iter:
+                left = 0
+                for k in range(K):
+                    if not done[k]:
+                        if cmove[k] < tol * tol:
+                            done[k] = True
+                        else:
+                            left += 1
+                if left == 0:
+                    break
+        elif it >= min_iter and (rms if use_rms else move) < tol:
             break
         if not np.isfinite(move):
             break
@@ -832,10 +853,13 @@ class ContourSystem:
             Movement threshold in pixels that defines equilibrium.
         max_iter, min_iter : int
             Bounds on the number of time steps.
-        criterion : {'max', 'rms'}
+        criterion : {'max', 'rms', 'each'}
             Equilibrium when the largest ('max') or the root-mean-square ('rms')
             node displacement of the last step is below ``tol``. 'rms' ignores a few
-            nodes creeping along a weak feature (real video).
+            nodes creeping along a weak feature (real video). 'each' stops every
+            contour on the first step its own largest displacement is below ``tol``
+            (and the whole when all have stopped), so that a contour that settles
+            does not go on creeping while a slower one is still moving.
 
         Returns
         -------
@@ -919,8 +943,8 @@ class ContourSystem:
         max_iter, min_iter = int(max_iter), int(min_iter)
         if max_iter < 1 or min_iter < 0:
             raise ValueError("max_iter must be >= 1 and min_iter >= 0")
-        if criterion not in ("max", "rms"):
-            raise ValueError(f"criterion must be 'max' or 'rms', got {criterion!r}")
+        if criterion not in ("max", "rms", "each"):
+            raise ValueError(f"criterion must be 'max', 'rms' or 'each', got {criterion!r}")
         outside = np.zeros(self.n_contours, np.bool_)
         it, move, rms = _relax_kernel(self.X, self.rest, self.nxt, self.a_s, self.nu_s, self.p_n,
                                  self.fidx, user, self.kappa, self.anchor, self.node_contour,
@@ -928,11 +952,13 @@ class ContourSystem:
                                  self._crange, data, fgeom, from_potential,
                                  float(self.gdt[0]), float(self.dts[0]), tol, min_iter,
                                  max_iter, outside, self.split, self.max_step, self.prv,
-                                 self.normal_only, criterion == "rms", self.starts)
+                                 self.normal_only, criterion == "rms", self.starts,
+                                 criterion == "each")
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
-        conv = (rms if criterion == "rms" else move) < tol
+        conv = (rms if criterion == "rms" else move) < tol or (criterion == "each"
+                                                                and it < max_iter)
         return RelaxResult(int(it), float(move), bool(conv), outside, float(rms))
 
     def step(self, forces=None, n: int = 1, **kwargs) -> RelaxResult:

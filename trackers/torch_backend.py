@@ -856,9 +856,9 @@ class TorchContourSystem:
         if (max_a < 1).any() or (min_a < 0).any():
             raise ValueError("max_iter must be >= 1 and min_iter >= 0")
         crit = [criterion] * B if isinstance(criterion, str) else list(criterion)
-        if len(crit) != B or any(c not in ("max", "rms") for c in crit):
-            raise ValueError(f"criterion must be 'max' or 'rms' (or one per element), got "
-                             f"{criterion!r}")
+        if len(crit) != B or any(c not in ("max", "rms", "each") for c in crit):
+            raise ValueError(f"criterion must be 'max', 'rms' or 'each' (or one per "
+                             f"element), got {criterion!r}")
         act = np.ones(B, bool) if active is None else np.asarray(active, bool)
         if act.shape != (B,):
             raise ValueError(f"active must have {B} entries, got shape {act.shape}")
@@ -887,7 +887,10 @@ class TorchContourSystem:
         max_t = torch.as_tensor(max_a, device=dev)
         min_t = torch.as_tensor(min_a, device=dev)
         rms_t = torch.as_tensor([c == "rms" for c in crit], device=dev)
+        each_t = torch.as_tensor([c == "each" for c in crit], device=dev)
         running = torch.as_tensor(act, device=dev)
+        # per contour, for 'each': a contour stops on its own first step below tol
+        moving = running[:, None] & torch.ones(B, K, dtype=torch.bool, device=dev)
         it = torch.zeros(B, dtype=torch.long, device=dev)
         move = torch.full((B,), float("inf"), device=dev, dtype=dt_)
         rms = torch.full((B,), float("nan"), device=dev, dtype=dt_)
@@ -933,17 +936,20 @@ class TorchContourSystem:
             cap = (ms > 0) & (d2 > ms * ms)
             f = torch.where(cap, ms / torch.sqrt(torch.where(cap, d2, 1.0)), 1.0)
             Xn = torch.where(cap[..., None], X + f[..., None] * d, Xn)
-            d2 = torch.where(cap, ms * ms, d2) * vmask
+            d2 = torch.where(cap, ms * ms, d2) * vmask * moving[..., None]
             mv = torch.sqrt(d2.amax(dim=(1, 2)))
             rm = torch.sqrt(d2.sum(dim=(1, 2)) / self._n_nodes)
             run3 = running[:, None, None]
-            X = torch.where(run3[..., None], Xn, X)
+            X = torch.where((run3 & moving[..., None])[..., None], Xn, X)
             rest = torch.where(run3, rest_new, rest)
             move = torch.where(running, mv, move)
             rms = torch.where(running, rm, rms)
             it = it + running.long()
             stat = torch.where(rms_t, rms, move)
-            done = ((it >= min_t) & (stat < tol_t)) | ~torch.isfinite(move) | (it >= max_t)
+            settled = (it >= min_t)[:, None] & (d2.amax(dim=2) < (tol_t * tol_t)[:, None])
+            moving = moving & ~(settled & each_t[:, None] & running[:, None])
+            done = torch.where(each_t, ~moving.any(1), (it >= min_t) & (stat < tol_t)) \
+                | ~torch.isfinite(move) | (it >= max_t)
             running = running & ~done
             step += 1
             if step % check_every == 0 and not bool(running.any()):
@@ -953,7 +959,7 @@ class TorchContourSystem:
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
         stat = torch.where(rms_t, rms, move)
-        conv = (stat < tol_t).cpu().numpy() & act
+        conv = torch.where(each_t, ~moving.any(1), stat < tol_t).cpu().numpy() & act
         return BatchRelaxResult(it.cpu().numpy(), move.cpu().numpy().astype(float),
                                 conv, outside.cpu().numpy(), rms.cpu().numpy().astype(float))
 

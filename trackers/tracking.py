@@ -1127,11 +1127,27 @@ class Tracker:
             tang = np.gradient(pts, axis=0)
             tang /= np.maximum(np.hypot(*tang.T), 1e-9)[:, None]
             nrm = np.c_[-tang[:, 1], tang[:, 0]]
+            # the curvature at the bottom of the ravine each node lies in (down its
+            # normal profile, at most 3 sigma): a contour that stopped on the
+            # ravine's flank (the first relaxation stops each contour on its own
+            # slow step) would measure a flatter curvature there and get a
+            # strength that oscillates once it reaches the bottom
             h = max(0.5 * c.sigma, 0.75)
-            v0 = _sample_safe(P, pts, origin)
-            vp = _sample_safe(P, pts + h * nrm, origin)
-            vm = _sample_safe(P, pts - h * nrm, origin)
-            curv = (vp + vm - 2 * v0) / h**2
+            m = max(int(np.ceil(3.0 * c.sigma / h)), 1)
+            t = np.arange(-m - 1, m + 2) * h
+            prof = _sample_safe(P, (pts[:, None, :] + t[None, :, None] * nrm[:, None, :])
+                                .reshape(-1, 2), origin).reshape(len(pts), len(t))
+            rows = np.arange(len(pts))
+            mid = np.full(len(pts), m + 1)
+            vals = np.where(np.isfinite(prof), prof, np.inf)
+            for _ in range(m):
+                # down the profile to the bottom of the ravine the node lies in
+                lo, hi = vals[rows, mid - 1], vals[rows, mid + 1]
+                here = vals[rows, mid]
+                step = np.where((lo < here) & (lo <= hi), -1, np.where(hi < here, 1, 0))
+                step[(mid + step < 1) | (mid + step > 2 * m + 1)] = 0
+                mid = mid + step
+            curv = (prof[rows, mid + 1] + prof[rows, mid - 1] - 2 * prof[rows, mid]) / h**2
             curv = curv[np.isfinite(curv) & (curv > 0)]
             p_paper = paper_equivalent_strength(c.sigma, self.params.p)
             if len(curv) < 3:
@@ -1466,11 +1482,13 @@ class Tracker:
         cap = self.first_max_iter if first else self.max_iter
 
         def relax():
-            # the first frame settles strictly (largest move), later frames by the
-            # root-mean-square move, which a few nodes creeping along a weak
-            # feature cannot hold up
+            # the first frame settles each contour strictly (its largest move): a
+            # contour stops at its own equilibrium instead of creeping along its
+            # feature until the slowest one stops, which made where it ended depend
+            # on all the others. Later frames stop on the root-mean-square move,
+            # which a few nodes creeping along a weak feature cannot hold up
             return self.system.relax(potentials=Ps, origin=origins, tol=self.tol,
-                                     max_iter=cap, criterion="max" if first else "rms")
+                                     max_iter=cap, criterion="each" if first else "rms")
 
         res = relax()
         iters = res.iterations

@@ -205,6 +205,31 @@ def test_equilibrium_by_movement_threshold(ellipse_image):
     assert again.iterations == 1  # already at equilibrium
 
 
+def test_each_contour_stops_at_its_own_equilibrium(rng):
+    # two contours on one dark line: one starts on it, the other off it.
+    # With 'each' the near one stops on its own first step below tol, wherever the
+    # far one still is; with 'max' it went on creeping until the far one stopped
+    H, W = 80, 260
+    yy, xx = np.mgrid[:H, :W].astype(float)
+    img = 200 - 150 * np.exp(-((yy - 40 - 8 * np.sin(xx / 18.0)) ** 2) / (2 * 2.0**2))
+    img = np.clip(img + rng.normal(0, 8, img.shape), 0, 255).astype(np.uint8)
+    F = force_field(valley_potential(img, 2.5))
+    xs = np.linspace(15, 115, 40)
+    near = np.c_[xs, 40 + 8 * np.sin(xs / 18.0)]
+    far = np.c_[xs + 130, 40 + 8 * np.sin((xs + 130) / 18.0) + 5.0]
+    prm = SnakeParams(p=0.02)
+    alone = ContourSystem([Contour(near)], prm)
+    r1 = alone.relax(F, criterion="each", tol=0.01, max_iter=3000)
+    pair = ContourSystem([Contour(near), Contour(far)], prm)
+    r2 = pair.relax(F, criterion="each", tol=0.01, max_iter=3000)
+    assert r1.converged and r2.converged and r2.iterations > r1.iterations
+    np.testing.assert_allclose(pair.contour_points(0), alone.positions, atol=1e-12)
+    err = np.abs(pair.positions[:, 1] - (40 + 8 * np.sin(pair.positions[:, 0] / 18.0)))
+    assert np.median(err) < 0.5  # both on the line
+    with pytest.raises(ValueError, match="'max', 'rms' or 'each'"):
+        pair.relax(F, criterion="all")
+
+
 @pytest.mark.parametrize("pts, closed", [
     (np.zeros((2, 2)) + 5, False),
     (np.c_[np.arange(4.0), np.zeros(4)] + 5, True),

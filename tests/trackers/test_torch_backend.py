@@ -142,6 +142,7 @@ def _ellipse_contour(cx=80.3, cy=60.7, ax=50.0, ay=30.0, grow=1.15, n=60):
     dict(max_step=0.3),
     dict(tension="split"),
     dict(criterion="rms"),
+    dict(criterion="each"),
     dict(fixed_ends=True),
 ])
 def test_relax_matches_numpy_backend(options):
