@@ -957,8 +957,9 @@ class ContourSystem:
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
-        conv = (rms if criterion == "rms" else move) < tol or (criterion == "each"
-                                                                and it < max_iter)
+        # ('each': the last step's largest move over the contours still moving, below
+        # tol only when the last of them stopped)
+        conv = (rms if criterion == "rms" else move) < tol
         return RelaxResult(int(it), float(move), bool(conv), outside, float(rms))
 
     def step(self, forces=None, n: int = 1, **kwargs) -> RelaxResult:
