@@ -467,7 +467,8 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
         _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts)
         move2 = 0.0
         sum2 = 0.0
-        cmove[:] = 0.0
+        if each:
+            cmove[:] = 0.0
         for i in range(n):
             if each and done[node_contour[i]]:
                 continue
@@ -482,7 +483,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             sum2 += d2
             if d2 > move2:
                 move2 = d2
-            if d2 > cmove[node_contour[i]]:
+            if each and d2 > cmove[node_contour[i]]:
                 cmove[node_contour[i]] = d2
             X[i, 0] = R[i, 0]
             X[i, 1] = R[i, 1]

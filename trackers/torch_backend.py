@@ -888,9 +888,10 @@ class TorchContourSystem:
         min_t = torch.as_tensor(min_a, device=dev)
         rms_t = torch.as_tensor([c == "rms" for c in crit], device=dev)
         each_t = torch.as_tensor([c == "each" for c in crit], device=dev)
+        any_each = "each" in crit
         running = torch.as_tensor(act, device=dev)
         # per contour, for 'each': a contour stops on its own first step below tol
-        moving = running[:, None] & torch.ones(B, K, dtype=torch.bool, device=dev)
+        moving = running[:, None].expand(B, K).clone()
         it = torch.zeros(B, dtype=torch.long, device=dev)
         move = torch.full((B,), float("inf"), device=dev, dtype=dt_)
         rms = torch.full((B,), float("nan"), device=dev, dtype=dt_)
@@ -936,20 +937,25 @@ class TorchContourSystem:
             cap = (ms > 0) & (d2 > ms * ms)
             f = torch.where(cap, ms / torch.sqrt(torch.where(cap, d2, 1.0)), 1.0)
             Xn = torch.where(cap[..., None], X + f[..., None] * d, Xn)
-            d2 = torch.where(cap, ms * ms, d2) * vmask * moving[..., None]
+            d2 = torch.where(cap, ms * ms, d2) * vmask
+            run3 = running[:, None, None]
+            if any_each:
+                d2 = d2 * moving[..., None]
+                run3 = run3 & moving[..., None]
             mv = torch.sqrt(d2.amax(dim=(1, 2)))
             rm = torch.sqrt(d2.sum(dim=(1, 2)) / self._n_nodes)
-            run3 = running[:, None, None]
-            X = torch.where((run3 & moving[..., None])[..., None], Xn, X)
-            rest = torch.where(run3, rest_new, rest)
+            X = torch.where(run3[..., None], Xn, X)
+            rest = torch.where(running[:, None, None], rest_new, rest)
             move = torch.where(running, mv, move)
             rms = torch.where(running, rm, rms)
             it = it + running.long()
             stat = torch.where(rms_t, rms, move)
-            settled = (it >= min_t)[:, None] & (d2.amax(dim=2) < (tol_t * tol_t)[:, None])
-            moving = moving & ~(settled & each_t[:, None] & running[:, None])
-            done = torch.where(each_t, ~moving.any(1), (it >= min_t) & (stat < tol_t)) \
-                | ~torch.isfinite(move) | (it >= max_t)
+            done = (it >= min_t) & (stat < tol_t)
+            if any_each:
+                settled = (it >= min_t)[:, None] & (d2.amax(dim=2) < (tol_t * tol_t)[:, None])
+                moving = moving & ~(settled & each_t[:, None] & running[:, None])
+                done = torch.where(each_t, ~moving.any(1), done)
+            done = done | ~torch.isfinite(move) | (it >= max_t)
             running = running & ~done
             step += 1
             if step % check_every == 0 and not bool(running.any()):
