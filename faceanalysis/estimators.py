@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import functools
 
+import numba
 import numpy as np
 
 from faceanalysis.response import FiducialResponse
@@ -285,8 +286,9 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     """Solve ``min 0.5 x'Hx - g'x`` s.t. ``lo <= x <= hi`` for a batch of small problems.
 
     Accelerated projected gradient (FISTA) with step ``1 / ||H||_F`` (Frobenius norm,
-    ``>= lambda_max(H)``), vectorised over the leading axis; stops early when no variable
-    moved by more than ``tol`` over an iteration.
+    ``>= lambda_max(H)``), problem by problem (compiled); each problem stops early when
+    none of its variables moved by more than ``tol`` over an iteration (checked every
+    tenth).
 
     Parameters
     ----------
@@ -300,22 +302,79 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     -------
     ndarray, shape (T, M)
     """
+    hess = np.ascontiguousarray(hess, dtype=float)
+    grad0 = np.ascontiguousarray(grad0, dtype=float)
+    lo = np.ascontiguousarray(np.broadcast_to(lo, grad0.shape), dtype=float)
+    hi = np.ascontiguousarray(np.broadcast_to(hi, grad0.shape), dtype=float)
+    if hess.ndim != 3 or hess.shape[1] != hess.shape[2] or grad0.shape != hess.shape[:2]:
+        raise ValueError(f"hess must have shape (T, M, M) and grad0 (T, M), got {hess.shape} "
+                         f"and {grad0.shape}")
     # the Frobenius norm bounds the largest eigenvalue from above (and matched it within
     # 0.1 % on the suite: one direction dominates these Hessians) at 1 % of eigvalsh's cost
-    lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", hess, hess)), 1e-300)[:, None]
+    lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", hess, hess)), 1e-300)
     x = np.zeros_like(grad0)
-    y = x.copy()
-    t = 1.0
-    for k in range(iterations):
-        g = np.matmul(hess, y[:, :, None])[:, :, 0] - grad0
-        new = np.clip(y - g / lipschitz, lo, hi)
-        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        y = new + ((t - 1.0) / t_new) * (new - x)
-        if k % 10 == 9 and np.abs(new - x).max(initial=0.0) < tol:
-            x = new
-            break
-        x, t = new, t_new
+    _fista_nb(hess, grad0, lo, hi, lipschitz, int(iterations), float(tol), x)
     return x
+
+
+@numba.njit(cache=True, fastmath=True)
+def _matvec_nb(h, y, out):
+    # four rows at a time: four independent sums per pass over y (a 26 x 26 product in
+    # 43 ns against 118 for a row at a time; the FISTA loop is nothing else)
+    n = y.shape[0]
+    i = 0
+    while i + 4 <= n:
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
+        for j in range(n):
+            yj = y[j]
+            a0 += h[i, j] * yj
+            a1 += h[i + 1, j] * yj
+            a2 += h[i + 2, j] * yj
+            a3 += h[i + 3, j] * yj
+        out[i] = a0
+        out[i + 1] = a1
+        out[i + 2] = a2
+        out[i + 3] = a3
+        i += 4
+    while i < n:
+        acc = 0.0
+        for j in range(n):
+            acc += h[i, j] * y[j]
+        out[i] = acc
+        i += 1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _fista_nb(hess, grad0, lo, hi, lipschitz, iterations, tol, x):
+    # problem by problem (each H stays in cache over its iterations)
+    n_t, n_m = grad0.shape
+    y = np.empty(n_m)
+    g = np.empty(n_m)
+    for f in range(n_t):
+        h = hess[f]
+        for i in range(n_m):
+            y[i] = x[f, i]
+        inv = 1.0 / lipschitz[f]
+        t = 1.0
+        for k in range(iterations):
+            t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+            mom = (t - 1.0) / t_new
+            _matvec_nb(h, y, g)
+            for i in range(n_m):
+                g[i] -= grad0[f, i]
+            moved = 0.0
+            for i in range(n_m):
+                new = min(max(y[i] - g[i] * inv, lo[f, i]), hi[f, i])
+                d = new - x[f, i]
+                moved = max(moved, abs(d))
+                y[i] = new + mom * d
+                x[f, i] = new
+            if k % 10 == 9 and moved < tol:
+                break
+            t = t_new
 
 
 def fit_residual(displacements: np.ndarray, response: FiducialResponse,

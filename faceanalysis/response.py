@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 
@@ -97,11 +98,18 @@ class FiducialResponse:
     def predict(self, c: np.ndarray) -> np.ndarray:
         """Fiducial displacements (T, F, 2) for controls ``c`` of shape (T, M) or (M,)."""
         c = np.atleast_2d(np.asarray(c, dtype=float))
-        idx, frac = self._segments(c)
-        m = np.arange(len(self.muscles))
-        d0 = self.displacement[m, idx]            # (T, M, F, 2)
-        d1 = self.displacement[m, idx + 1]
-        out = np.einsum("tm,tmfk->tfk", 1.0 - frac, d0) + np.einsum("tm,tmfk->tfk", frac, d1)
+        if c.ndim != 2 or c.shape[1] != len(self.muscles):
+            raise ValueError(f"c must have shape (T, {len(self.muscles)}) or "
+                             f"({len(self.muscles)},), got {c.shape}")
+        if not np.isfinite(c).all():
+            raise ValueError("c must be finite (pass np.nan_to_num(c) to treat missing "
+                             "controls as at rest)")
+        out = np.empty((c.shape[0], len(self.fiducials), 2))
+        # one pass per frame over the tabulated segments instead of gathering the
+        # (T, M, F, 2) segment ends: the joint fit predicts some 40 times per video
+        _piecewise_nb(np.ascontiguousarray(c), self.upper,
+                      self.displacement.reshape(len(self.muscles), self.n_levels, -1),
+                      out.reshape(c.shape[0], -1))
         if self.pairs is not None and len(self.pairs):
             u = c / self.upper
             prod = u[:, self.pairs[:, 0]] * u[:, self.pairs[:, 1]]     # (T, P)
@@ -169,3 +177,20 @@ class FiducialResponse:
             inter = z["interaction"] if pairs is not None else None
             return cls(tuple(str(s) for s in z["muscles"]), tuple(str(s) for s in z["fiducials"]),
                        z["rest"], z["displacement"], z["upper"], z["levels"], pairs, inter)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _piecewise_nb(c, upper, disp, out):
+    # disp (M, L, K): the response at each tabulated level; out (T, K)
+    n_t, n_m = c.shape
+    n_l, n_k = disp.shape[1], disp.shape[2]
+    for t in range(n_t):
+        for k in range(n_k):
+            out[t, k] = 0.0
+        for m in range(n_m):
+            s = min(max(c[t, m] / upper[m], 0.0), 1.0) * (n_l - 1)
+            i = min(int(np.floor(s)), n_l - 2)
+            f = s - i
+            g = 1.0 - f
+            for k in range(n_k):
+                out[t, k] += g * disp[m, i, k] + f * disp[m, i + 1, k]

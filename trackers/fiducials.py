@@ -43,7 +43,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+
+from trackers.snakes import _arc_length_nb
 
 __all__ = ["FIDUCIAL_NAMES", "HeadFrame", "head_frame", "fiducials", "arc_point",
            "centroid", "apex_fraction", "brow_axis_frame"]
@@ -141,10 +144,45 @@ def arc_point(points, fraction: float) -> np.ndarray:
     >>> arc_point([[0, 0], [1, 0], [4, 0]], 0.5)
     array([2., 0.])
     """
-    p = np.asarray(points, float)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
-    t = float(fraction) * s[-1]
-    return np.array([np.interp(t, s, p[:, 0]), np.interp(t, s, p[:, 1])])
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 1:
+        raise ValueError(f"points must have shape (n >= 1, 2), got {p.shape}")
+    out = np.empty(2)
+    _arc_point_nb(p, float(fraction), out)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _arc_point_nb(p, fraction, out):
+    # np.interp(fraction * length, arc, p[:, c]), value for value (the fiducials and
+    # the extra measurement points take a few of these a frame)
+    s = _arc_length_nb(p)
+    m = s.shape[0]
+    t = fraction * s[m - 1]
+    j = 0
+    if t >= s[m - 1] or t != t:
+        j = m - 1
+    else:
+        while j + 1 < m and s[j + 1] <= t:
+            j += 1
+    for c in range(2):
+        if t != t:
+            out[c] = np.nan
+        elif t < s[0]:
+            out[c] = p[0, c]
+        elif j == m - 1:
+            # at (or beyond) the end; np.interp's right value
+            out[c] = p[m - 1, c]
+        elif s[j] == t:
+            out[c] = p[j, c]
+        else:
+            slope = (p[j + 1, c] - p[j, c]) / (s[j + 1] - s[j])
+            v = slope * (t - s[j]) + p[j, c]
+            if np.isnan(v):
+                v = slope * (t - s[j + 1]) + p[j + 1, c]
+                if np.isnan(v) and p[j, c] == p[j + 1, c]:
+                    v = p[j, c]
+            out[c] = v
 
 
 def apex_fraction(points, head: HeadFrame) -> float:

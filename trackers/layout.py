@@ -511,8 +511,16 @@ def detect_layout(frame, *, frame_index: int = 0, channel_order: str = "rgb",
     g8 = np.clip(gray + 0.5, 0, 255).astype(np.uint8)
     g8 = cv2.equalizeHist(g8)
     cascade = _cascade("haarcascade_frontalface_default.xml")
+    # faces of a quarter of the frame's short side and more first: the cascade's cost
+    # is in its small scales (82 ms from 40 px on a 640x360 frame, 25 ms from 90 px),
+    # and the scales it tries do not depend on the smallest one, so a face found there
+    # is found alike; the small scales are searched only when none is
+    big = max(int(min_face), min(g8.shape) // 4)
     faces = cascade.detectMultiScale(g8, scaleFactor=1.1, minNeighbors=4,
-                                     minSize=(min_face, min_face))
+                                     minSize=(big, big))
+    if len(faces) == 0 and big > min_face:
+        faces = cascade.detectMultiScale(g8, scaleFactor=1.1, minNeighbors=4,
+                                         minSize=(min_face, min_face))
     if len(faces) == 0:
         raise ValueError(f"no face found in frame {frame_index}")
     box = tuple(int(v) for v in max(faces, key=lambda f: f[2] * f[3]))

@@ -252,8 +252,7 @@ def resample_polyline(points, n: int | None = None, *, spacing: float | None = N
         raise ValueError("points contain NaN or infinite coordinates")
     if closed:
         pts = np.vstack([pts, pts[:1]])
-    seg = np.hypot(*np.diff(pts, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
+    s = _arc_length_nb(pts)
     total = s[-1]
     if total <= 0:
         raise ValueError("polyline has zero length")
@@ -264,10 +263,52 @@ def resample_polyline(points, n: int | None = None, *, spacing: float | None = N
     n = int(n)
     if n < 2:
         raise ValueError(f"n must be >= 2, got {n}")
-    t = np.linspace(0, total, n + 1 if closed else n)
-    if closed:
-        t = t[:-1]
-    return np.c_[np.interp(t, s, pts[:, 0]), np.interp(t, s, pts[:, 1])]
+    out = np.empty((n, 2))
+    _resample_nb(pts, s, n, closed, out)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _arc_length_nb(pts):
+    s = np.empty(pts.shape[0])
+    s[0] = 0.0
+    for i in range(pts.shape[0] - 1):
+        s[i + 1] = s[i] + np.hypot(pts[i + 1, 0] - pts[i, 0], pts[i + 1, 1] - pts[i, 1])
+    return s
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _resample_nb(pts, s, n, closed, out):
+    # np.interp of np.linspace(0, s[-1], n (+1 closed)) on (s, pts), value for value:
+    # the tracker resamples every contour whose end moved, several times a frame
+    m = s.shape[0]
+    total = s[m - 1]
+    num = n + 1 if closed else n
+    step = total / (num - 1)
+    j = 0
+    for i in range(n):
+        t = i * step + 0.0
+        if not closed and i == n - 1:
+            t = total
+        if t >= total:
+            out[i, 0] = pts[m - 1, 0]
+            out[i, 1] = pts[m - 1, 1]
+            continue
+        while j + 1 < m and s[j + 1] <= t:
+            j += 1
+        if s[j] == t:
+            out[i, 0] = pts[j, 0]
+            out[i, 1] = pts[j, 1]
+            continue
+        ds = s[j + 1] - s[j]
+        for c in range(2):
+            slope = (pts[j + 1, c] - pts[j, c]) / ds
+            v = slope * (t - s[j]) + pts[j, c]
+            if np.isnan(v):
+                v = slope * (t - s[j + 1]) + pts[j + 1, c]
+                if np.isnan(v) and pts[j, c] == pts[j + 1, c]:
+                    v = pts[j, c]
+            out[i, c] = v
 
 
 def _per_node(value, default, n, what, name):
@@ -654,8 +695,9 @@ class ContourSystem:
     # ------------------------------------------------------------------ setup
     @staticmethod
     def _initial_rest(c, pts, name):
-        seg = np.r_[np.hypot(*np.diff(pts, axis=0).T),
-                    np.hypot(*(pts[0] - pts[-1])) if c.closed else 0.0]
+        seg = np.empty(len(pts))
+        np.hypot(pts[1:, 0] - pts[:-1, 0], pts[1:, 1] - pts[:-1, 1], out=seg[:-1])
+        seg[-1] = np.hypot(*(pts[0] - pts[-1])) if c.closed else 0.0
         if c.rest_lengths is None:
             return seg
         rl = np.asarray(c.rest_lengths, dtype=np.float64)
@@ -790,8 +832,7 @@ class ContourSystem:
             self.anchor[[sl.start, sl.stop - 1]] = pts[[0, -1]]
         if reset_rest:
             c = self.contours[k]
-            self.rest[sl] = self._initial_rest(
-                Contour(pts, closed=c.closed, rest_lengths=c.rest_lengths), pts, self.names[k])
+            self.rest[sl] = self._initial_rest(c, pts, self.names[k])
             self._rest0[k] = self.rest[sl].copy()
 
     def set_strength(self, k, p) -> None:

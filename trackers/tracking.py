@@ -263,14 +263,82 @@ def _boxes_nb(X, starts, m, X0, Y0, gw, gh, out):
 
 def _trim_start(p, s):
     """Drop arc length ``s`` from the start of polyline ``p``."""
-    seg = np.hypot(*np.diff(p, axis=0).T)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    if s >= cum[-1]:
-        return p[-2:]
-    i = int(np.searchsorted(cum, s, side="right")) - 1
-    t = (s - cum[i]) / max(seg[i], 1e-12)
-    first = p[i] + t * (p[i + 1] - p[i])
-    return np.vstack([first, p[i + 1:]])
+    return _trim_start_nb(np.ascontiguousarray(p, dtype=np.float64), float(s))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _trim_start_nb(p, s):
+    n = p.shape[0]
+    cum = np.empty(n)
+    cum[0] = 0.0
+    for i in range(n - 1):
+        cum[i + 1] = cum[i] + np.hypot(p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1])
+    if s >= cum[n - 1]:
+        return p[n - 2:].copy()
+    i = 0
+    while i + 1 < n and cum[i + 1] <= s:
+        i += 1
+    seg = np.hypot(p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1])
+    t = (s - cum[i]) / max(seg, 1e-12)
+    out = np.empty((n - i, 2))
+    out[0, 0] = p[i, 0] + t * (p[i + 1, 0] - p[i, 0])
+    out[0, 1] = p[i, 1] + t * (p[i + 1, 1] - p[i, 1])
+    out[1:] = p[i + 1:]
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _move_end_nb(ref, qx, qy, sigma, settle):
+    """Contour ``ref`` (its end to move first) with that end moved to ``(qx, qy)``:
+    extended along the end, or cut back where the end now lies (by at most 2 sigma a
+    frame unless ``settle``). An empty array when the move is refused (too small, too
+    far, or cutting away half the contour)."""
+    n = ref.shape[0]
+    none = np.empty((0, 2))
+    dx, dy = qx - ref[0, 0], qy - ref[0, 1]
+    j = min(3, n - 1)
+    tx, ty = ref[0, 0] - ref[j, 0], ref[0, 1] - ref[j, 1]
+    tn = max(np.hypot(tx, ty), 1e-9)
+    tx /= tn
+    ty /= tn
+    s = dx * tx + dy * ty
+    if abs(s) < 1e-3 or s > 5 * sigma:
+        return none
+    if s < 0:
+        # retract: cut the contour where the end now lies
+        arc = 0.0
+        best = np.inf
+        cut = 0.0
+        for i in range(n):
+            if i > 0:
+                arc += np.hypot(ref[i, 0] - ref[i - 1, 0], ref[i, 1] - ref[i - 1, 1])
+            d = np.hypot(ref[i, 0] - qx, ref[i, 1] - qy)
+            if d < best:
+                best = d
+                cut = arc
+        if cut > 0.45 * arc:
+            return none
+        if cut > 2.0 * sigma and not settle:
+            # features shorten slowly: at most 2 sigma per frame, so that a transient
+            # gap (a highlight) cannot cut a contour in half (the first frame, where
+            # the layout may be far off, excepted)
+            out = _trim_start_nb(ref, 2.0 * sigma)
+        elif cut > 0:
+            rest = _trim_start_nb(ref, cut)
+            out = np.empty((rest.shape[0], 2))
+            out[0, 0] = qx
+            out[0, 1] = qy
+            out[1:] = rest[1:]
+        else:
+            out = ref
+    else:
+        out = np.empty((n + 1, 2))
+        out[0, 0] = qx
+        out[0, 1] = qy
+        out[1:] = ref
+    if out.shape[0] < 2 or _length_nb(out, False) < 2.0:
+        return none
+    return out
 
 
 def mouth_corners(gray, lip, *, origin=(0.0, 0.0), sigma: float = 1.0,
@@ -436,6 +504,9 @@ IRIS_RETRY_EVERY = 4
 
 #: A contour lost on many consecutive frames is re-placed at least this often (frames).
 REINIT_EVERY = 16
+
+# half-angle of the fan of directions searched for an open mouth's corner (radians)
+_CORNER_FAN = float(np.deg2rad(45.0))
 
 
 def _retry_now(streak: int) -> bool:
@@ -867,6 +938,43 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty,
     return True, s_end, x, y
 
 
+
+class _ContourHead:
+    """The contours' head frame at the nodes' current positions, computed only when
+    asked for: where the irises or the features give the frame it is kept only in
+    case a later frame has to fall back on the contours' motion (0.2 ms a frame)."""
+
+    __slots__ = ("_tracker", "_X", "_value", "_done")
+
+    def __init__(self, tracker):
+        self._tracker = tracker
+        self._X = tracker.system.X.copy()
+        self._done = False
+        self._value = None
+
+    @property
+    def value(self) -> HeadFrame | None:
+        if not self._done:
+            self._value = self._tracker._contour_head(self._X)
+            self._done = True
+            self._tracker = None
+        return self._value
+
+
+class _AnchorBase:
+    """The contours' head frame (a :class:`HeadFrame`, a :class:`_ContourHead` or None)
+    on the last frame whose head frame came from elsewhere, and that head frame."""
+
+    __slots__ = ("_hc", "head")
+
+    def __init__(self, hc, head):
+        self._hc, self.head = hc, head
+
+    @property
+    def contour_head(self) -> HeadFrame | None:
+        return self._hc.value if isinstance(self._hc, _ContourHead) else self._hc
+
+
 class Tracker:
     """Track a :class:`~trackers.layout.FaceLayout` through frames.
 
@@ -1027,7 +1135,7 @@ class Tracker:
         self._last_gray_index = -1
         self._feature_index = -1
         self._feature_cache: tuple = (-1, None)
-        self._anchor_base: tuple | None = None
+        self._anchor_base: _AnchorBase | None = None
         self._ref_brow_angle: float | None = None
         self._brows_lost = False
         self._head_contours_lost = False
@@ -1112,8 +1220,9 @@ class Tracker:
 
     def _depths(self, Ps, origins):
         out = {}
+        X, st = self.system.X, self.system.starts
         for k, name in enumerate(self.names):
-            pts = self.system.X[self.system.contour_slice(k)]
+            pts = X[st[k]:st[k + 1]]
             out[name] = float(_mean_depth_nb(Ps[k], pts, float(origins[k][0]),
                                              float(origins[k][1])))
         return out
@@ -1161,47 +1270,33 @@ class Tracker:
     def _refine(self, Ps, origins, gray, gorigin, settle=False):
         if not self.refine_ends:
             return
+        X, st = self.system.X, self.system.starts
+        g = np.ascontiguousarray(gray, dtype=np.float32)
+        gox, goy = float(gorigin[0]), float(gorigin[1])
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
             if c.ends == "free":
                 continue
-            pts = self.system.contour_points(k)
+            pts = X[st[k]:st[k + 1]]
             n = len(pts)
             new = pts
+            P = np.ascontiguousarray(Ps[k], dtype=np.float32)
+            ox, oy = origins[k]
+            sigma = float(c.sigma)
             for end in (0, -1):
                 mode = c.end_modes[0 if end == 0 else 1]
                 if mode == "free":
                     continue
-                q = refine_end(new, Ps[k], c.sigma, origin=origins[k], end=end, gray=gray,
-                               gray_origin=gorigin, inset=mode == "centre",
-                               fan=45.0 if mode == "corner" else 0.0, step=mode == "line")
-                if q is None:
+                # refine_end without its checks: same kernel, same arguments
+                ref = np.ascontiguousarray(new if end == 0 else new[::-1])
+                ok, x, y = _refine_end_nb(ref, P, float(ox), float(oy), sigma,
+                                          mode == "centre", g, gox, goy, True,
+                                          _CORNER_FAN if mode == "corner" else 0.0,
+                                          mode == "line")
+                if not ok:
                     continue
-                e = new[0] if end == 0 else new[-1]
-                d = q - e
-                ref = new if end == 0 else new[::-1]
-                t = ref[0] - ref[min(3, len(ref) - 1)]
-                t /= max(np.hypot(*t), 1e-9)
-                s = float(d @ t)
-                if abs(s) < 1e-3 or s > 5 * c.sigma:
-                    continue
-                if s < 0:
-                    # retract: cut the contour where the end now lies
-                    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref, axis=0).T))])
-                    cut = arc[np.argmin(np.hypot(*(ref - q).T))]
-                    if cut > 0.45 * arc[-1]:
-                        continue
-                    if cut > 2.0 * c.sigma and not settle:
-                        # features shorten slowly: at most 2 sigma per frame, so that
-                        # a transient gap (a highlight) cannot cut a contour in half
-                        # (the first frame, where the layout may be far off, excepted)
-                        cut = 2.0 * c.sigma
-                        ref = _trim_start(ref, cut)
-                    else:
-                        ref = np.vstack([q, _trim_start(ref, cut)[1:]]) if cut > 0 else ref
-                else:
-                    ref = np.vstack([q, ref])
-                if len(ref) < 2 or _polyline_length(ref) < 2.0:
+                ref = _move_end_nb(ref, x, y, sigma, bool(settle))
+                if ref.shape[0] == 0:
                     continue
                 new = ref if end == 0 else ref[::-1]
             if new is not pts:
@@ -1276,8 +1371,7 @@ class Tracker:
             self._feature_cache = (self.index, head)
             self._keep_gray(frame)
         # the contours' later motion is chained on from here
-        hc = self._contour_head()
-        self._anchor_base = (hc, head) if hc is not None else None
+        self._anchor_base = _AnchorBase(_ContourHead(self), head)
         self._held = 0
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
@@ -1285,8 +1379,9 @@ class Tracker:
 
     def _quality(self, depths, outside, reinit=()):
         q = {}
+        X, st = self.system.X, self.system.starts
         for k, name in enumerate(self.names):
-            pts = self.system.X[self.system.contour_slice(k)]
+            pts = X[st[k]:st[k + 1]]
             closed = self.layout.contours[name].closed
             depth = depths[name] / max(self.ref_depth.get(name, depths[name]), 1e-9)
             stretch = _polyline_length(pts, closed) / max(self.ref_length.get(
@@ -1301,8 +1396,12 @@ class Tracker:
                                      float(shape))
         return q
 
-    def _contour_head(self):
-        cont = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
+    def _contour_head(self, X=None):
+        """The contours' own head frame (:func:`~trackers.fiducials.head_frame`) from the
+        node positions ``X`` (default: the current ones), or None."""
+        X = self.system.X if X is None else X
+        st = self.system.starts
+        cont = {n: X[st[k]:st[k + 1]] for k, n in enumerate(self.names)}
         try:
             return head_frame(cont)
         except ValueError:
@@ -1310,8 +1409,9 @@ class Tracker:
 
     def _head(self, frame, first=False):
         """Head frame of this frame (see the class docstring, ``head_anchor``)."""
-        hc = self._contour_head()
+        hc = _ContourHead(self)
         if first:
+            hc = hc.value
             self.head_source = "contours"
             if self.head_anchor in ("auto", "eyes") and self.layout.eyes is not None:
                 try:
@@ -1322,7 +1422,7 @@ class Tracker:
                         raise
                     self.anchors = None
             if hc is not None:
-                self._anchor_base = (hc, hc)
+                self._anchor_base = _AnchorBase(hc, hc)
             self._ref_brow_angle = _brow_angle(self.system, self.names)
             self._keep_gray(frame)
             return hc if hc is not None else self.last_head
@@ -1333,20 +1433,18 @@ class Tracker:
             head = self._iris_head(frame, hc)
             if head is not None:
                 self.head_source = "eyes"
-                if hc is not None:
-                    self._anchor_base = (hc, head)
+                self._anchor_base = _AnchorBase(hc, head)
                 self.features = None  # seeded again from here when the irises go
                 self._keep_gray(frame)
                 return head
         head = self._feature_head(frame)
         if head is not None:
             self.head_source = "features"
-            if hc is not None:
-                self._anchor_base = (hc, head)
+            self._anchor_base = _AnchorBase(hc, head)
             if self.anchors is not None:
                 self._move_iris_search(head)
             return head
-        fallback = self._chained(hc)
+        fallback = self._chained(hc.value)
         if fallback is not None and self.anchors is not None:
             self._move_iris_search(fallback)
         self.head_source = "contours"
@@ -1429,6 +1527,8 @@ class Tracker:
         def turn(a, b):
             return abs((a - b + np.pi) % (2 * np.pi) - np.pi)
 
+        if hc is not None and not self._head_contours_lost:
+            hc = hc.value if isinstance(hc, _ContourHead) else hc
         if hc is not None and not self._head_contours_lost and (
                 abs(head.scale / hc.scale - 1) > 0.12 or turn(head.roll, hc.roll) > 0.1):
             # expressions change the contours' scale by a few per cent, no more
@@ -1447,10 +1547,12 @@ class Tracker:
         if hc is None or self._head_contours_lost:
             # the frame's own contours are unreliable: hold the last frame
             return self.last_head if self.last_head is not None else hc
-        if self._anchor_base is None:
+        base = self._anchor_base
+        hc0 = base.contour_head if base is not None else None
+        if hc0 is None:
             return hc
         # the contours' motion since the last frame whose frame the irises gave
-        hc0, h0 = self._anchor_base
+        h0 = base.head
         a, b = _similarity_between(hc0, hc)
         moved = _apply_similarity(h0, a, b)
         # a contour frame that jumped (a hairline contour on a hand, the nose contour
@@ -1461,7 +1563,7 @@ class Tracker:
             if self._held <= 5 and self.last_head is not None:
                 return self.last_head
             # the contours have settled elsewhere for good: start over from them
-            self._anchor_base = (hc, hc)
+            self._anchor_base = _AnchorBase(hc, hc)
             self._held = 0
             return hc
         self._held = 0

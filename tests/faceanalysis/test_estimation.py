@@ -177,6 +177,45 @@ def test_box_qp_matches_a_reference_solver(rng):
         np.testing.assert_allclose(got[t], ref, atol=1e-6)
 
 
+def test_box_qp_solves_each_problem_of_a_batch_on_its_own(rng):
+    from faceanalysis.estimators import box_qp
+
+    a = rng.normal(size=(6, 10, 5))
+    hess = np.matmul(a.transpose(0, 2, 1), a)
+    grad0 = rng.normal(size=(6, 5)) * [[1], [10], [0.1], [1], [100], [1]]
+    lo, hi = -rng.random((6, 5)), rng.random((6, 5))
+    both = box_qp(hess, grad0, lo, hi, iterations=400)
+    for t in range(6):
+        alone = box_qp(hess[t:t + 1], grad0[t:t + 1], lo[t:t + 1], hi[t:t + 1],
+                       iterations=400)
+        np.testing.assert_array_equal(both[t], alone[0])
+        assert np.all(both[t] >= lo[t]) and np.all(both[t] <= hi[t])
+    with pytest.raises(ValueError, match="shape"):
+        box_qp(hess[:, :4], grad0, lo, hi)
+
+
+def test_response_predicts_piecewise_linear_plus_interactions(rng):
+    resp = _response(rng)
+    pairs = np.array([[0, 1], [2, 3]])
+    inter = rng.normal(size=(2, 4, 2)) * 0.1
+    resp = FiducialResponse(resp.muscles, resp.fiducials, resp.rest, resp.displacement,
+                            resp.upper, resp.levels, pairs, inter)
+    c = rng.uniform(-0.2, 1.2, size=(50, 4)) * resp.upper      # outside the box too
+    u = np.clip(c / resp.upper, 0, 1) * (resp.n_levels - 1)
+    i = np.minimum(np.floor(u).astype(int), resp.n_levels - 2)
+    f = (u - i)[:, :, None, None]
+    m = np.arange(4)
+    want = ((1 - f) * resp.displacement[m, i] + f * resp.displacement[m, i + 1]).sum(axis=1)
+    v = c / resp.upper
+    want += np.einsum("tp,pfk->tfk", v[:, pairs[:, 0]] * v[:, pairs[:, 1]], inter)
+    np.testing.assert_allclose(resp.predict(c), want, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(resp.predict(c[0]), want[:1], rtol=1e-12, atol=1e-14)
+    with pytest.raises(ValueError, match="finite"):
+        resp.predict(np.full(4, np.nan))
+    with pytest.raises(ValueError, match="shape"):
+        resp.predict(np.zeros((2, 3)))
+
+
 def test_joint_fit_leaves_the_blas_thread_setting_alone(rng):
     from threadpoolctl import threadpool_info
 

@@ -5,6 +5,7 @@ from trackers.fiducials import (
     FIDUCIAL_NAMES,
     HeadFrame,
     apex_fraction,
+    arc_point,
     centroid,
     fiducials,
     head_frame,
@@ -96,3 +97,22 @@ def test_missing_or_bad_contours():
     cont["upper_lip"][3] = np.nan
     with pytest.raises(ValueError, match="upper_lip.*NaN"):
         fiducials(cont)
+
+
+def test_arc_point_walks_the_arc_length(rng):
+    p = np.array([[0.0, 0.0], [3.0, 4.0], [3.0, 4.0], [3.0, 10.0]])   # 5 + 0 + 6 long
+    np.testing.assert_array_equal(arc_point(p, 0.0), [0.0, 0.0])
+    np.testing.assert_allclose(arc_point(p, 5 / 11), [3.0, 4.0])
+    np.testing.assert_allclose(arc_point(p, 8 / 11), [3.0, 7.0])
+    np.testing.assert_array_equal(arc_point(p, 1.0), [3.0, 10.0])
+    # beyond the ends: the ends
+    np.testing.assert_array_equal(arc_point(p, -0.5), [0.0, 0.0])
+    np.testing.assert_array_equal(arc_point(p, 1.5), [3.0, 10.0])
+    for _ in range(100):
+        q = rng.random((int(rng.integers(2, 20)), 2)) * 100
+        f = float(rng.random())
+        s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(q, axis=0).T))]
+        np.testing.assert_array_equal(arc_point(q, f), [np.interp(f * s[-1], s, q[:, 0]),
+                                                        np.interp(f * s[-1], s, q[:, 1])])
+    with pytest.raises(ValueError, match="shape"):
+        arc_point(np.zeros((3, 3)), 0.5)

@@ -157,3 +157,46 @@ def test_haar_cascades_load_once_per_thread():
     t.start()
     t.join()
     assert other[0] is not a and not other[0].empty()
+
+
+@pytest.fixture(scope="module")
+def rendered_face(tmp_path_factory):
+    """A 256x256 render of the face model (BGR), whose face the Haar cascade finds."""
+    import cv2
+
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path_factory.mktemp("face") / "s", expression="happiness",
+                            frames=2, size=256, seed=3, noise=1.0, flow=False)
+    cap = cv2.VideoCapture(str(files["video"]))
+    ok, img = cap.read()
+    cap.release()
+    assert ok
+    return img
+
+
+def test_detection_box_is_that_of_a_full_search(rendered_face):
+    # large faces are searched first; the box must be the one a search from the
+    # smallest size gives (the cascade's scales do not depend on where they start)
+    import cv2
+
+    from trackers.layout import _cascade
+    from trackers.potentials import to_gray
+
+    g8 = cv2.equalizeHist(np.clip(to_gray(rendered_face, channel_order="bgr") + 0.5, 0, 255)
+                          .astype(np.uint8))
+    faces = _cascade("haarcascade_frontalface_default.xml").detectMultiScale(
+        g8, scaleFactor=1.1, minNeighbors=4, minSize=(40, 40))
+    largest = tuple(int(v) for v in max(faces, key=lambda f: f[2] * f[3]))
+    assert detect_layout(rendered_face, channel_order="bgr").face_box == largest
+
+
+def test_detection_finds_a_face_smaller_than_a_quarter_of_the_frame(rendered_face):
+    import cv2
+
+    x, y, w, h = detect_layout(rendered_face, channel_order="bgr").face_box
+    pad = 250
+    big = cv2.copyMakeBorder(rendered_face, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    assert min(big.shape[:2]) // 4 > w       # only the second, small-scale search sees it
+    bx, by, bw, bh = detect_layout(big, channel_order="bgr").face_box
+    assert abs(bx - (x + pad)) <= 3 and abs(by - (y + pad)) <= 3 and abs(bw - w) <= 3
