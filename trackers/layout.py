@@ -495,7 +495,8 @@ def detect_layout(frame, *, frame_index: int = 0, channel_order: str = "rgb",
     spacing : float, optional
         Node spacing in pixels (default 3 % of the inter-eye distance).
     min_face : int
-        Smallest face side searched, pixels.
+        Smallest face side searched, pixels. Faces of a quarter of the frame's short
+        side and more are searched first; the smaller sizes only when none is found.
 
     Returns
     -------

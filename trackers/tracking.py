@@ -944,21 +944,30 @@ class _ContourHead:
     asked for: where the irises or the features give the frame it is kept only in
     case a later frame has to fall back on the contours' motion (0.2 ms a frame)."""
 
-    __slots__ = ("_tracker", "_X", "_value", "_done")
+    __slots__ = ("_X", "_starts", "_names", "_value", "_done")
 
-    def __init__(self, tracker):
-        self._tracker = tracker
-        self._X = tracker.system.X.copy()
+    def __init__(self, system, names):
+        self._X = system.X.copy()
+        self._starts, self._names = system.starts, names
         self._done = False
         self._value = None
 
     @property
     def value(self) -> HeadFrame | None:
         if not self._done:
-            self._value = self._tracker._contour_head(self._X)
+            self._value = _contours_head(self._X, self._starts, self._names)
             self._done = True
-            self._tracker = None
+            self._X = None
         return self._value
+
+
+def _contours_head(X, starts, names) -> HeadFrame | None:
+    """:func:`~trackers.fiducials.head_frame` of the contours whose nodes are ``X``, or
+    None where it cannot be computed."""
+    try:
+        return head_frame({n: X[starts[k]:starts[k + 1]] for k, n in enumerate(names)})
+    except ValueError:
+        return None
 
 
 class _AnchorBase:
@@ -1371,7 +1380,7 @@ class Tracker:
             self._feature_cache = (self.index, head)
             self._keep_gray(frame)
         # the contours' later motion is chained on from here
-        self._anchor_base = _AnchorBase(_ContourHead(self), head)
+        self._anchor_base = _AnchorBase(_ContourHead(self.system, self.names), head)
         self._held = 0
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
@@ -1396,20 +1405,9 @@ class Tracker:
                                      float(shape))
         return q
 
-    def _contour_head(self, X=None):
-        """The contours' own head frame (:func:`~trackers.fiducials.head_frame`) from the
-        node positions ``X`` (default: the current ones), or None."""
-        X = self.system.X if X is None else X
-        st = self.system.starts
-        cont = {n: X[st[k]:st[k + 1]] for k, n in enumerate(self.names)}
-        try:
-            return head_frame(cont)
-        except ValueError:
-            return None
-
     def _head(self, frame, first=False):
         """Head frame of this frame (see the class docstring, ``head_anchor``)."""
-        hc = _ContourHead(self)
+        hc = _ContourHead(self.system, self.names)
         if first:
             hc = hc.value
             self.head_source = "contours"
