@@ -938,7 +938,6 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty,
     return True, s_end, x, y
 
 
-
 class _ContourHead:
     """The contours' head frame at the nodes' current positions, computed only when
     asked for: where the irises or the features give the frame it is kept only in
