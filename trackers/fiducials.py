@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from trackers.snakes import _arc_length_nb
+from trackers.snakes import _arc_length_nb, _interp_at_nb
 
 __all__ = ["FIDUCIAL_NAMES", "HeadFrame", "head_frame", "fiducials", "arc_point",
            "centroid", "apex_fraction", "brow_axis_frame"]
@@ -147,9 +147,9 @@ def arc_point(points, fraction: float) -> np.ndarray:
     p = np.ascontiguousarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 2 or len(p) < 1:
         raise ValueError(f"points must have shape (n >= 1, 2), got {p.shape}")
-    out = np.empty(2)
+    out = np.empty((1, 2))
     _arc_point_nb(p, float(fraction), out)
-    return out
+    return out[0]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -157,32 +157,7 @@ def _arc_point_nb(p, fraction, out):
     # np.interp(fraction * length, arc, p[:, c]), value for value (the fiducials and
     # the extra measurement points take a few of these a frame)
     s = _arc_length_nb(p)
-    m = s.shape[0]
-    t = fraction * s[m - 1]
-    j = 0
-    if t >= s[m - 1] or t != t:
-        j = m - 1
-    else:
-        while j + 1 < m and s[j + 1] <= t:
-            j += 1
-    for c in range(2):
-        if t != t:
-            out[c] = np.nan
-        elif t < s[0]:
-            out[c] = p[0, c]
-        elif j == m - 1:
-            # at (or beyond) the end; np.interp's right value
-            out[c] = p[m - 1, c]
-        elif s[j] == t:
-            out[c] = p[j, c]
-        else:
-            slope = (p[j + 1, c] - p[j, c]) / (s[j + 1] - s[j])
-            v = slope * (t - s[j]) + p[j, c]
-            if np.isnan(v):
-                v = slope * (t - s[j + 1]) + p[j + 1, c]
-                if np.isnan(v) and p[j, c] == p[j + 1, c]:
-                    v = p[j, c]
-            out[c] = v
+    _interp_at_nb(p, s, fraction * s[s.shape[0] - 1], 0, out, 0)
 
 
 def apex_fraction(points, head: HeadFrame) -> float:

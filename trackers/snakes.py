@@ -277,38 +277,56 @@ def _arc_length_nb(pts):
     return s
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _interp_at_nb(pts, s, t, j, out, row):
+    """``out[row] = np.interp(t, s, pts[:, c])`` for both columns, value for value; the
+    search for ``t``'s segment starts at ``j`` (the segment is returned, so that
+    increasing ``t`` walk the polyline once)."""
+    m = s.shape[0]
+    if m == 1:
+        out[row, 0] = pts[0, 0]
+        out[row, 1] = pts[0, 1]
+        return j
+    if t != t:
+        out[row, 0] = np.nan
+        out[row, 1] = np.nan
+        return j
+    if t >= s[m - 1]:
+        out[row, 0] = pts[m - 1, 0]
+        out[row, 1] = pts[m - 1, 1]
+        return j
+    if t < s[0]:
+        out[row, 0] = pts[0, 0]
+        out[row, 1] = pts[0, 1]
+        return j
+    while j + 1 < m and s[j + 1] <= t:
+        j += 1
+    if s[j] == t:
+        out[row, 0] = pts[j, 0]
+        out[row, 1] = pts[j, 1]
+        return j
+    ds = s[j + 1] - s[j]
+    for c in range(2):
+        slope = (pts[j + 1, c] - pts[j, c]) / ds
+        v = slope * (t - s[j]) + pts[j, c]
+        if np.isnan(v):
+            v = slope * (t - s[j + 1]) + pts[j + 1, c]
+            if np.isnan(v) and pts[j, c] == pts[j + 1, c]:
+                v = pts[j, c]
+        out[row, c] = v
+    return j
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _resample_nb(pts, s, n, closed, out):
-    # np.interp of np.linspace(0, s[-1], n (+1 closed)) on (s, pts), value for value:
-    # the tracker resamples every contour whose end moved, several times a frame
-    m = s.shape[0]
-    total = s[m - 1]
-    num = n + 1 if closed else n
-    step = total / (num - 1)
+    # at np.linspace(0, s[-1], n (+1 closed)), as np.interp would: the tracker
+    # resamples every contour whose end moved, several times a frame
+    total = s[s.shape[0] - 1]
+    step = total / ((n + 1 if closed else n) - 1)
     j = 0
     for i in range(n):
-        t = i * step + 0.0
-        if not closed and i == n - 1:
-            t = total
-        if t >= total:
-            out[i, 0] = pts[m - 1, 0]
-            out[i, 1] = pts[m - 1, 1]
-            continue
-        while j + 1 < m and s[j + 1] <= t:
-            j += 1
-        if s[j] == t:
-            out[i, 0] = pts[j, 0]
-            out[i, 1] = pts[j, 1]
-            continue
-        ds = s[j + 1] - s[j]
-        for c in range(2):
-            slope = (pts[j + 1, c] - pts[j, c]) / ds
-            v = slope * (t - s[j]) + pts[j, c]
-            if np.isnan(v):
-                v = slope * (t - s[j + 1]) + pts[j + 1, c]
-                if np.isnan(v) and pts[j, c] == pts[j + 1, c]:
-                    v = pts[j, c]
-            out[i, c] = v
+        t = total if not closed and i == n - 1 else i * step + 0.0
+        j = _interp_at_nb(pts, s, t, j, out, i)
 
 
 def _per_node(value, default, n, what, name):

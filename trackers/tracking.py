@@ -73,6 +73,7 @@ from trackers.snakes import (
     Contour,
     ContourSystem,
     SnakeParams,
+    _arc_length_nb,
     paper_equivalent_strength,
     resample_polyline,
 )
@@ -261,18 +262,11 @@ def _boxes_nb(X, starts, m, X0, Y0, gw, gh, out):
         out[k, 3] = min(int(np.ceil(ymax + m)) + 1 - Y0, gh)
 
 
-def _trim_start(p, s):
-    """Drop arc length ``s`` from the start of polyline ``p``."""
-    return _trim_start_nb(np.ascontiguousarray(p, dtype=np.float64), float(s))
-
-
 @numba.njit(cache=True, error_model="numpy")
 def _trim_start_nb(p, s):
+    """Polyline ``p`` without arc length ``s`` from its start."""
     n = p.shape[0]
-    cum = np.empty(n)
-    cum[0] = 0.0
-    for i in range(n - 1):
-        cum[i + 1] = cum[i] + np.hypot(p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1])
+    cum = _arc_length_nb(p)
     if s >= cum[n - 1]:
         return p[n - 2:].copy()
     i = 0
@@ -969,20 +963,6 @@ def _contours_head(X, starts, names) -> HeadFrame | None:
         return None
 
 
-class _AnchorBase:
-    """The contours' head frame (a :class:`HeadFrame`, a :class:`_ContourHead` or None)
-    on the last frame whose head frame came from elsewhere, and that head frame."""
-
-    __slots__ = ("_hc", "head")
-
-    def __init__(self, hc, head):
-        self._hc, self.head = hc, head
-
-    @property
-    def contour_head(self) -> HeadFrame | None:
-        return self._hc.value if isinstance(self._hc, _ContourHead) else self._hc
-
-
 class Tracker:
     """Track a :class:`~trackers.layout.FaceLayout` through frames.
 
@@ -1143,7 +1123,10 @@ class Tracker:
         self._last_gray_index = -1
         self._feature_index = -1
         self._feature_cache: tuple = (-1, None)
-        self._anchor_base: _AnchorBase | None = None
+        # the contours' head frame (a _ContourHead) on the last frame whose head frame
+        # came from elsewhere, and that head frame: where the contours' motion is
+        # chained on from
+        self._anchor_base: tuple[_ContourHead, HeadFrame] | None = None
         self._ref_brow_angle: float | None = None
         self._brows_lost = False
         self._head_contours_lost = False
@@ -1379,7 +1362,7 @@ class Tracker:
             self._feature_cache = (self.index, head)
             self._keep_gray(frame)
         # the contours' later motion is chained on from here
-        self._anchor_base = _AnchorBase(_ContourHead(self.system, self.names), head)
+        self._anchor_base = (_ContourHead(self.system, self.names), head)
         self._held = 0
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
@@ -1408,7 +1391,6 @@ class Tracker:
         """Head frame of this frame (see the class docstring, ``head_anchor``)."""
         hc = _ContourHead(self.system, self.names)
         if first:
-            hc = hc.value
             self.head_source = "contours"
             if self.head_anchor in ("auto", "eyes") and self.layout.eyes is not None:
                 try:
@@ -1418,11 +1400,11 @@ class Tracker:
                     if self.head_anchor == "eyes":
                         raise
                     self.anchors = None
-            if hc is not None:
-                self._anchor_base = _AnchorBase(hc, hc)
+            if hc.value is not None:
+                self._anchor_base = (hc, hc.value)
             self._ref_brow_angle = _brow_angle(self.system, self.names)
             self._keep_gray(frame)
-            return hc if hc is not None else self.last_head
+            return hc.value if hc.value is not None else self.last_head
         # the irises first; while the features stand in for them, searched for only
         # every few frames (a search that fails costs as much as the features)
         if self.anchors is not None and self.ref_head is not None and (
@@ -1430,18 +1412,18 @@ class Tracker:
             head = self._iris_head(frame, hc)
             if head is not None:
                 self.head_source = "eyes"
-                self._anchor_base = _AnchorBase(hc, head)
+                self._anchor_base = (hc, head)
                 self.features = None  # seeded again from here when the irises go
                 self._keep_gray(frame)
                 return head
         head = self._feature_head(frame)
         if head is not None:
             self.head_source = "features"
-            self._anchor_base = _AnchorBase(hc, head)
+            self._anchor_base = (hc, head)
             if self.anchors is not None:
                 self._move_iris_search(head)
             return head
-        fallback = self._chained(hc.value)
+        fallback = self._chained(hc)
         if fallback is not None and self.anchors is not None:
             self._move_iris_search(fallback)
         self.head_source = "contours"
@@ -1519,14 +1501,14 @@ class Tracker:
         return head
 
     def _plausible(self, head, hc):
-        """Whether a head frame from the irises agrees with the contours' frame (scale,
-        roll) and with the last frame (a drifted iris match jumps)."""
+        """Whether a head frame from the irises agrees with the contours' frame (``hc``,
+        a :class:`_ContourHead`, or None to skip that check: scale, roll) and with the
+        last frame (a drifted iris match jumps)."""
         def turn(a, b):
             return abs((a - b + np.pi) % (2 * np.pi) - np.pi)
 
-        if hc is not None and not self._head_contours_lost:
-            hc = hc.value if isinstance(hc, _ContourHead) else hc
-        if hc is not None and not self._head_contours_lost and (
+        hc = hc.value if hc is not None and not self._head_contours_lost else None
+        if hc is not None and (
                 abs(head.scale / hc.scale - 1) > 0.12 or turn(head.roll, hc.roll) > 0.1):
             # expressions change the contours' scale by a few per cent, no more
             return False
@@ -1539,17 +1521,18 @@ class Tracker:
                 return False
         return True
 
-    def _chained(self, hc):
-        """Fallback frame: the contours' motion since the last frame the irises gave."""
+    def _chained(self, lazy):
+        """Fallback frame: the contours' motion (``lazy``, this frame's
+        :class:`_ContourHead`) since the last frame the irises or features gave."""
+        hc = lazy.value
         if hc is None or self._head_contours_lost:
             # the frame's own contours are unreliable: hold the last frame
             return self.last_head if self.last_head is not None else hc
-        base = self._anchor_base
-        hc0 = base.contour_head if base is not None else None
+        hc0 = self._anchor_base[0].value if self._anchor_base is not None else None
         if hc0 is None:
             return hc
         # the contours' motion since the last frame whose frame the irises gave
-        h0 = base.head
+        h0 = self._anchor_base[1]
         a, b = _similarity_between(hc0, hc)
         moved = _apply_similarity(h0, a, b)
         # a contour frame that jumped (a hairline contour on a hand, the nose contour
@@ -1560,7 +1543,7 @@ class Tracker:
             if self._held <= 5 and self.last_head is not None:
                 return self.last_head
             # the contours have settled elsewhere for good: start over from them
-            self._anchor_base = _AnchorBase(hc, hc)
+            self._anchor_base = (lazy, hc)
             self._held = 0
             return hc
         self._held = 0
