@@ -157,6 +157,61 @@ POINT_CONTOUR = {
 #: many measurement points are; controls that only the missing points observe are NaN.
 MIN_POINTS = 7
 
+#: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
+#: tracked furrow is at least this long relative to the neutral frame. The face model
+#: never shortens a nasolabial furrow by more than 1.4 % (risorius at full contraction)
+#: and opening the jaw lengthens it by 18 %; a tracked furrow that got shorter ends
+#: where its line faded out (the stretched lower furrow fades as the jaw opens), not
+#: where the model's furrow ends, and its end would read as a jaw that did not open.
+#: On the demo's sequence this took the jaw error from 2.57 to 0.89 degrees; on the
+#: standard suite from 0.60 to 0.54 (median joint RMSE 0.121 -> 0.119).
+MIN_FURROW_STRETCH = 0.98
+
+#: The measurement points at a contour's lower end: name -> contour.
+_END_POINTS = {name: contour for name, (contour, fraction) in CURVE_POINTS.items()
+               if fraction == 1.0}
+
+
+def faded_furrow_ends(contours, neutral: int, names) -> np.ndarray:
+    """Where a furrow's lower end is not measured (see :data:`MIN_FURROW_STRETCH`).
+
+    Parameters
+    ----------
+    contours : sequence of dict or None
+        Per frame, the tracked contours (name -> (n, 2) array), None where the frame
+        was not tracked.
+    neutral : int
+        Index into ``contours`` of the neutral frame.
+    names : sequence of str
+        Measurement points.
+
+    Returns
+    -------
+    ndarray of bool, shape (T, len(names))
+        True for a ``furrow_bottom_*`` point on a frame where its furrow is shorter
+        than :data:`MIN_FURROW_STRETCH` of its length on the neutral frame.
+    """
+    mask = np.zeros((len(contours), len(names)), dtype=bool)
+    ref = contours[neutral] if 0 <= neutral < len(contours) else None
+    if ref is None:
+        return mask
+    for j, name in enumerate(names):
+        contour = _END_POINTS.get(name)
+        if contour is None or contour not in ref:
+            continue
+        length0 = _open_length(ref[contour])
+        if not length0 > 0:
+            continue
+        for t, c in enumerate(contours):
+            if c is not None:
+                mask[t, j] = _open_length(c[contour]) < MIN_FURROW_STRETCH * length0
+    return mask
+
+
+def _open_length(points) -> float:
+    p = np.asarray(points, dtype=float)
+    return float(np.hypot(*np.diff(p, axis=0).T).sum())
+
 
 def _measure(result, names: tuple[str, ...]) -> np.ndarray:
     from trackers.fiducials import arc_point
@@ -398,6 +453,10 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         seen = seen & ~drop
         excluded_names = suspect
     cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
+    # (counted only where the point would have been measured)
+    faded = faded_furrow_ends(contours, k, response.fiducials) & np.isfinite(meas).all(axis=2)
+    if faded.any():
+        meas = np.where(faded[..., None], np.nan, meas)
     if suspect:
         log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
                     "where the face model puts %s (a contour on the wrong feature?); %s. "
@@ -444,7 +503,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     }
     calib = {"neutral_frame": int(frame_arr[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
-             "suspect_points": suspect, "excluded_points": excluded_names}
+             "suspect_points": suspect, "excluded_points": excluded_names,
+             "faded_furrow_ends": {n: int(c) for n, c in zip(response.fiducials,
+                                                             faded.sum(axis=0)) if c}}
     metadata = analysis_metadata(source, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit})
     timings = {"track_s": t_track, "estimate_s": t_estimate, "total_s": elapsed, "frames": n}
