@@ -174,16 +174,17 @@ _END_POINTS = {name: contour for name, (contour, fraction) in CURVE_POINTS.items
                if fraction == 1.0}
 
 
-def faded_furrow_ends(contours, neutral: int, names) -> np.ndarray:
+def faded_furrow_ends(stretch, neutral: int, names) -> np.ndarray:
     """Where a furrow's lower end is not measured (see :data:`MIN_FURROW_STRETCH`).
 
     Parameters
     ----------
-    contours : sequence of dict or None
-        Per frame, the tracked contours (name -> (n, 2) array), None where the frame
-        was not tracked.
+    stretch : array_like, shape (T, len(names))
+        Per frame, the length of the contour each point lies on relative to the
+        tracker's first frame (:attr:`trackers.ContourQuality.stretch`); NaN where the
+        frame was not tracked.
     neutral : int
-        Index into ``contours`` of the neutral frame.
+        Row of ``stretch`` of the neutral frame.
     names : sequence of str
         Measurement points.
 
@@ -195,34 +196,20 @@ def faded_furrow_ends(contours, neutral: int, names) -> np.ndarray:
 
     Examples
     --------
-    >>> import numpy as np
-    >>> furrow = np.array([[0.0, 0.0], [1.0, 10.0], [2.0, 20.0]])
-    >>> frames = [{"furrow_l": furrow}, None, {"furrow_l": 0.9 * furrow}]
-    >>> faded_furrow_ends(frames, 0, ["furrow_top_l", "furrow_bottom_l"])
+    >>> faded_furrow_ends([[1.0, 1.0], [np.nan, np.nan], [0.9, 0.9]], 0,
+    ...                   ["furrow_top_l", "furrow_bottom_l"])
     array([[False, False],
            [False, False],
            [False,  True]])
     """
-    mask = np.zeros((len(contours), len(names)), dtype=bool)
-    ref = contours[neutral] if 0 <= neutral < len(contours) else None
-    if ref is None:
-        return mask
-    for j, name in enumerate(names):
-        contour = _END_POINTS.get(name)
-        if contour is None or contour not in ref:
-            continue
-        length0 = _open_length(ref[contour])
-        if not length0 > 0:
-            continue
-        for t, c in enumerate(contours):
-            if c is not None:
-                mask[t, j] = _open_length(c[contour]) < MIN_FURROW_STRETCH * length0
-    return mask
-
-
-def _open_length(points) -> float:
-    p = np.asarray(points, dtype=float)
-    return float(np.hypot(*np.diff(p, axis=0).T).sum())
+    s = np.asarray(stretch, dtype=float)
+    if s.ndim != 2 or s.shape[1] != len(names):
+        raise ValueError(f"stretch must have shape (T, {len(names)}), got {s.shape}")
+    if not 0 <= neutral < len(s):
+        raise ValueError(f"neutral must be a row of stretch (0..{len(s) - 1}), got {neutral}")
+    ends = np.array([name in _END_POINTS for name in names])
+    with np.errstate(invalid="ignore"):
+        return ends & (s < MIN_FURROW_STRETCH * s[neutral])
 
 
 def _measure(result, names: tuple[str, ...]) -> np.ndarray:
@@ -368,8 +355,10 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     meas_rows: list[np.ndarray] = []
     head_rows: list[np.ndarray] = []
     contours: list = []
+    stretch_rows: list[np.ndarray] = []
     nan_fid = np.full((len(FIDUCIALS), 2), np.nan)
     nan_meas = np.full((len(response.fiducials), 2), np.nan)
+    nan_stretch = np.full(len(response.fiducials), np.nan)
     nan_head = np.full(4, np.nan)
     tracker = None
     writer = None
@@ -388,6 +377,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     meas_rows.append(nan_meas)
                     head_rows.append(nan_head)
                     contours.append(None)
+                    stretch_rows.append(nan_stretch)
                 else:
                     t0 = time.perf_counter()
                     if tracker is None:
@@ -408,6 +398,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     meas_rows.append(points if good else nan_meas)
                     head_rows.append(head_row if good else nan_head)
                     contours.append(res.contours)
+                    stretch_rows.append(np.array(
+                        [res.quality[POINT_CONTOUR[p]].stretch for p in response.fiducials]))
                 if overlay is not None and frame.ok:
                     if writer is None:
                         writer = VideoWriter(overlay, source.fps, source.size)
@@ -466,7 +458,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         excluded_names = suspect
     cal = calibrate(meas[k], heads[k], response.rest, valid=seen)
     # (counted only where the point would have been measured)
-    faded = faded_furrow_ends(contours, k, response.fiducials) & np.isfinite(meas).all(axis=2)
+    faded = (faded_furrow_ends(np.stack(stretch_rows), k, response.fiducials)
+             & np.isfinite(meas).all(axis=2))
     if faded.any():
         meas = np.where(faded[..., None], np.nan, meas)
     if suspect:

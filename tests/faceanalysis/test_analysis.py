@@ -218,13 +218,13 @@ def test_a_furrow_shorter_than_on_the_neutral_frame_loses_its_lower_end():
     from faceanalysis.analysis import MIN_FURROW_STRETCH, faded_furrow_ends
 
     names = ("furrow_top_l", "furrow_bottom_l", "furrow_mid_r", "furrow_bottom_r")
-    line = np.c_[np.zeros(11), np.linspace(0.0, 10.0, 11)]
 
-    def frame(scale_l, scale_r):
-        return {"furrow_l": line * [1, scale_l], "furrow_r": line * [1, scale_r] + [30, 0]}
+    def frame(stretch_l, stretch_r):
+        # each point's contour length relative to the tracker's first frame
+        return [stretch_l, stretch_l, stretch_r, stretch_r]
 
     short = MIN_FURROW_STRETCH - 0.01
-    contours = [frame(1.2, 1.0), frame(1.0, 1.0), None, frame(short, 1.3),
+    contours = [frame(1.2, 1.0), frame(1.0, 1.0), frame(np.nan, np.nan), frame(short, 1.3),
                 frame(1.0, short), frame(MIN_FURROW_STRETCH + 1e-3, 1.0)]
     mask = faded_furrow_ends(contours, 1, names)
     assert mask.shape == (6, 4)
