@@ -20,7 +20,7 @@ By default only the controls the ``joint`` estimator reads are fitted
 of zygomaticus major's and risorius's (cosine 0.94 and 0.96 on the face grid once the
 nuisance is removed), so with them in the fit the motion of one muscle is shared out
 among the pair at random. On the standard suite (110 sequences) leaving them out took
-the median RMSE over the fitted muscles from 0.108 to 0.095.
+the median RMSE over the fitted muscles from 0.108 to 0.096.
 """
 
 from __future__ import annotations
@@ -218,8 +218,9 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         Warp the templates onto the subject's neutral fiducials first
         (:func:`faceanalysis.templates.personalize`).
     controls : sequence of str or None
-        Controls to fit (default :data:`FLOW_CONTROLS`; those the templates lack are
-        skipped); None: every control of the templates.
+        Controls to fit (default :data:`FLOW_CONTROLS`, less those the templates lack);
+        None: every control of the templates. A name the templates lack is a
+        ``ValueError``.
 
     Returns
     -------
@@ -242,11 +243,12 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
     ref = int(frames[np.argmax(ok)]) if neutral is None else int(neutral)
     if personalised:
         templates = personalize_from_table(templates, table, ref)
-    ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
-                         fps=fps, start=start, end=end)
-    if controls is not None:
+    if controls is FLOW_CONTROLS:
+        # templates of a model without some of the default muscles: fit the others
         controls = tuple(c for c in controls if c in templates.controls)
     design = FlowDesign(templates, controls=controls, regularization=regularization)
+    ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
+                         fps=fps, start=start, end=end)
     values = estimate_contractions(ff.displacement, templates, design=design)
     pos = {int(f): i for i, f in enumerate(ff.frames)}
     out = np.full((len(table), len(design.controls)), np.nan)

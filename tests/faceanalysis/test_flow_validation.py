@@ -130,7 +130,7 @@ def test_validate_scores_the_true_resynthesis_above_a_shuffled_one(tmp_path, mod
 @pytest.mark.slow
 def test_flow_estimator_on_an_analysed_video(tmp_path):
     from faceanalysis.analysis import analyze
-    from faceanalysis.flow_estimator import reestimate_flow
+    from faceanalysis.flow_estimator import estimate_flow, reestimate_flow
     from faceanalysis.templates import default_templates
     from synth.render import render_sequence
 
@@ -150,3 +150,5 @@ def test_flow_estimator_on_an_analysed_video(tmp_path):
     tracked = b.table["success"] == 1
     assert (b.table.loc[tracked, "zygomaticus_minor_l"] == 0).all()
     assert "zygomaticus_minor_l" not in b.metadata["parameters"]["estimated_controls"]
+    with pytest.raises(ValueError, match="controls must be distinct names"):
+        estimate_flow(paths["video"], a.table, controls=("zygomaticus_major_l", "platysma"))
