@@ -359,6 +359,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     nan_fid = np.full((len(FIDUCIALS), 2), np.nan)
     nan_meas = np.full((len(response.fiducials), 2), np.nan)
     nan_stretch = np.full(len(response.fiducials), np.nan)
+    point_contours = [POINT_CONTOUR[p] for p in response.fiducials]   # once, not per frame
     nan_head = np.full(4, np.nan)
     tracker = None
     writer = None
@@ -399,7 +400,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     head_rows.append(head_row if good else nan_head)
                     contours.append(res.contours)
                     stretch_rows.append(np.array(
-                        [res.quality[POINT_CONTOUR[p]].stretch for p in response.fiducials]))
+                        [res.quality[c].stretch for c in point_contours]))
                 if overlay is not None and frame.ok:
                     if writer is None:
                         writer = VideoWriter(overlay, source.fps, source.size)
