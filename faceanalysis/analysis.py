@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 #: (root mean square, model cm) is one the face model does not explain, and its
 #: ``confidence`` is lowered to ``MAX_FIT_RESIDUAL / residual``. On 110 rendered
 #: sequences of the standard suite (10 faces) the worst frame was 0.41 cm away and the
-#: median 0.05; on the three real clips the median frame is 1.1-1.7 cm away (heads that
+#: median 0.05; on the three real clips the median frame is 0.7-1.0 cm away (heads that
 #: turn out of the image plane, contours on other features).
 MAX_FIT_RESIDUAL = 0.5
 

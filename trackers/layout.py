@@ -27,7 +27,10 @@ between the eye centres, unit = inter-eye distance, x toward the image's right,
 y down), is mapped onto the image by the similarity that carries the template eyes
 onto the detected ones (or onto the eyes the template expects inside the face box
 when the eyes are not found). Each contour is then moved rigidly, within a small
-window, to where its mean potential is lowest (:func:`refine_layout`). The layout
+window, to where its mean potential is lowest (:func:`refine_layout`); the nose
+window reaches :data:`NOSE_REACH_UP` higher, since real faces' nostrils lie well
+above the template's, and takes the topmost strong ravine in it, and the contours
+below follow the nose (furrows, mouth line) and the lower lip (chin). The layout
 can be saved to JSON, corrected by hand and loaded back (the paper placed its
 contours with the mouse).
 """
@@ -110,7 +113,8 @@ TEMPLATE: dict[str, np.ndarray] = _build_template()
 #: lower border). The furrows' lower ends stay 'tip': when the jaw opens the lower
 #: furrow stretches and fades, and the grey step then cuts it short. The search of a
 #: contour is centred on the template moved by its parent's offset (the mouth follows
-#: the nose, the chin follows the lower lip), in this order.
+#: the nose, the chin follows the lower lip), in this order. The chin's window is
+#: +-0.1: at +-0.2 it reached the dark shadow under the lower lip on real faces.
 CONTOUR_DEFAULTS = {
     "hairline": (False, "edge", 0.022, (0.0, 0.30), "free", None),
     "brow_l": (False, "valley", 0.035, (0.06, 0.12), "centre", None),
@@ -120,9 +124,23 @@ CONTOUR_DEFAULTS = {
     "furrow_r": (False, "valley", 0.022, (0.08, 0.10), ("line", "tip"), "nose_tip"),
     "upper_lip": (False, "valley", 0.022, (0.05, 0.15), "tip", "nose_tip"),
     "lower_lip": (False, "edge", 0.022, (0.0, 0.10), "free", "upper_lip"),
-    "chin_boss": (True, "valley", 0.022, (0.05, 0.20), "free", "lower_lip"),
+    "chin_boss": (True, "valley", 0.022, (0.05, 0.10), "free", "lower_lip"),
 }
 ENDS = ("free", "tip", "centre", "line", "corner")
+
+#: How far above the template's nostrils (inter-eye units) :func:`refine_layout`
+#: looks for them. The template has the face model's lower face (nostrils 1.0
+#: inter-eye distances below the eyes); on real faces, and more so on one that looks
+#: down, they lie 0.55-0.6 below, where a symmetric window never reaches: the nose
+#: contour then settled on the mouth line and every lower contour, which follows it,
+#: one feature low.
+NOSE_REACH_UP = 0.55
+
+#: The nose contour goes to the topmost ravine whose mean potential reaches this share
+#: of the lowest one in its window: between the lower eyelids and the nostrils a face
+#: has no horizontal dark line, and the mouth line below is often as dark as the
+#: nostrils.
+NOSE_RAVINE_SHARE = 0.6
 
 #: Where the eye centres lie inside a Haar ``frontalface_default`` box, as fractions of
 #: its width / height (x from the box's left, y from its top).
@@ -373,6 +391,12 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
                   step: float = 1.0) -> FaceLayout:
     """Move each contour rigidly to the lowest mean potential within its search window.
 
+    The windows are those of :data:`CONTOUR_DEFAULTS`, centred on the template moved by
+    the contour's parent's offset. The nose's reaches :data:`NOSE_REACH_UP` above the
+    template, and the nose goes to the topmost run of offsets whose potential reaches
+    :data:`NOSE_RAVINE_SHARE` of the window's lowest (the nostrils, not the mouth line
+    below them).
+
     Parameters
     ----------
     frame : array_like
@@ -411,7 +435,10 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
             cache[key] = potentials_in_boxes(gray, [(kind, c.sigma)], [(0, 0, W, H)])[0]
         P = cache[key]
         dxs = np.arange(-rx, rx + 1e-9, step) if rx > 0 else np.zeros(1)
+        up = NOSE_REACH_UP * iod if name == "nose_tip" else ry
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)
+        if up > ry:
+            dys = np.r_[-np.arange(step, up - ry + 1e-9, step)[::-1] - ry, dys]
         # all offsets at once (row-major over dy then dx, as a double loop would go)
         off = np.stack(np.meshgrid(dxs, dys), axis=-1).reshape(-1, 2)
         lo = c.points.min(axis=0) + base
@@ -423,6 +450,8 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
             off = off[ok]
             q = (c.points[None, :, :] + (base + off)[:, None, :]).reshape(-1, 2)
             v = sample_bilinear(P, q).reshape(len(off), -1).mean(axis=1)
+            if name == "nose_tip":
+                v = np.where(_topmost_ravine(off[:, 1], v, NOSE_RAVINE_SHARE), v, np.inf)
             # prefer the smallest move among equally good ones
             v = v + 1e-6 * (off ** 2).sum(axis=1)
             best_d = base + off[int(np.argmin(v))]
@@ -430,6 +459,26 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
         out[name] = LayoutContour(c.points + best_d, c.closed, c.kind, c.sigma, c.ends)
     return FaceLayout(out, layout.image_size, layout.eyes, layout.face_box,
                       layout.source, dict(layout.meta))
+
+
+def _topmost_ravine(dy: np.ndarray, v: np.ndarray, share: float) -> np.ndarray:
+    """Mask of the offsets in the topmost run of rows whose best mean potential ``v``
+    reaches ``share`` of the lowest (potentials are negative in a ravine).
+
+    >>> dy = np.repeat([-2.0, -1.0, 0.0, 1.0, 2.0], 2)
+    >>> v = np.array([-1, -2, -8, -7, -1, 0, -9, -10, -3, -1], float)
+    >>> _topmost_ravine(dy, v, 0.6).reshape(5, 2).any(axis=1).tolist()
+    [False, True, False, False, False]
+    """
+    rows, inv = np.unique(dy, return_inverse=True)
+    best = np.full(len(rows), np.inf)
+    np.minimum.at(best, inv, v)
+    strong = best <= share * best.min()
+    first = int(np.argmax(strong))
+    # the run of strong rows that starts at the topmost one
+    stop = first + (int(np.argmin(strong[first:])) if not strong[first:].all()
+                    else len(rows) - first)
+    return (inv >= first) & (inv < stop)
 
 
 _CASCADES = threading.local()

@@ -114,6 +114,39 @@ def test_refine_moves_displaced_contours_onto_features():
         refine_layout(np.zeros((100, 100), np.uint8), lay)
 
 
+def _short_lower_face(cut):
+    """The cartoon face with a band of ``cut`` inter-eye distances taken out of its
+    cheeks, between the eyes and the furrows' tops: nostrils, mouth and chin sit
+    ``cut`` higher than the template puts them (real faces' proportions)."""
+    img, _ = draw_face(size=(256, 300))
+    iod = EYES[1][0] - EYES[0][0]
+    top = int(round(EYES[0][1] + 0.3 * iod))
+    n = int(round(cut * iod))
+    short = np.vstack([img[:top], img[top + n:], np.repeat(img[-1:], n, axis=0)])
+    return short, n
+
+
+def test_refine_finds_a_nose_higher_than_the_template_and_the_lower_face_follows():
+    img, n = _short_lower_face(0.4)
+    lay = layout_from_eyes(*EYES, (256, 300))
+    fixed = refine_layout(img, lay)
+    for name in ("nose_tip", "furrow_l", "furrow_r", "upper_lip", "lower_lip", "chin_boss"):
+        dy = fixed.contours[name].points[:, 1].mean() - lay.contours[name].points[:, 1].mean()
+        assert abs(dy + n) <= 1.5, (name, dy, -n)
+    for name in ("brow_l", "brow_r"):
+        dy = fixed.contours[name].points[:, 1].mean() - lay.contours[name].points[:, 1].mean()
+        assert abs(dy) <= 1.0, (name, dy)
+
+
+def test_refine_keeps_the_template_nose_when_nothing_lies_above_it():
+    img, _ = draw_face(size=(256, 300))
+    lay = layout_from_eyes(*EYES, (256, 300))
+    fixed = refine_layout(img, lay)
+    for name in ("nose_tip", "upper_lip", "chin_boss"):
+        dy = fixed.contours[name].points[:, 1].mean() - lay.contours[name].points[:, 1].mean()
+        assert abs(dy) <= 1.0, (name, dy)
+
+
 @pytest.mark.real_data
 def test_detect_layout_on_real_video(real_video_dir):
     import cv2
@@ -129,6 +162,32 @@ def test_detect_layout_on_real_video(real_video_dir):
     for n in ("brow_l", "brow_r", "nose_tip", "upper_lip"):
         cx, cy = lay.contours[n].points.mean(0)
         assert x <= cx <= x + w and y <= cy <= y + h, n
+
+
+@pytest.mark.real_data
+def test_detect_layout_puts_the_lower_contours_on_real_faces_features(real_video_dir):
+    import cv2
+
+    paths = sorted(real_video_dir.glob("*.mp4"))
+    if not paths:
+        pytest.skip("no real videos")
+    for path in paths:
+        cap = cv2.VideoCapture(str(path))
+        ok, frame = cap.read()
+        cap.release()
+        lay = detect_layout(frame, channel_order="bgr")
+        eye_r, eye_l = lay.eyes
+        d = eye_l - eye_r
+        down = np.array([-d[1], d[0]]) / np.hypot(*d) ** 2
+
+        def depth(name, lay=lay, eye_r=eye_r, eye_l=eye_l, down=down):
+            return float((lay.contours[name].points.mean(0) - (eye_r + eye_l) / 2) @ down)
+
+        # these faces' nostrils lie 0.55-0.6 inter-eye distances below the eyes, the
+        # mouth line near 1.0 and the chin boss near 1.45; the template has 1.0, 1.36, 1.83
+        assert 0.45 < depth("nose_tip") < 0.7, (path.name, depth("nose_tip"))
+        assert 0.85 < depth("upper_lip") < 1.15, (path.name, depth("upper_lip"))
+        assert 1.3 < depth("chin_boss") < 1.6, (path.name, depth("chin_boss"))
 
 
 def test_ends_one_mode_or_a_pair():
