@@ -438,6 +438,7 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
         up = NOSE_REACH_UP * iod if name == "nose_tip" else ry
         dys = np.arange(-ry, ry + 1e-9, step) if ry > 0 else np.zeros(1)
         if up > ry:
+            # the same grid extended upwards (the offsets found inside +-ry stay exact)
             dys = np.r_[-np.arange(step, up - ry + 1e-9, step)[::-1] - ry, dys]
         # all offsets at once (row-major over dy then dx, as a double loop would go)
         off = np.stack(np.meshgrid(dxs, dys), axis=-1).reshape(-1, 2)
