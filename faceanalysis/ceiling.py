@@ -111,9 +111,9 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
 
     Examples
     --------
-    A smile with the mouth opened (AU 12 + 26) on one unseen face: the jaw is exact,
-    the zygomaticus is followed closely but its peak comes out low, even from exact
-    points (the response table's pairwise interactions miss part of the lip's motion):
+    A smile with the mouth opened (AU 12 + 26) on one unseen face: from exact points
+    the jaw and the zygomaticus are followed within 0.1 degree and 0.02 (with the ridge
+    the ``joint`` fit had before, the zygomaticus's peak came out at 0.59 of 0.7):
 
     >>> from faceanalysis.evaluation import SuiteConfig
     >>> rep = measurement_ceiling(SuiteConfig(identities=1, frames=10,
@@ -121,8 +121,8 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     >>> round(rep["joint"]["jaw_rmse_deg"], 1)
     0.1
     >>> zyg = rep["joint"]["controls"]["zygomaticus_major_l"]
-    >>> round(zyg["r"], 3), zyg["truth_max"], round(zyg["estimate_max"], 1)
-    (1.0, 0.7, 0.6)
+    >>> round(zyg["r"], 3), zyg["truth_max"], round(zyg["rmse"], 2) <= 0.02
+    (1.0, 0.7, True)
     """
     from faceanalysis.model_response import model_response, tabulate_response
     from synth.mesh import FaceShape

@@ -50,17 +50,46 @@ def test_joint_recovers_overlapping_muscles_within_bounds(rng):
     resp = _response(rng)
     truth = rng.uniform(0, 1, size=(200, 4)) * resp.upper
     d = resp.predict(truth) + rng.normal(scale=1e-3, size=(200, 4, 2))
-    est = estimate_joint(d, resp, regularization=1e-6)
+    est = estimate_joint(d, resp, regularization=1e-6, sparsity=0)
     assert np.all(est >= 0) and np.all(est <= resp.upper)
     rmse = np.sqrt(np.mean((est - truth) ** 2, axis=0)) / resp.upper
     assert np.all(rmse < 0.02), rmse
+
+
+def test_sparsity_rests_the_muscles_the_points_do_not_call_for(rng):
+    resp = _response(rng)
+    truth = np.zeros((300, 4))
+    truth[:, 2] = rng.uniform(0.3, 1.0, 300)            # only the zygomaticus acts
+    d = resp.predict(truth) + rng.normal(scale=0.02, size=(300, 4, 2))
+    plain = estimate_joint(d, resp, sparsity=0)
+    ridge = estimate_joint(d, resp, regularization=5e-2, sparsity=0)
+    sparse = estimate_joint(d, resp, sparsity=2e-2)
+    rest = [0, 1, 3]
+
+    def false(e):
+        return np.abs(e[:, rest]).mean()
+
+    def slope(e):
+        return np.polyfit(truth[:, 2], e[:, 2], 1)[0]
+
+    # noise reads as small activations of the resting muscles; the L1 term puts more
+    # of them back at exactly zero and halves what is left, while the ridge, which
+    # shrinks in proportion, barely touches them and takes a tenth off the active one
+    assert (sparse[:, rest] == 0).mean() > (plain[:, rest] == 0).mean() + 0.1
+    assert false(sparse) < 0.6 * false(plain) and false(ridge) > 0.8 * false(plain)
+    assert slope(sparse) > 0.95 and slope(ridge) < 0.9
+    rmse = [np.sqrt(np.mean((e[:, 2] - truth[:, 2]) ** 2)) for e in (sparse, ridge)]
+    assert rmse[0] < rmse[1], rmse
+    for bad in (-1e-3, np.nan):
+        with pytest.raises(ValueError, match="sparsity"):
+            estimate_joint(d, resp, sparsity=bad)
 
 
 def test_joint_beats_tw93_when_muscles_overlap(rng):
     resp = _response(rng)
     truth = rng.uniform(0, 1, size=(200, 4)) * resp.upper
     d = resp.predict(truth)
-    joint = estimate(d, resp, estimator="joint", regularization=1e-6)
+    joint = estimate(d, resp, estimator="joint", regularization=1e-6, sparsity=0)
     tw93 = estimate(d, resp, estimator="tw93")
     err_joint = np.sqrt(np.nanmean((joint - truth) ** 2, axis=0))
     err_tw93 = np.sqrt(np.nanmean((tw93 - truth) ** 2, axis=0))
@@ -89,7 +118,7 @@ def test_lost_frames_stay_nan_and_others_are_unaffected(rng):
     truth = rng.uniform(0, 1, size=(6, 4)) * resp.upper
     d = resp.predict(truth)
     d[2] = np.nan
-    est = estimate_joint(d, resp, regularization=1e-6)
+    est = estimate_joint(d, resp, regularization=1e-6, sparsity=0)
     assert np.isnan(est[2]).all()
     assert np.isfinite(np.delete(est, 2, axis=0)).all()
     assert np.isnan(estimate_tw93(d, resp)[2]).all()
@@ -142,7 +171,7 @@ def test_a_missing_point_hides_only_the_controls_it_observes(rng):
     truth = rng.uniform(0, 1, size=(20, 4)) * resp.upper
     d = resp.predict(truth)
     d[:, 3] = np.nan                  # the chin is out of the frame
-    est = estimate_joint(d, resp, regularization=1e-6)
+    est = estimate_joint(d, resp, regularization=1e-6, sparsity=0)
     assert np.isnan(est[:, 3]).all()  # the jaw only moves the chin... and a bit the corner
     np.testing.assert_allclose(est[:, :2], truth[:, :2], atol=0.05)
 
@@ -238,12 +267,12 @@ def test_robust_fit_discounts_a_point_stuck_where_it_was():
     truth = np.array([[0.6, 0.4], [0.3, 0.8], [0.9, 0.1]])
     d = resp.predict(truth)
     d[:, 4] = 0.0
-    plain = estimate_joint(d, resp, regularization=0, robust=None)
-    robust = estimate_joint(d, resp, regularization=0)
+    plain = estimate_joint(d, resp, sparsity=0, robust=None)
+    robust = estimate_joint(d, resp, sparsity=0)
     err_plain, err_robust = np.abs(plain - truth).max(), np.abs(robust - truth).max()
     assert err_robust < 0.5 * err_plain, (err_plain, err_robust)
     # without an outlier the reweighting changes nothing
-    clean = estimate_joint(resp.predict(truth), resp, regularization=0)
+    clean = estimate_joint(resp.predict(truth), resp, sparsity=0)
     np.testing.assert_allclose(clean, truth, atol=2e-3)
     for bad in (0.0, -1.0, np.nan):
         with pytest.raises(ValueError, match="robust"):
