@@ -15,11 +15,12 @@ fiducials (:class:`~faceanalysis.response.FiducialResponse`):
     flow templates; it needs the video, so :func:`estimate` only names it.
 ``joint``
     All contractions at once: bounded least squares of every fiducial coordinate against
-    the sum of all muscles' responses, ``min ||d - sum_m D_m(c_m)||^2 + 2 mu sum_m c_m``
-    subject to ``0 <= c_m <= upper_m`` (a non-negative lasso: most muscles rest on most
-    frames). Muscles whose effects overlap (inner and major frontalis on the brow,
-    zygomaticus and depressor on the mouth corner) share the explanation instead of
-    each claiming all of it.
+    the sum of all muscles' responses,
+    ``min ||d - sum_m D_m(c_m)||^2 + 2 mu sum_m c_m / upper_m`` subject to
+    ``0 <= c_m <= upper_m`` (a non-negative lasso: most muscles rest on most frames).
+    Muscles whose effects overlap (inner and major frontalis on the brow, zygomaticus
+    and depressor on the mouth corner) share the explanation instead of each claiming
+    all of it.
 
 Bounds are the only thing that keeps values in [0, 1]: no clipping after the fact.
 """
