@@ -235,15 +235,16 @@ def identifiability(response: FiducialResponse, *, level: float = 0.0) -> pd.Dat
     upper = np.asarray(response.upper, dtype=float)
     jac = response.jacobian((level * upper)[None])[0] * upper           # (2P, M), cm
     signature = np.linalg.norm(jac, axis=0)
-    independent = np.empty(len(upper))
+    # the part of each column the others leave unexplained; its norm is also
+    # 1 / sqrt((J^T J)^-1_mm), so the standard error needs no inverse of its own
+    own = np.empty(len(upper))
     for m in range(len(upper)):
-        others = np.delete(jac, m, axis=1)
-        q, _ = np.linalg.qr(others)
-        rest = jac[:, m] - q @ (q.T @ jac[:, m])
-        independent[m] = np.linalg.norm(rest) / signature[m] if signature[m] > 0 else 0.0
-    with np.errstate(divide="ignore"):
-        se = np.sqrt(np.diag(np.linalg.pinv(jac.T @ jac))) * upper
-    se[independent < 1e-9] = np.inf
+        q, _ = np.linalg.qr(np.delete(jac, m, axis=1))
+        own[m] = np.linalg.norm(jac[:, m] - q @ (q.T @ jac[:, m]))
+    independent = np.divide(own, signature, out=np.zeros_like(own), where=signature > 0)
+    se = np.full(len(upper), np.inf)
+    told = independent > 1e-9
+    se[told] = upper[told] / own[told]
     out = pd.DataFrame({"signature": signature, "independent": independent,
                         "standard_error": se}, index=pd.Index(response.muscles, name="control"))
     return out.sort_values("standard_error")
