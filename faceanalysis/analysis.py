@@ -384,8 +384,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     if tracker is None:
                         lay = _load_layout(layout, source.size)
                         if lay is None:
-                            lay = detect_layout(frame.image, frame_index=frame.index,
-                                                channel_order="bgr")
+                            try:
+                                lay = detect_layout(frame.image, frame_index=frame.index,
+                                                    channel_order="bgr")
+                            except ValueError as exc:
+                                # the detector names the frame; the user needs the file too
+                                raise ValueError(f"{video}: {exc}") from None
                         tracker = make_tracker(lay, backend=backend, device=device,
                                                channel_order="bgr", **(tracker_options or {}))
                     res = tracker.track(frame.image)

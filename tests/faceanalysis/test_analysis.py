@@ -126,13 +126,13 @@ def test_neutral_frame_must_be_in_range(surprise):
         analyze(surprise["video"], end=4, neutral=99)
 
 
-def test_no_face_names_the_frame(tmp_path):
+def test_no_face_names_the_file_and_frame(tmp_path):
     path = tmp_path / "wall.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
     for _ in range(3):
         writer.write(np.full((120, 160, 3), 128, np.uint8))
     writer.release()
-    with pytest.raises(ValueError, match="no face found in frame 0"):
+    with pytest.raises(ValueError, match=r"wall\.avi: no face found in frame 0"):
         analyze(path)
 
 
