@@ -60,7 +60,10 @@ def _mediapipe_python() -> str | None:
                   file=sys.stderr)
             return None
         return exe
-    probe = subprocess.run([sys.executable, "-c", "import mediapipe.solutions"],
+    # the face mesh is an attribute of the package (there is no mediapipe.solutions
+    # module to import), and 1.x wheels lack it
+    probe = subprocess.run([sys.executable, "-c",
+                            "import mediapipe as mp; mp.solutions.face_mesh"],
                            capture_output=True)
     if probe.returncode == 0:
         return sys.executable
@@ -69,8 +72,9 @@ def _mediapipe_python() -> str | None:
     return None
 
 
-def _mediapipe_fps(python: str, video: Path, repeat: int, end: int | None) -> dict | None:
-    cmd = [python, str(PEER), str(video), "--repeat", str(repeat)]
+def _mediapipe_fps(python: str, video: Path, end: int | None) -> dict | None:
+    """One timed pass of the peer over ``video`` (after its own untimed one)."""
+    cmd = [python, str(PEER), str(video), "--repeat", "1"]
     if end is not None:
         cmd += ["--end", str(end)]
     run = subprocess.run(cmd, capture_output=True, text=True)
@@ -123,7 +127,7 @@ def run(quick: bool = False) -> list[Figure]:
             for _ in range(repeat):
                 ours.append(_measure(video, **options))
                 if peer_python is not None:
-                    peer = _mediapipe_fps(peer_python, video, 1, options.get("end"))
+                    peer = _mediapipe_fps(peer_python, video, options.get("end"))
                     if peer is not None:
                         peers.append(peer)
                         ratios.append(ours[-1][0] / peer["fps"])
