@@ -1,10 +1,10 @@
 """Analysis: frames per second of `faceanalysis analyze` on 640x360 video.
 
 Tracking and estimation run on one thread (OpenCV limited to one thread); decoding
-runs ahead in a second thread (:func:`faceanalysis.video.read_ahead`), so the end to
+runs ahead in a second thread (:func:`faceanalysis.io.video.read_ahead`), so the end to
 end figure uses up to two cores.
 
-Two figures per video, from the same run of :func:`faceanalysis.analysis.analyze`:
+Two figures per video, from the same run of :func:`faceanalysis.analysis.pipeline.analyze`:
 
 * ``analysis``: tracking (potentials, snake relaxation, fiducials) + calibration +
   estimation, decode excluded: frames / (tracking time + estimation time);
@@ -88,7 +88,7 @@ def _mediapipe_fps(python: str, video: Path, end: int | None) -> dict | None:
 
 def _measure(video: Path, **options) -> tuple[float, float, int]:
     """One analysis: (analysis frames/s, end-to-end frames/s, frames)."""
-    from faceanalysis.analysis import analyze
+    from faceanalysis.analysis.pipeline import analyze
 
     t0 = time.perf_counter()
     result = analyze(video, **options)
@@ -99,11 +99,11 @@ def _measure(video: Path, **options) -> tuple[float, float, int]:
 
 
 def run(quick: bool = False) -> list[Figure]:
-    from faceanalysis.model_response import model_response
+    from faceanalysis.estimation.model_response import model_response
     from synth.render.sequence import render_sequence
 
     cv2.setNumThreads(1)
-    from faceanalysis.analysis import analyze
+    from faceanalysis.analysis.pipeline import analyze
 
     model_response()                      # build or load the cached table first
     repeat = 1 if quick else 3

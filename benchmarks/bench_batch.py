@@ -9,7 +9,7 @@ speed-up measures the distribution over processes; the cluster start-up time is 
 separately (it is paid once per command, not per video).
 
 The per-video task is the real single-video analysis
-(``faceanalysis.analysis.analyze_to_folder``: tracking, calibration, estimation, CSV,
+(``faceanalysis.analysis.pipeline.analyze_to_folder``: tracking, calibration, estimation, CSV,
 JSON and plot) on rendered synthetic faces. While ``synth.FaceModel`` (the physics
 model) is not available, the clips are rendered with, and the analysis inverts the
 fiducial response of, the kinematic test face (``tests/faceanalysis/_kinematic_face.py``),
@@ -37,13 +37,13 @@ REPO = Path(__file__).resolve().parent.parent
 
 def _face_model():
     """(model, label, task): the physics model when it exists, else the kinematic face."""
-    from faceanalysis.analysis import analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze_to_folder
 
     try:
         from synth import FaceModel
     except ImportError:
         sys.path.insert(0, str(REPO))
-        from faceanalysis.model_response import tabulate_response
+        from faceanalysis.estimation.model_response import tabulate_response
         from tests.faceanalysis._kinematic_face import KinematicFace
 
         model = KinematicFace()

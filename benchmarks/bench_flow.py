@@ -2,20 +2,20 @@
 
 Measured:
 
-1. End-point error of the toolkit's three flow methods (:func:`faceanalysis.flow.
+1. End-point error of the toolkit's three flow methods (:func:`faceanalysis.flow.dense.
    compute_flow`: DIS medium refined to full resolution, Farneback, TV-L1 with a pyramid deep
    enough for the motion) against the renderer's exact forward flow, frame to frame, on the
    non-occluded face pixels (eroded by 2 px) of the standard evaluation suite
-   (:data:`faceanalysis.evaluation.STANDARD_SEQUENCES`, its head motion, noise and light
+   (:data:`faceanalysis.evaluation.suite.STANDARD_SEQUENCES`, its head motion, noise and light
    change), one identity (two sequences with ``--quick``).
-2. Frames per second of the flow step of :func:`faceanalysis.flow.face_flow` on 640x480
+2. Frames per second of the flow step of :func:`faceanalysis.flow.dense.face_flow` on 640x480
    video (stabilised crop, flow from the neutral frame, grid resampling), per method, with
    the default flow stabilisation (two flows per frame) and with head-frame stabilisation
    (one flow per frame); OpenCV on one thread.
 3. Recognition accuracy over the seven classes on synthetic sequences of unseen identities
-   with head motion, light change and noise (:func:`faceanalysis.recognition.
+   with head motion, light change and noise (:func:`faceanalysis.flow.recognition.
    evaluate_recognition`; 10 identities, 2 with ``--quick``), confusion matrix in the JSON.
-4. Flow validation on analysed synthetic sequences (:func:`faceanalysis.validation.
+4. Flow validation on analysed synthetic sequences (:func:`faceanalysis.evaluation.validation.
    evaluate_validation`): mean cosine agreement of the input flow with the resynthesis of
    the joint estimate, of the flow estimate, and of the flow estimate shuffled in time.
 """
@@ -32,8 +32,8 @@ NAME = "flow"
 
 
 def _epe_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.evaluation import STANDARD_SEQUENCES, SUITE_SEEDS_START, SuiteConfig
-    from faceanalysis.flow import FLOW_METHODS, compute_flow
+    from faceanalysis.evaluation.suite import STANDARD_SEQUENCES, SUITE_SEEDS_START, SuiteConfig
+    from faceanalysis.flow.dense import FLOW_METHODS, compute_flow
     from synth.render import synthesize
 
     cfg = SuiteConfig()
@@ -73,7 +73,7 @@ def _epe_figures(quick: bool) -> list[Figure]:
 
 
 def _fps_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.flow import FLOW_METHODS, FaceGrid, _FlowStep
+    from faceanalysis.flow.dense import FLOW_METHODS, FaceGrid, _FlowStep
     from synth.model import FaceModel
     from synth.render import Renderer, default_camera, paint_skin_texture
     from synth.render.camera import HeadPose
@@ -90,7 +90,7 @@ def _fps_figures(quick: bool) -> list[Figure]:
     img0 = cv2.cvtColor(r.render(v0).image, cv2.COLOR_RGB2BGR)
     img1 = cv2.cvtColor(r.render(v1, pose=HeadPose(roll=2.0, translation=(0.3, 0.1, 0))
                                  ).image, cv2.COLOR_RGB2BGR)
-    from faceanalysis.templates import _tracked_head
+    from faceanalysis.flow.templates import _tracked_head
 
     head = _tracked_head(cv2.cvtColor(img0, cv2.COLOR_BGR2RGB))   # trackers' head frame
     if head is None:
@@ -122,8 +122,8 @@ def _fps_figures(quick: bool) -> list[Figure]:
 
 
 def _recognition_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.recognition import evaluate_recognition
-    from faceanalysis.templates import default_templates
+    from faceanalysis.flow.recognition import evaluate_recognition
+    from faceanalysis.flow.templates import default_templates
 
     ids = range(100, 102) if quick else range(100, 110)
     t0 = time.perf_counter()
@@ -141,8 +141,8 @@ def _recognition_figures(quick: bool) -> list[Figure]:
 
 
 def _validation_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.templates import default_templates
-    from faceanalysis.validation import evaluate_validation
+    from faceanalysis.flow.templates import default_templates
+    from faceanalysis.evaluation.validation import evaluate_validation
 
     ids = range(101, 102) if quick else range(101, 104)
     exprs = ("happiness", "surprise") if quick else ("happiness", "surprise", "anger",

@@ -3,11 +3,11 @@ memory, contractions.csv writing and reading, AU derivation and the contractions
 
 Cases: a 640x480 MPEG-4 video made here (noise over a moving gradient, so the decoder
 has real work; quick: 150 frames, full: 900) read through
-:func:`faceanalysis.video.open_video` and through a bare ``cv2.VideoCapture.read`` loop
+:func:`faceanalysis.io.video.open_video` and through a bare ``cv2.VideoCapture.read`` loop
 (the peer: the figure shows what the layer's checks and timestamps cost); the peak
 Python-heap growth while streaming it (tracemalloc, in frames of 640x480x3 bytes); a
 contractions table of 54,000 rows (30 min at 30 fps; quick: 9,000) written with
-:func:`faceanalysis.table.write_contractions`, read back with validation, converted to
+:func:`faceanalysis.io.table.write_contractions`, read back with validation, converted to
 AU intensities, and plotted to PNG.
 """
 
@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _harness import Figure, median_time, ratio  # noqa: E402
 
-from faceanalysis.plotting import plot_contractions  # noqa: E402
-from faceanalysis.table import (  # noqa: E402
+from faceanalysis.viz.plots import plot_contractions  # noqa: E402
+from faceanalysis.io.table import (  # noqa: E402
     JAW,
     MUSCLES,
     au_intensities,
@@ -36,7 +36,7 @@ from faceanalysis.table import (  # noqa: E402
     read_contractions,
     write_contractions,
 )
-from faceanalysis.video import open_video  # noqa: E402
+from faceanalysis.io.video import open_video  # noqa: E402
 
 W, H = 640, 480
 

@@ -2,7 +2,7 @@
 
 A synthetic subject (identity 101, happiness, 30 frames at 256x256; 16 with ``--quick``) is
 rendered and analysed once; its estimated contraction series then drives the face model
-through :func:`faceanalysis.resynth.resynthesize`. The figure is the time per frame of
+through :func:`faceanalysis.resynthesis.pipeline.resynthesize`. The figure is the time per frame of
 setting the contractions, relaxing the lattice to equilibrium (warm-started from the
 previous frame, default tolerance) and rendering the frame, as frames/s (target: 100, i.e.
 real time at the analysis's own scale with room to spare), from the median wall time per
@@ -59,9 +59,9 @@ def run(quick: bool) -> list[Figure]:
     import cv2
     import pandas as pd
 
-    from faceanalysis.analysis import analyze
-    from faceanalysis.resynth import personalize, resynthesize
-    from faceanalysis.table import MUSCLES
+    from faceanalysis.analysis.pipeline import analyze
+    from faceanalysis.resynthesis.pipeline import personalize, resynthesize
+    from faceanalysis.io.table import MUSCLES
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 
@@ -123,7 +123,7 @@ def run(quick: bool) -> list[Figure]:
 
 
 def _round_trip_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.resynth import round_trip
+    from faceanalysis.resynthesis.pipeline import round_trip
 
     expressions = (("happiness", "surprise") if quick else
                    ("happiness", "sadness", "surprise", "fear", "anger", "disgust"))

@@ -15,7 +15,7 @@ __all__ = ["__version__", "FaceAnalysisError"]
 def __getattr__(name):
     """Lazy exports (importing them pulls in the face model and the renderer)."""
     if name == "resynthesize":
-        from faceanalysis.resynth import resynthesize
+        from faceanalysis.resynthesis.pipeline import resynthesize
 
         return resynthesize
     raise AttributeError(f"module 'faceanalysis' has no attribute {name!r}")

@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis._version import __version__
-from faceanalysis.outputs import atomic_path, write_text_atomic
+from faceanalysis.io.outputs import atomic_path, write_text_atomic
 
 __all__ = [
     "VIDEO_EXTENSIONS",
@@ -331,7 +331,7 @@ def is_complete(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
 
 def _default_task(path: Path, output: Path, **options):
     """The single-video analysis, imported in the worker when first needed."""
-    from faceanalysis.analysis import analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze_to_folder
 
     return analyze_to_folder(path, output, quiet=True, **options)
 
@@ -638,7 +638,7 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
         ``task(path, output_folder, **options)`` analyses one video into an existing,
         empty folder, writing at least ``contractions.csv``, ``analysis.json`` and
         ``contractions.png``; exceptions it raises mark the video as failed. Default:
-        :func:`faceanalysis.analysis.analyze_to_folder` (imported on the workers). It
+        :func:`faceanalysis.analysis.pipeline.analyze_to_folder` (imported on the workers). It
         must be importable or picklable by the workers.
     overwrite : bool, keyword-only
         Re-analyse every video, replacing finished results. Without it finished

@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from faceanalysis.cli._common import non_negative_int, positive_float
-from faceanalysis.video import MIN_FACE_SIZE, VideoSource, open_video
+from faceanalysis.io.video import MIN_FACE_SIZE, VideoSource, open_video
 
 
 def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:

@@ -14,7 +14,7 @@ HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)
 
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     """Options of the analysis itself (shared with ``batch``)."""
-    from faceanalysis.estimators import ESTIMATORS
+    from faceanalysis.estimation.estimators import ESTIMATORS
 
     group = parser.add_argument_group("analysis")
     group.add_argument("--estimator", choices=ESTIMATORS, default="joint",
@@ -62,7 +62,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.analysis import analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze_to_folder
 
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,

@@ -68,7 +68,7 @@ def analysis_options(args: argparse.Namespace) -> dict:
     """
     import inspect
 
-    from faceanalysis.analysis import analyze, analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze, analyze_to_folder
 
     defaults = {name: p.default for f in (analyze, analyze_to_folder)
                 for name, p in inspect.signature(f).parameters.items()

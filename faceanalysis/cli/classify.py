@@ -13,7 +13,7 @@ HELP = "name the expression (six primaries or neutral) of a video by flow templa
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.flow import FLOW_METHODS
+    from faceanalysis.flow.dense import FLOW_METHODS
 
     parser.description = (
         "Track the face, compute its flow from the neutral frame on the canonical face grid "
@@ -49,8 +49,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from faceanalysis.recognition import CLASSES, classify_video
-    from faceanalysis.templates import FlowTemplates
+    from faceanalysis.flow.recognition import CLASSES, classify_video
+    from faceanalysis.flow.templates import FlowTemplates
 
     if not args.video.exists():
         raise FileNotFoundError(f"{args.video}: no such file or folder")
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
                          method=args.method, fps=args.fps, start=args.start, end=args.end,
                          threshold=args.threshold)
     if args.output is not None:
-        from faceanalysis.outputs import write_text_atomic
+        from faceanalysis.io.outputs import write_text_atomic
 
         write_text_atomic(args.output, rec.table().to_csv(index=False, float_format="%.4f",
                                                           lineterminator="\n"))

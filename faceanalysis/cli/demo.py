@@ -31,7 +31,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.demo import run_demo
+    from faceanalysis.evaluation.demo import run_demo
 
     files = run_demo(args.output, expression=args.expression, frames=args.frames,
                      seed=args.seed, overwrite=args.overwrite, progress=not args.quiet)

@@ -53,13 +53,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis import evaluation
+    from faceanalysis.evaluation import suite as evaluation
 
     if args.suite and (args.truth or args.estimate):
         raise ValueError("--suite runs its own sequences; do not combine it with "
                          "--truth/--estimate")
     if args.suite == "ceiling":
-        from faceanalysis.ceiling import measurement_ceiling
+        from faceanalysis.evaluation.ceiling import measurement_ceiling
 
         if args.output is not None:
             raise ValueError("--suite ceiling writes nothing; it prints its table "

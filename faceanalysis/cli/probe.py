@@ -24,7 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.report import input_metadata
+    from faceanalysis.io.report import input_metadata
 
     with open_input(args, min_size=None) as source:
         info = input_metadata(source)

@@ -42,7 +42,7 @@ def _analysis_json_for(args: argparse.Namespace) -> Path | None:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.resynth import MESH_FORMATS, SHADINGS, VIEWS
+    from faceanalysis.resynthesis.pipeline import MESH_FORMATS, SHADINGS, VIEWS
 
     parser.description = (
         "Drive the physics-based face model with a contraction time series (the muscle "
@@ -94,8 +94,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.outputs import write_text_atomic
-    from faceanalysis.resynth import resynthesize
+    from faceanalysis.io.outputs import write_text_atomic
+    from faceanalysis.resynthesis.pipeline import resynthesize
 
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps must be positive, got {args.fps}")
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                                 + "\n")
     meta_path = _analysis_json_for(args) if "personalisation" in res.report else None
     if meta_path is not None:
-        from faceanalysis.report import write_analysis
+        from faceanalysis.io.report import write_analysis
 
         meta = json.loads(meta_path.read_text())
         meta["resynthesis"] = {"video": str(res.path.resolve()), **res.report["personalisation"]}

@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from faceanalysis.outputs import prepare_output_dir
-    from faceanalysis.templates import make_templates, personalize_from_table, write_templates
+    from faceanalysis.io.outputs import prepare_output_dir
+    from faceanalysis.flow.templates import make_templates, personalize_from_table, write_templates
 
     if args.subject is not None:
         csv = args.subject / "contractions.csv" if args.subject.is_dir() else args.subject
@@ -70,11 +70,11 @@ def run(args: argparse.Namespace) -> int:
     generic = make_templates(FaceModel.default(), **options)
     written = write_templates(generic, out, name="generic", previews=not args.no_previews)
     if args.subject is not None:
-        from faceanalysis.validation import _personal_model
+        from faceanalysis.evaluation.validation import _personal_model
 
         personal = _personal_model(csv.parent, FaceModel.default())
         if personal is not None:
-            # the face model warped to the subject in 3-D (faceanalysis.resynth.personalize)
+            # the face model warped to the subject in 3-D (faceanalysis.resynthesis.pipeline.personalize)
             pers = make_templates(personal, **options)
             pers.meta.update(personalised=True, personalisation="model")
         else:

@@ -13,7 +13,7 @@ HELP = "compare the optical flow of a video with that of its analysis's resynthe
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.flow import FLOW_METHODS
+    from faceanalysis.flow.dense import FLOW_METHODS
 
     parser.description = (
         "Compute the face flow of VIDEO (from its neutral frame, in the head frame, on the "
@@ -41,7 +41,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.validation import validate
+    from faceanalysis.evaluation.validation import validate
 
     if not args.video.exists():
         raise FileNotFoundError(f"{args.video}: no such file or folder")

@@ -3,7 +3,7 @@
 The real generic mesh (:func:`synth.mesh.generate_face_mesh`) moved by one smooth
 displacement field per observed muscle and a rigid jaw rotation: enough to render
 synthetic face videos with :func:`synth.render.sequence.synthesize` and to tabulate a
-fiducial response with :func:`faceanalysis.model_response.tabulate_response`. Not
+fiducial response with :func:`faceanalysis.estimation.model_response.tabulate_response`. Not
 physics: fields are Gaussian bumps around the landmark each muscle moves.
 """
 

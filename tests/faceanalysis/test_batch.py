@@ -407,7 +407,7 @@ def test_cli_passes_only_non_default_analysis_options(tmp_path, monkeypatch):
 def face_corpus(tmp_path_factory):
     """Two rendered face clips (same file name in two folders), a clip without a face and
     a corrupt file; plus the fiducial response of the face that rendered them."""
-    from faceanalysis.model_response import tabulate_response
+    from faceanalysis.estimation.model_response import tabulate_response
     from synth.render.sequence import synthesize, write_sequence
     from tests.faceanalysis._kinematic_face import KinematicFace
 
@@ -443,7 +443,7 @@ def face_corpus(tmp_path_factory):
 def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_path):
     # The analysis itself (tracking, calibration, estimation, files), with the fiducial
     # response of the face that rendered the clips passed in.
-    from faceanalysis.analysis import analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze_to_folder
 
     task = functools.partial(analyze_to_folder, response=face_corpus["response"])
     out = tmp_path / "out"
@@ -483,7 +483,7 @@ def test_default_task_is_the_analysis(face_corpus, tmp_path):
     except ImportError:
         pytest.skip("synth.FaceModel (the physics model) is not in synth yet; the default "
                     "analysis needs it for its response table")
-    from faceanalysis.analysis import analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze_to_folder
 
     video = face_corpus["good"][0]
     summary = run_batch([video], tmp_path / "out", workers=1)

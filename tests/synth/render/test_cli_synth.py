@@ -83,7 +83,7 @@ def test_synth_command_with_the_physics_model(tmp_path):
     meta = json.loads((out / "meta.json").read_text())
     assert meta["identity"]["shape"] is not None and meta["seed"] == 3
     # truth.csv is a valid contractions.csv for the analysis
-    from faceanalysis.table import read_contractions
+    from faceanalysis.io.table import read_contractions
 
     table = read_contractions(out / "truth.csv")
     assert len(table) == 3 and "AU01_r" in table.columns

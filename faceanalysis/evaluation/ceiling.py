@@ -1,0 +1,251 @@
+"""The accuracy ceiling of the fiducial estimators: estimation from perfect measurements.
+
+The closed-loop suite (:func:`faceanalysis.evaluation.suite.run_suite`) scores the whole
+pipeline: rendering, tracking, calibration and estimation together. This module
+takes tracking out. For every identity and sequence of a suite, the identity's own
+face model is equilibrated at the true contractions of every frame and the
+measurement points (:data:`faceanalysis.estimation.model_response.MEASUREMENT_POINTS`) are
+read off it exactly: orthographic, no camera, no head motion, no noise. The
+estimator then inverts them as it would a tracked video (calibration on the first
+frame, the generic face's response table by default).
+
+What is left is the error of the estimator itself: the response table's
+approximation of the model (pairwise interactions only), the difference between
+the subject's face and the generic one, and, above all, how far the points can tell
+the muscles apart. No tracker of these points can do better on average, so a
+per-muscle target that the ceiling misses needs more measurements (the ``flow``
+estimator's dense motion), not a better tracker.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.estimation.calibration import calibrate
+from faceanalysis.estimation.estimators import ESTIMATORS, estimate
+from faceanalysis.evaluation.suite import SuiteConfig, pool, public, script_kwargs
+from faceanalysis.estimation.response import FiducialResponse
+from faceanalysis.io.table import JAW, MUSCLES
+
+__all__ = ["perfect_measurements", "measurement_ceiling", "identifiability"]
+
+
+def perfect_measurements(model, contractions: pd.DataFrame, points) -> np.ndarray:
+    """Exact model-space positions of ``points`` on ``model`` at each row of ``contractions``.
+
+    Parameters
+    ----------
+    model : synth.FaceModel
+        The face (its state is reset afterwards).
+    contractions : DataFrame
+        One row per frame; the columns that name a muscle of the model or
+        ``jaw_rotation`` are applied (others are ignored).
+    points : sequence of str
+        Measurement point names (see :func:`faceanalysis.estimation.model_response.model_points`).
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        Orthographic x-y in cm (x = subject's left, y up).
+    """
+    from faceanalysis.estimation.model_response import equilibrium_points
+
+    controls = [c for c in contractions.columns if c in model.muscle_names or c == JAW]
+    if not controls:
+        raise ValueError("contractions has no column naming a muscle of the model or "
+                         f"{JAW!r}")
+    values = contractions[controls].to_numpy(float)
+    if not np.isfinite(values).all():
+        raise ValueError("contractions must be finite")
+    model.reset()
+    try:
+        # frames in order: each equilibrium starts from the last, which makes it cheap
+        return np.stack([equilibrium_points(model, controls, v, points) for v in values])
+    finally:
+        model.reset()
+
+
+def _displacements(points: np.ndarray, response: FiducialResponse) -> np.ndarray:
+    """Calibrate as an analysis does (first frame = neutral) and return model-space
+    displacements. The points go in as an image would (y down, one pixel per cm,
+    head frame at the origin): the calibration's affine map then absorbs the
+    difference between this face and the generic one exactly as on a video."""
+    image = points * np.array([1.0, -1.0])
+    heads = np.tile([0.0, 0.0, 1.0, 0.0], (len(points), 1))
+    cal = calibrate(image[0], heads[0], response.rest)
+    return cal.model_displacements(image, heads)
+
+
+def measurement_ceiling(config: SuiteConfig | None = None, *,
+                        estimators=("joint", "tw93"),
+                        response: FiducialResponse | None = None,
+                        own_response: bool = False, progress: bool = False) -> dict:
+    """Score the fiducial estimators on perfect measurements of the suite's faces.
+
+    Parameters
+    ----------
+    config : SuiteConfig, optional
+        Identities, frames and sequences (default: the standard suite's; rendering
+        options are not used).
+    estimators : sequence of {'joint', 'tw93'}, keyword-only
+    response : FiducialResponse, optional
+        Response table to invert (default: the generic face's, as an analysis uses).
+    own_response : bool, keyword-only
+        Invert each identity's own response table instead (tabulated here, about 10 s
+        per identity): what is left is the table's approximation and what the points
+        cannot tell apart.
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        Estimator name -> the pooled report of :func:`faceanalysis.evaluation.suite.pool`
+        (JSON-ready: ``controls`` name -> ``rmse``, ``r``, ``truth_max``,
+        ``estimate_max``; ``jaw_rmse_deg``; ``frames``; ``sequences``), with
+        ``points`` (the measurement points used). Fiducial errors are ``None``: the
+        points are exact.
+
+    Examples
+    --------
+    A smile with the mouth opened (AU 12 + 26) on one unseen face: from exact points
+    the jaw and the zygomaticus are followed within 0.1 degree and 0.02 (with the ridge
+    the ``joint`` fit had before, the zygomaticus's peak came out at 0.59 of 0.7):
+
+    >>> from faceanalysis.evaluation.suite import SuiteConfig
+    >>> rep = measurement_ceiling(SuiteConfig(identities=1, frames=10,
+    ...                                       sequences=(("au", "12:0.7,26:0.6"),)))
+    >>> round(rep["joint"]["jaw_rmse_deg"], 1)
+    0.1
+    >>> zyg = rep["joint"]["controls"]["zygomaticus_major_l"]
+    >>> round(zyg["r"], 3), zyg["truth_max"], round(zyg["rmse"], 2) <= 0.02
+    (1.0, 0.7, True)
+    """
+    from faceanalysis.estimation.model_response import model_response, tabulate_response
+    from synth.mesh import FaceShape
+    from synth.model import FaceModel
+    from synth.render.sequence import contraction_timeline
+
+    estimators = tuple(estimators)
+    choices = tuple(e for e in ESTIMATORS if e != "flow")
+    bad = [e for e in estimators if e not in choices]
+    if bad or not estimators:
+        raise ValueError(f"unknown estimators {bad} for the ceiling; choose from "
+                         f"{', '.join(choices)}")
+    if config is None:
+        config = SuiteConfig()
+    if response is None:
+        response = model_response()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config.identities * len(config.sequences), desc="ceiling",
+                   unit="seq", file=sys.stderr, leave=False)
+    reports: dict[str, list] = {e: [] for e in estimators}
+    try:
+        for i in range(config.identities):
+            seed = config.seed_start + i
+            model = FaceModel.build(FaceShape.random(seed))
+            table = response
+            if own_response:
+                table = tabulate_response(model, response.muscles,
+                                          n_levels=len(response.levels))
+            for kind, spec in config.sequences:
+                truth = contraction_timeline(list(model.muscle_names), frames=config.frames,
+                                             **script_kwargs(kind, spec))
+                disp = _displacements(perfect_measurements(model, truth, table.fiducials),
+                                      table)
+                for est in estimators:
+                    values = dict(zip(table.muscles, estimate(disp, table, estimator=est).T))
+                    pairs = {c: (truth[c].to_numpy(float), np.nan_to_num(values[c]))
+                             for c in (*MUSCLES, JAW) if c in truth and c in values}
+                    reports[est].append({"_pairs": pairs, "frames": len(truth),
+                                         "frames_compared": len(truth)})
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    out = {}
+    for est, reps in reports.items():
+        out[est] = public(pool(reps))
+        out[est].update(points=list(response.fiducials), own_response=bool(own_response))
+    return out
+
+
+def identifiability(response: FiducialResponse, *, level: float = 0.0) -> pd.DataFrame:
+    """How far the response's measurement points tell each control from the others.
+
+    The response is linearised at every control at ``level`` of its range. A control's
+    *signature* is the motion of all the points over its full range; the *independent*
+    share is the part of that signature that no combination of the other controls'
+    signatures reproduces (1: only this control moves the points so; 0: others can
+    stand in for it); the *standard error* is that of an unregularised least-squares fit
+    of all the controls at once per centimetre of measurement noise on each coordinate
+    (the diagonal of ``(J^T J)^-1``, square-rooted, in the control's own units). The
+    regularisation and the bounds of :func:`~faceanalysis.estimation.estimators.estimate_joint`
+    keep real estimates far below it, but only by leaning on the prior that muscles
+    rest: a control with a small independent share is read from the points only
+    together with the others.
+
+    Parameters
+    ----------
+    response : FiducialResponse
+    level : float, keyword-only
+        Where to linearise, as a fraction of each control's range, in [0, 1).
+
+    Returns
+    -------
+    DataFrame
+        Indexed by control: ``signature`` (cm), ``independent`` (0..1) and
+        ``standard_error`` (contraction units, radians for the jaw, per cm of noise),
+        best first.
+
+    Raises
+    ------
+    ValueError
+        If ``level`` is outside [0, 1).
+
+    Examples
+    --------
+    Two points moved by three controls, the third nearly the sum of the other two:
+
+    >>> full = np.array([[[1.0, 0.0], [0.0, 0.0]],             # a moves p right
+    ...                  [[0.0, 0.0], [1.0, 0.0]],             # b moves q right
+    ...                  [[1.0, 0.1], [1.0, 0.0]]])            # ab: both, p a little up
+    >>> disp = np.stack([np.zeros_like(full), full], axis=1)   # levels 0 and 1
+    >>> r = FiducialResponse(("a", "b", "ab"), ("p", "q"), np.zeros((2, 2)), disp,
+    ...                      np.ones(3), np.array([0.0, 1.0]))
+    >>> identifiability(r).round(2)  # doctest: +NORMALIZE_WHITESPACE
+             signature  independent  standard_error
+    control
+    ab            1.42         0.07           10.00
+    a             1.00         0.10           10.05
+    b             1.00         0.10           10.05
+
+    Each control is a tenth or less its own: 0.1 cm of noise on the points moves each
+    estimate by about 1 (its whole range) in a fit without a prior.
+    """
+    if not 0.0 <= level < 1.0:
+        raise ValueError(f"level must be in [0, 1), got {level}")
+    upper = np.asarray(response.upper, dtype=float)
+    jac = response.jacobian((level * upper)[None])[0] * upper           # (2P, M), cm
+    signature = np.linalg.norm(jac, axis=0)
+    # the part of each column the others leave unexplained; its norm is also
+    # 1 / sqrt((J^T J)^-1_mm), so the standard error needs no inverse of its own
+    own = np.empty(len(upper))
+    for m in range(len(upper)):
+        q, _ = np.linalg.qr(np.delete(jac, m, axis=1))
+        own[m] = np.linalg.norm(jac[:, m] - q @ (q.T @ jac[:, m]))
+    independent = np.divide(own, signature, out=np.zeros_like(own), where=signature > 0)
+    se = np.full(len(upper), np.inf)
+    told = independent > 1e-9
+    se[told] = upper[told] / own[told]
+    out = pd.DataFrame({"signature": signature, "independent": independent,
+                        "standard_error": se}, index=pd.Index(response.muscles, name="control"))
+    return out.sort_values("standard_error")
+

@@ -1,0 +1,335 @@
+"""Closed-loop evaluation: analyse synthetic video whose answer is known.
+
+The face model renders sequences from known contractions (:mod:`synth.render`);
+the analysis estimates them back; this module compares the two. :func:`compare`
+scores one analysis against one ground truth; :func:`run_suite` renders the
+standard suite (the six primary expressions and mixed action-unit scripts over
+several identities, with head motion, sensor noise and illumination change),
+analyses every sequence with each estimator and pools the scores.
+
+Scores (pooled over all tracked frames of all sequences):
+
+* per control: RMSE (contraction units; jaw in radians) and Pearson r;
+* jaw: RMSE in degrees;
+* fiducials: mean distance in pixels between tracked and projected fiducials.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.io.outputs import atomic_path, prepare_output_dir, write_text_atomic
+from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
+
+log = logging.getLogger(__name__)
+
+#: The standard suite: the six primary expressions and mixed action-unit scripts.
+STANDARD_SEQUENCES: tuple[tuple[str, str], ...] = (
+    ("expression", "happiness"), ("expression", "sadness"), ("expression", "surprise"),
+    ("expression", "fear"), ("expression", "anger"), ("expression", "disgust"),
+    ("au", "1:0.9,2:0.7"), ("au", "4:0.8,15:0.6"), ("au", "12:0.7,26:0.6"),
+    ("au", "9:0.8,2:0.5"), ("au", "15:0.9,1:0.5"),
+)
+
+#: Identity seeds of the suite; seed 0 is the generic face, which is left out so that
+#: the suite tests faces the response table was not made from.
+SUITE_SEEDS_START = 101
+
+
+def _load_table(source, name: str) -> pd.DataFrame:
+    if isinstance(source, pd.DataFrame):
+        return source
+    path = Path(source)
+    if path.is_dir():
+        path = path / name
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    return pd.read_csv(path)
+
+
+def compare(truth, estimate, *, controls=None) -> dict:
+    """Score an estimated contractions table against ground truth.
+
+    Parameters
+    ----------
+    truth : DataFrame or path
+        ``truth.csv`` of a synthetic sequence (or its folder).
+    estimate : DataFrame or path
+        ``contractions.csv`` of its analysis (or the analysis folder).
+    controls : sequence of str, optional
+        Controls to score (default: every muscle and the jaw present in both).
+
+    Returns
+    -------
+    dict
+        ``frames``, ``frames_compared``, ``controls`` (name -> rmse, r, truth_max),
+        ``jaw_rmse_deg``, ``fiducial_error_px`` (mean), ``fiducial_error_by_point``, and the
+        aligned arrays under ``_pairs`` (for pooling; not JSON).
+    """
+    t = _load_table(truth, "truth.csv")
+    e = _load_table(estimate, "contractions.csv")
+    for df, what in ((t, "truth"), (e, "estimate")):
+        if "frame" not in df.columns:
+            raise ValueError(f"{what} table has no 'frame' column")
+    merged = t.merge(e, on="frame", suffixes=("_t", "_e"))
+    if merged.empty:
+        raise ValueError("truth and estimate share no frame numbers")
+    ok = merged["success_e"].to_numpy() == 1 if "success_e" in merged else \
+        np.ones(len(merged), bool)
+    if controls is None:
+        controls = [c for c in (*MUSCLES, JAW) if c in t.columns and c in e.columns]
+    pairs = {c: (merged[f"{c}_t"].to_numpy(float)[ok], merged[f"{c}_e"].to_numpy(float)[ok])
+             for c in controls}
+    fid_t = np.stack([merged[[f"fid_{n}_x_t", f"fid_{n}_y_t"]].to_numpy(float)
+                      for n in FIDUCIALS], axis=1)[ok]
+    fid_e = np.stack([merged[[f"fid_{n}_x_e", f"fid_{n}_y_e"]].to_numpy(float)
+                      for n in FIDUCIALS], axis=1)[ok]
+    visible = np.ones(fid_t.shape[:2], bool)
+    vis_cols = [f"fid_{n}_visible" for n in FIDUCIALS]
+    if all(c in merged.columns for c in vis_cols):
+        visible = merged[vis_cols].to_numpy()[ok].astype(bool)
+    dist = np.hypot(*(fid_e - fid_t).transpose(2, 0, 1))
+    pairs["_fiducials"] = (dist, visible)
+    report = _scores(pairs)
+    report.update(frames=int(len(merged)), frames_compared=int(ok.sum()))
+    report["_pairs"] = pairs
+    return report
+
+
+def _pearson(a: np.ndarray, b: np.ndarray) -> float | None:
+    if a.size < 3 or np.std(a) < 1e-9 or np.std(b) < 1e-9:
+        return None
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+def _scores(pairs: dict) -> dict:
+    controls = {}
+    for name, (t, e) in pairs.items():
+        if name.startswith("_"):
+            continue
+        good = np.isfinite(t) & np.isfinite(e)
+        t, e = t[good], e[good]
+        controls[name] = {
+            "rmse": float(np.sqrt(np.mean((t - e) ** 2))) if t.size else None,
+            "r": _pearson(t, e),
+            "truth_max": float(np.max(t)) if t.size else None,
+            "estimate_max": float(np.max(e)) if e.size else None,
+        }
+    out = {"controls": controls}
+    jaw = controls.get(JAW)
+    out["jaw_rmse_deg"] = None if not jaw or jaw["rmse"] is None else float(
+        np.degrees(jaw["rmse"]))
+    if "_fiducials" not in pairs:          # exact measurements (faceanalysis.evaluation.ceiling)
+        out["fiducial_error_px"] = None
+        out["fiducial_error_by_point"] = None
+        return out
+    dist, visible = pairs["_fiducials"]
+    valid = visible & np.isfinite(dist)
+    out["fiducial_error_px"] = float(dist[valid].mean()) if valid.any() else None
+    out["fiducial_error_by_point"] = {
+        n: (float(dist[:, j][valid[:, j]].mean()) if valid[:, j].any() else None)
+        for j, n in enumerate(FIDUCIALS)}
+    return out
+
+
+def pool(reports: list[dict]) -> dict:
+    """Pool several :func:`compare` reports (all frames of all sequences together)."""
+    if not reports:
+        raise ValueError("nothing to pool")
+    names = [k for k in reports[0]["_pairs"] if not k.startswith("_")]
+    pairs = {n: (np.concatenate([r["_pairs"][n][0] for r in reports]),
+                 np.concatenate([r["_pairs"][n][1] for r in reports])) for n in names}
+    if all("_fiducials" in r["_pairs"] for r in reports):
+        pairs["_fiducials"] = tuple(np.concatenate([r["_pairs"]["_fiducials"][k]
+                                                    for r in reports]) for k in (0, 1))
+    out = _scores(pairs)
+    out["frames"] = int(sum(r["frames"] for r in reports))
+    out["frames_compared"] = int(sum(r["frames_compared"] for r in reports))
+    out["sequences"] = len(reports)
+    return out
+
+
+def public(report: dict) -> dict:
+    """The report without its private arrays (JSON-ready)."""
+    return {k: v for k, v in report.items() if not k.startswith("_")}
+
+
+def format_table(reports: dict[str, dict], *, controls=None) -> str:
+    """Markdown table of per-control RMSE and r, one column pair per estimator."""
+    names = list(reports)
+    first = reports[names[0]]["controls"]
+    controls = controls or [c for c in first if any(
+        (reports[n]["controls"].get(c, {}).get("truth_max") or 0) > 1e-6
+        or (reports[n]["controls"].get(c, {}).get("estimate_max") or 0) > 1e-6 for n in names)]
+    head = "| control | " + " | ".join(f"{n} RMSE | {n} r" for n in names) + " |"
+    lines = [head, "|---|" + "---:|---:|" * len(names)]
+    for c in controls:
+        cells = []
+        for n in names:
+            s = reports[n]["controls"].get(c, {})
+            rmse, r = s.get("rmse"), s.get("r")
+            cells.append("-" if rmse is None else f"{rmse:.3f}")
+            cells.append("-" if r is None else f"{r:.3f}")
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    for label, key in (("jaw error (deg)", "jaw_rmse_deg"),
+                       ("fiducial error (px)", "fiducial_error_px")):
+        cells = " | ".join(f"{_fmt(reports[n].get(key))} | " for n in names)
+        lines.append(f"| {label} | {cells}|")
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    return "-" if v is None else f"{v:.3f}"
+
+
+def script_kwargs(kind: str, spec: str) -> dict:
+    """Keyword arguments of the renderer's timeline for one entry of a suite's sequences
+    (``("expression", name)`` or ``("au", script)``)."""
+    return {"expression": spec} if kind == "expression" else {"au": spec}
+
+
+@dataclass(frozen=True)
+class SuiteConfig:
+    """What the standard suite renders."""
+
+    identities: int = 10
+    frames: int = 30
+    size: int = 256
+    head_motion: float = 0.3
+    noise: float = 2.0
+    illumination: float = 0.3
+    sequences: tuple[tuple[str, str], ...] = STANDARD_SEQUENCES
+    seed_start: int = SUITE_SEEDS_START
+
+    def __post_init__(self):
+        if self.identities < 1 or self.frames < 3 or self.size < 64:
+            raise ValueError("the suite needs identities >= 1, frames >= 3 and size >= 64")
+
+
+def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
+              estimators=("joint", "tw93", "flow"), overwrite: bool = False,
+              progress: bool = False, keep_videos: bool = True) -> dict:
+    """Render the standard suite, analyse it with each estimator and write the report.
+
+    Writes into ``output``: ``sequences/<id>/`` (video + ground truth + one
+    ``contractions_<estimator>.csv`` each, unless ``keep_videos`` is false),
+    ``report.json``, ``report.md`` and ``report.png``.
+
+    Returns
+    -------
+    dict
+        The report: per estimator, pooled scores; per sequence, the joint scores.
+    """
+    from faceanalysis.analysis.pipeline import analyze, reestimate
+    from synth.render.sequence import render_sequence
+
+    out = prepare_output_dir(output, overwrite=overwrite)
+    seq_dir = out / "sequences"
+    per_est: dict[str, list[dict]] = {e: [] for e in estimators}
+    sequences = []
+    jobs = [(i, kind, spec) for i in range(config.identities) for kind, spec in config.sequences]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), desc="suite", unit="seq", file=sys.stderr, leave=False)
+    t0 = time.perf_counter()
+    failures = []
+    for i, kind, spec in jobs:
+        seed = config.seed_start + i
+        label = spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(
+            ",", "_")
+        d = seq_dir / f"id{seed:03d}_{label}"
+        kwargs = script_kwargs(kind, spec)
+        render_sequence(d, overwrite=True, frames=config.frames, size=config.size, seed=seed,
+                        head_motion=config.head_motion, noise=config.noise,
+                        illumination=config.illumination, flow=False, **kwargs)
+        video = next(p for p in d.iterdir() if p.stem == "video")
+        truth = pd.read_csv(d / "truth.csv")
+        entry = {"sequence": d.name, "identity": seed, "kind": kind, "spec": spec}
+        try:
+            base = analyze(video)
+        except (ValueError, RuntimeError) as exc:
+            failures.append({**entry, "error": str(exc)})
+            log.warning("suite: %s failed: %s", d.name, exc)
+            if bar is not None:
+                bar.update(1)
+            continue
+        for est in estimators:
+            if est == base.metadata["parameters"]["estimator"]:
+                a = base
+            elif est == "flow":
+                from faceanalysis.estimation.flow import reestimate_flow
+
+                a = reestimate_flow(base, video)
+            else:
+                a = reestimate(base, est)
+            if keep_videos:
+                from faceanalysis.io.table import write_contractions
+
+                write_contractions(a.table, d / f"contractions_{est}.csv")
+            rep = compare(truth, a.table)
+            per_est[est].append(rep)
+            entry[est] = {k: v for k, v in public(rep).items() if k != "controls"}
+        sequences.append(entry)
+        if not keep_videos:
+            video.unlink()
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    if not any(per_est.values()):
+        raise RuntimeError("every sequence of the suite failed; see the log")
+    pooled = {e: pool(r) for e, r in per_est.items() if r}
+    report = {
+        "suite": {**{k: v for k, v in config.__dict__.items() if k != "sequences"},
+                  "sequences": [list(s) for s in config.sequences]},
+        "estimators": {e: public(p) for e, p in pooled.items()},
+        "sequences": sequences,
+        "failures": failures,
+        "elapsed_s": time.perf_counter() - t0,
+    }
+    write_text_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
+    write_text_atomic(out / "report.md", "# Closed-loop evaluation\n\n"
+                      + format_table(pooled) + "\n")
+    plot_report(pooled, out / "report.png")
+    return report
+
+
+def plot_report(pooled: dict[str, dict], path) -> Path:
+    """Bar chart of per-control RMSE and r for each estimator."""
+    from matplotlib.figure import Figure
+
+    names = list(pooled)
+    controls = [c for c in pooled[names[0]]["controls"]
+                if (pooled[names[0]]["controls"][c].get("truth_max") or 0) > 1e-6]
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    axes = fig.subplots(2, 1, sharex=True)
+    x = np.arange(len(controls))
+    width = 0.8 / max(len(names), 1)
+    for k, n in enumerate(names):
+        rm = [pooled[n]["controls"][c]["rmse"] or 0 for c in controls]
+        rr = [pooled[n]["controls"][c]["r"] or 0 for c in controls]
+        axes[0].bar(x + k * width, rm, width, label=n)
+        axes[1].bar(x + k * width, rr, width, label=n)
+    axes[0].axhline(0.05, color="k", lw=0.8, ls="--")
+    axes[1].axhline(0.95, color="k", lw=0.8, ls="--")
+    axes[0].set_ylabel("RMSE")
+    axes[1].set_ylabel("Pearson r")
+    axes[1].set_ylim(0, 1.02)
+    axes[1].set_xticks(x + width * (len(names) - 1) / 2, controls, rotation=60, ha="right",
+                       fontsize=8)
+    axes[0].legend()
+    axes[0].set_title("Closed-loop evaluation on the synthetic suite")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=150)
+    return Path(path)

@@ -1,0 +1,283 @@
+"""``analysis.json``: what was analysed, how, with which software, and how well it went.
+
+:func:`analysis_metadata` builds the content (plain JSON types only),
+:func:`write_analysis` writes it atomically and :func:`read_analysis` reads it back.
+The quality summary (:func:`quality_summary`) is computed from the contractions
+table itself, so it always agrees with ``contractions.csv``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.io.outputs import write_text_atomic
+
+__all__ = [
+    "FORMAT",
+    "analysis_metadata",
+    "input_metadata",
+    "quality_summary",
+    "read_analysis",
+    "write_analysis",
+]
+
+#: Identifies the layout of ``analysis.json``; bumped when keys change meaning.
+FORMAT = "faceanalysis.analysis.pipeline/1"
+
+#: Longest list of lost-frame ranges kept in the summary (the count is always exact).
+MAX_LOST_RANGES = 1000
+
+
+def _jsonable(value, key: str = "value"):
+    """Convert numpy/pandas/path values to plain JSON types; NaN and inf become None."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, os.PathLike):
+        return str(value)
+    if isinstance(value, np.dtype):
+        return str(value)
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v, f"{key}.{k}") for k, v in value.items()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        # e.g. trackers.SnakeParams passed in tracker_options
+        return _jsonable(dataclasses.asdict(value), key)
+    if isinstance(value, np.ndarray):
+        return [_jsonable(v, key) for v in value.tolist()]
+    if isinstance(value, (list, tuple, set, frozenset)):
+        items = sorted(value) if isinstance(value, (set, frozenset)) else value
+        return [_jsonable(v, key) for v in items]
+    raise ValueError(f"{key}: cannot store a {type(value).__name__} in analysis.json")
+
+
+def _ranges(frames: np.ndarray) -> list[list[int]]:
+    """Group sorted frame numbers into inclusive ``[first, last]`` runs of consecutive ones."""
+    if frames.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(frames) != 1)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [frames.size - 1]])
+    return [[int(frames[s]), int(frames[e])] for s, e in zip(starts, ends)]
+
+
+def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
+    """How many frames were tracked and lost, and how confident the tracking was.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Contractions table with ``frame``, ``success`` and (optionally) ``confidence``.
+    frames_missing : int, keyword-only
+        Frames that are not rows of ``table`` because the decoder never delivered
+        them (the missing tail of a truncated file); added to ``frames_lost``.
+        Frames that failed to decode mid-stream are rows with ``success == 0``
+        and are counted through ``table``.
+
+    Returns
+    -------
+    dict
+        ``first_frame`` and ``last_frame`` (the rows' frame numbers),
+        ``frames_total`` (rows + ``frames_missing``), ``frames_tracked``,
+        ``frames_lost`` (including ``frames_missing``), ``lost_fraction``,
+        ``lost_ranges`` (inclusive ``[first, last]`` frame numbers of lost rows, at
+        most 1000 of them), ``lost_ranges_truncated``, ``frames_missing``,
+        ``mean_confidence`` and
+        ``min_confidence`` over tracked frames (None when nothing was tracked).
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> t = pd.DataFrame({"frame": [0, 1, 2, 3, 4, 5], "success": [1, 0, 0, 1, 0, 1],
+    ...                   "confidence": [0.9, 0.0, 0.0, 0.7, 0.1, 0.8]})
+    >>> q = quality_summary(t)
+    >>> q["frames_tracked"], q["frames_lost"], q["lost_ranges"], round(q["mean_confidence"], 2)
+    (3, 3, [[1, 2], [4, 4]], 0.8)
+    """
+    for column in ("frame", "success"):
+        if column not in table:
+            raise ValueError(f"table has no '{column}' column")
+    if isinstance(frames_missing, bool) or not isinstance(frames_missing, (int, np.integer)) \
+            or frames_missing < 0:
+        raise ValueError(f"frames_missing must be a non-negative integer, got {frames_missing!r}")
+    success = pd.to_numeric(table["success"], errors="coerce").to_numpy(float) > 0
+    frames = pd.to_numeric(table["frame"], errors="coerce").to_numpy(float)
+    lost_frames = np.sort(frames[~success].astype(np.int64))
+    ranges = _ranges(lost_frames)
+    n_total = int(len(table))
+    n_tracked = int(success.sum())
+    n_lost = n_total - n_tracked + int(frames_missing)
+    mean_conf = min_conf = None
+    if "confidence" in table and n_tracked:
+        conf = pd.to_numeric(table["confidence"], errors="coerce").to_numpy(float)[success]
+        conf = conf[np.isfinite(conf)]
+        if conf.size:
+            mean_conf, min_conf = float(conf.mean()), float(conf.min())
+    denominator = n_total + int(frames_missing)
+    finite = frames[np.isfinite(frames)]
+    return {
+        "first_frame": int(finite.min()) if finite.size else None,
+        "last_frame": int(finite.max()) if finite.size else None,
+        "frames_total": denominator,
+        "frames_tracked": n_tracked,
+        "frames_lost": n_lost,
+        "lost_fraction": (n_lost / denominator) if denominator else None,
+        "lost_ranges": ranges[:MAX_LOST_RANGES],
+        "lost_ranges_truncated": len(ranges) > MAX_LOST_RANGES,
+        "frames_missing": int(frames_missing),
+        "mean_confidence": mean_conf,
+        "min_confidence": min_conf,
+    }
+
+
+def input_metadata(source) -> dict:
+    """Describe an input: a :class:`faceanalysis.io.video.VideoSource` or a plain mapping.
+
+    A mapping is copied as is (it must be JSON-compatible); a ``VideoSource``
+    gives ``path`` (absolute), ``kind``, ``size`` ``[width, height]``, ``fps``,
+    ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``
+    None = to the end), ``dtype``, ``channels``, ``frames_undecodable`` and
+    ``missing_tail``.
+    """
+    if isinstance(source, Mapping):
+        return dict(source)
+    required = ("path", "kind", "size", "fps", "fps_origin", "frame_count", "start", "end")
+    missing = [name for name in required if not hasattr(source, name)]
+    if missing:
+        raise ValueError(f"input description lacks {', '.join(missing)}")
+    return {
+        "path": str(Path(source.path).resolve()),
+        "kind": source.kind,
+        "size": list(source.size),
+        "fps": source.fps,
+        "fps_origin": source.fps_origin,
+        "frame_count": source.frame_count,
+        "frame_range": [source.start, source.end],
+        "dtype": str(getattr(source, "dtype", "")) or None,
+        "channels": getattr(source, "channels", None),
+        "frames_undecodable": getattr(source, "n_failed", 0),
+        "missing_tail": getattr(source, "missing_tail", 0),
+    }
+
+
+def analysis_metadata(source, table: pd.DataFrame | None = None, *,
+                      parameters: Mapping | None = None,
+                      versions: Mapping[str, str | None] | None = None,
+                      command: Sequence[str] | None = None,
+                      elapsed_s: float | None = None,
+                      extra: Mapping | None = None) -> dict:
+    """Build the content of ``analysis.json``.
+
+    Parameters
+    ----------
+    source : VideoSource or mapping
+        The input (see :func:`input_metadata`).
+    table : DataFrame, optional
+        The contractions table; gives the ``quality`` section. The missing tail
+        of a truncated video (``source.missing_tail``) counts as lost.
+    parameters : mapping, optional
+        The analysis parameters (tracker, estimator, calibration settings...).
+    versions : mapping, optional
+        Software versions; :func:`faceanalysis.cli.info.versions` by default.
+    command : sequence of str, optional
+        The command line, if run from one.
+    elapsed_s : float, optional
+        Wall-clock duration of the analysis.
+    extra : mapping, optional
+        Further top-level sections (e.g. calibration results); may not replace
+        the standard keys.
+
+    Returns
+    -------
+    dict
+        Plain JSON types only: ``format``, ``created`` (UTC, ISO 8601), ``input``,
+        ``parameters``, ``versions``, ``quality`` (None without ``table``), and
+        ``command`` / ``elapsed_s`` when given.
+
+    Raises
+    ------
+    ValueError
+        If a value cannot be stored in JSON (the message names its key) or
+        ``extra`` collides with a standard key.
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> t = pd.DataFrame({"frame": [0, 1, 2], "success": [1, 1, 0], "confidence": [1, .8, 0]})
+    >>> meta = analysis_metadata({"path": "clip.mp4", "fps": 30.0}, t,
+    ...                          parameters={"estimator": "joint"}, versions={"faceanalysis": "x"})
+    >>> meta["quality"]["frames_lost"], meta["parameters"]["estimator"]
+    (1, 'joint')
+    """
+    if versions is None:
+        from faceanalysis.cli.info import versions as _versions
+
+        versions = _versions()
+    info = input_metadata(source)
+    missing = int(info.get("missing_tail") or 0)
+    meta = {
+        "format": FORMAT,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "input": info,
+        "parameters": dict(parameters or {}),
+        "versions": dict(versions),
+        "quality": (quality_summary(table, frames_missing=missing)
+                    if table is not None else None),
+    }
+    if command is not None:
+        meta["command"] = list(command)
+    if elapsed_s is not None:
+        meta["elapsed_s"] = float(elapsed_s)
+    for key, value in (extra or {}).items():
+        if key in meta:
+            raise ValueError(f"extra section {key!r} would replace a standard key")
+        meta[key] = value
+    return {key: _jsonable(value, key) for key, value in meta.items()}
+
+
+def write_analysis(metadata: Mapping, path: str | os.PathLike) -> Path:
+    """Write ``metadata`` as indented JSON, atomically; returns the path.
+
+    Raises
+    ------
+    ValueError
+        If a value cannot be stored in JSON (the message names its key).
+    """
+    data = _jsonable(metadata, "analysis")
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    return write_text_atomic(path, text)
+
+
+def read_analysis(path: str | os.PathLike) -> dict:
+    """Read an ``analysis.json`` written by :func:`write_analysis`.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If it is not JSON, not an object, or of an unknown format.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{path}: not an analysis.json file (format {FORMAT} expected)")
+    return data

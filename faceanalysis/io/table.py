@@ -1,0 +1,395 @@
+"""The ``contractions.csv`` table: column names, writing, reading and validation.
+
+One row per frame, columns in this fixed order (see DESIGN.md):
+
+``frame, timestamp, success, confidence``
+    frame number (0-based, in the input), seconds, 1 if the face was tracked
+    in this frame else 0, tracking confidence in [0, 1];
+``head_x, head_y, head_scale, head_roll``
+    head reference frame in the image, as the trackers measure it
+    (``trackers.fiducials.HeadFrame``): origin (pixels, x right, y down), reference
+    length (pixels) and roll (radians; the head's x axis, toward the subject's left,
+    points along ``(cos roll, sin roll)`` in image coordinates);
+``fid_<name>_x, fid_<name>_y``
+    the 11 fiducial points of :data:`FIDUCIALS` in image pixels;
+one column per muscle of :data:`MUSCLES`
+    contraction in [0, 1];
+``jaw_rotation``
+    radians, positive opens the mouth;
+``AU01_r`` ... ``AU27_r``
+    FACS action-unit intensities in [0, 5] (OpenFace-style names), derived from
+    the muscles by :func:`au_intensities` (through :func:`synth.facs.muscles_to_aus`).
+
+Values that are unknown (a lost frame, an action unit without a muscle mapping)
+are empty cells, read back as NaN.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.io.outputs import atomic_path
+
+__all__ = [
+    "AU_COLUMNS",
+    "AU_NUMBERS",
+    "FIDUCIALS",
+    "FIDUCIAL_COLUMNS",
+    "FRAME_COLUMNS",
+    "HEAD_COLUMNS",
+    "JAW",
+    "MUSCLES",
+    "MUSCLE_BASES",
+    "au_intensities",
+    "contraction_columns",
+    "empty_table",
+    "read_contractions",
+    "with_au_columns",
+    "write_contractions",
+]
+
+#: The 11 fiducial points of 004 section V-D, ``_l`` = subject's left.
+FIDUCIALS: tuple[str, ...] = (
+    "brow_inner_l", "brow_mid_l", "brow_outer_l",
+    "brow_inner_r", "brow_mid_r", "brow_outer_r",
+    "mouth_corner_l", "mouth_corner_r",
+    "furrow_top_l", "furrow_top_r",
+    "chin",
+)
+
+#: Paired muscles, without their ``_l``/``_r`` suffix, in DESIGN.md order.
+MUSCLE_BASES: tuple[str, ...] = (
+    "frontalis_inner", "frontalis_major", "frontalis_outer", "corrugator",
+    "zygomaticus_major", "zygomaticus_minor", "levator_labii_nasi", "levator_labii",
+    "depressor_anguli", "depressor_labii", "mentalis", "buccinator", "risorius",
+)
+
+#: Every muscle column: each pair left then right, then the sphincters.
+MUSCLES: tuple[str, ...] = tuple(
+    f"{base}_{side}" for base in MUSCLE_BASES for side in ("l", "r")
+) + ("orbicularis_oris", "orbicularis_oculi_l", "orbicularis_oculi_r")
+
+#: Jaw rotation column (radians), written after the muscles.
+JAW = "jaw_rotation"
+
+#: Per-frame bookkeeping columns.
+FRAME_COLUMNS: tuple[str, ...] = ("frame", "timestamp", "success", "confidence")
+
+#: Head reference frame columns.
+HEAD_COLUMNS: tuple[str, ...] = ("head_x", "head_y", "head_scale", "head_roll")
+
+#: ``fid_<name>_x``, ``fid_<name>_y`` for every fiducial.
+FIDUCIAL_COLUMNS: tuple[str, ...] = tuple(
+    f"fid_{name}_{axis}" for name in FIDUCIALS for axis in ("x", "y"))
+
+#: FACS action units reported, in column order.
+AU_NUMBERS: tuple[int, ...] = (1, 2, 4, 6, 9, 10, 12, 14, 15, 16, 17, 20, 23, 25, 26, 27)
+
+#: ``AU01_r`` ... intensities in [0, 5].
+AU_COLUMNS: tuple[str, ...] = tuple(f"AU{n:02d}_r" for n in AU_NUMBERS)
+
+# Decimals written per column: pixels to 1/1000, seconds to the microsecond,
+# contractions and radians to 1e-6, AU intensities and confidence to 1e-4.
+_DECIMALS: dict[str, int] = {
+    "timestamp": 6, "confidence": 4,
+    **{c: 3 for c in ("head_x", "head_y", "head_scale")},
+    "head_roll": 6,
+    **{c: 3 for c in FIDUCIAL_COLUMNS},
+    **{c: 6 for c in MUSCLES},
+    JAW: 6,
+    **{c: 4 for c in AU_COLUMNS},
+}
+_INTEGER_COLUMNS = ("frame", "success")
+_RANGES: dict[str, tuple[float, float]] = {
+    "confidence": (0.0, 1.0), **{m: (0.0, 1.0) for m in MUSCLES},
+    **{a: (0.0, 5.0) for a in AU_COLUMNS},
+}
+
+
+def contraction_columns() -> list[str]:
+    """All columns of ``contractions.csv``, in file order.
+
+    Examples
+    --------
+    >>> cols = contraction_columns()
+    >>> cols[:5], len(cols)
+    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 76)
+    """
+    return [*FRAME_COLUMNS, *HEAD_COLUMNS, *FIDUCIAL_COLUMNS, *MUSCLES, JAW, *AU_COLUMNS]
+
+
+def empty_table(n: int, *, frames: Sequence[int] | None = None,
+                timestamps: Sequence[float] | None = None) -> pd.DataFrame:
+    """A table of ``n`` lost frames to be filled in by the pipeline.
+
+    Parameters
+    ----------
+    n : int
+        Number of rows.
+    frames : sequence of int, optional
+        Frame numbers; ``0 .. n-1`` by default.
+    timestamps : sequence of float, optional
+        Seconds; NaN by default.
+
+    Returns
+    -------
+    DataFrame
+        Every column of :func:`contraction_columns`; ``success`` 0, every other
+        measurement NaN.
+
+    Examples
+    --------
+    >>> t = empty_table(3)
+    >>> t["frame"].tolist(), int(t["success"].sum()), bool(t["zygomaticus_major_l"].isna().all())
+    ([0, 1, 2], 0, True)
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"n must be a non-negative integer, got {n!r}")
+    frame = np.arange(n) if frames is None else np.asarray(frames, dtype=np.int64)
+    if frame.shape != (n,):
+        raise ValueError(f"frames has {frame.size} entries, expected {n}")
+    data: dict[str, np.ndarray] = {c: np.full(n, np.nan) for c in contraction_columns()}
+    data["frame"] = frame.astype(np.int64)
+    data["success"] = np.zeros(n, dtype=np.int64)
+    if timestamps is not None:
+        ts = np.asarray(timestamps, dtype=float)
+        if ts.shape != (n,):
+            raise ValueError(f"timestamps has {ts.size} entries, expected {n}")
+        data["timestamp"] = ts
+    return pd.DataFrame(data, columns=contraction_columns())
+
+
+def au_intensities(contractions: pd.DataFrame) -> pd.DataFrame:
+    """FACS action-unit intensities (0..5) for every frame of a contractions table.
+
+    An adapter to :func:`synth.facs.muscles_to_aus` (the model's own inverse of
+    its action-unit-to-muscle table): jaw action units (25, 26, 27) come from
+    ``jaw_rotation``, the others from a bounded least-squares fit of the muscle
+    contractions; intensities are then put on the 0..5 scale of ``AUxx_r``.
+
+    Parameters
+    ----------
+    contractions : DataFrame
+        Columns named like :data:`MUSCLES` and ``jaw_rotation``; missing columns
+        count as 0, other columns are ignored. Not modified.
+
+    Returns
+    -------
+    DataFrame
+        The :data:`AU_COLUMNS`, same index as ``contractions``; NaN for frames with
+        a NaN muscle or jaw value (lost frames).
+
+    Raises
+    ------
+    ValueError
+        If a muscle or jaw value is infinite.
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> table = pd.DataFrame({"zygomaticus_major_l": [0.0, 0.4, float("nan")],
+    ...                       "zygomaticus_major_r": [0.0, 0.4, float("nan")]})
+    >>> au_intensities(table)["AU12_r"].round(3).tolist()
+    [0.0, 2.0, nan]
+    """
+    from synth.facs import muscles_to_aus
+
+    columns = [c for c in (*MUSCLES, JAW) if c in contractions.columns]
+    values = contractions[columns].apply(pd.to_numeric, errors="coerce").astype(float)
+    if np.isinf(values.to_numpy()).any():
+        raise ValueError("contractions hold infinite values; cannot derive action units")
+    valid = values.notna().all(axis=1).to_numpy()
+    out = pd.DataFrame(np.nan, index=contractions.index, columns=list(AU_COLUMNS))
+    if valid.any():
+        est = muscles_to_aus(values.loc[valid], aus=AU_NUMBERS)
+        for n in AU_NUMBERS:
+            out.loc[valid, f"AU{n:02d}_r"] = 5.0 * est[f"AU{n:02d}"].to_numpy() + 0.0
+    return out
+
+
+def with_au_columns(table: pd.DataFrame) -> pd.DataFrame:
+    """A copy of ``table`` with its ``AUxx_r`` columns computed by :func:`au_intensities`."""
+    out = table.copy()
+    out[list(AU_COLUMNS)] = au_intensities(table)
+    return out
+
+
+def _check_frame(df: pd.DataFrame, path) -> None:
+    missing = [c for c in contraction_columns() if c not in df.columns]
+    if missing:
+        shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6
+                                          else "")
+        raise ValueError(f"{path}: missing columns {shown}")
+
+
+def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
+    """Write ``df`` as ``contractions.csv``, atomically, in the fixed column order.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Must hold every column of :func:`contraction_columns`; further columns
+        are written after them in their own order. Not modified.
+    path : path-like
+        Target file.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        If columns are missing, or values are invalid (see :func:`read_contractions`).
+
+    Notes
+    -----
+    Floats are rounded per column (pixels to 3 decimals, contractions, radians
+    and seconds to 6, AU intensities and confidence to 4) and written as the
+    shortest decimal that reads back as that value; NaN is an empty cell. The file
+    appears only when complete.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "contractions.csv"
+    >>> t = empty_table(2, timestamps=[0.0, 0.04])
+    >>> t.loc[1, ["success", "confidence", "zygomaticus_major_l"]] = [1, 0.9, 0.25]
+    >>> _ = write_contractions(t, path)
+    >>> read_contractions(path).loc[1, "zygomaticus_major_l"]
+    np.float64(0.25)
+    """
+    path = Path(path)
+    _check_frame(df, path)
+    _validate(df, path)
+    columns = contraction_columns()
+    extra = [c for c in df.columns if c not in set(columns)]
+    out = {}
+    for column in columns + extra:
+        if column in _INTEGER_COLUMNS:
+            out[column] = pd.to_numeric(df[column]).astype(np.int64)
+        elif column in _DECIMALS:
+            values = pd.to_numeric(df[column]).astype(float)
+            # Rounded doubles print as their shortest decimal, so this fixes the precision
+            # and keeps pandas' fast float writer; 0.0 instead of -0.0.
+            out[column] = values.round(_DECIMALS[column]) + 0.0
+        else:
+            out[column] = df[column]
+    with atomic_path(path) as tmp:
+        pd.DataFrame(out, index=df.index).to_csv(tmp, index=False, lineterminator="\n",
+                                                 na_rep="")
+    return path
+
+
+def _row_label(df: pd.DataFrame, position: int) -> str:
+    frame = df["frame"].iloc[position] if "frame" in df else None
+    line = position + 2  # header is line 1
+    try:
+        return f"line {line} (frame {int(float(frame))})"
+    except (TypeError, ValueError):
+        return f"line {line}"
+
+
+def _validate(df: pd.DataFrame, path) -> pd.DataFrame:
+    """Convert every known column to numbers, raising on the first bad cell."""
+    numeric: dict[str, np.ndarray] = {}
+    for column in contraction_columns():
+        raw = df[column]
+        if pd.api.types.is_numeric_dtype(raw):
+            values = raw.to_numpy(dtype=float)
+        else:
+            converted = pd.to_numeric(raw, errors="coerce")
+            blank = raw.isna() | (raw.astype(str).str.strip() == "")
+            bad = converted.isna() & ~blank
+            if bad.any():
+                pos = int(np.flatnonzero(bad.to_numpy())[0])
+                raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
+                                 f"{str(raw.iloc[pos])!r} is not a number")
+            values = converted.to_numpy(dtype=float)
+        if column in ("frame", "timestamp", "success") and np.isnan(values).any():
+            pos = int(np.flatnonzero(np.isnan(values))[0])
+            raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
+                             "empty cell")
+        if column in _INTEGER_COLUMNS:
+            wrong = values != np.round(values)
+            if column == "success":
+                wrong |= ~np.isin(values, (0.0, 1.0))
+            if wrong.any():
+                pos = int(np.flatnonzero(wrong)[0])
+                expected = "0 or 1" if column == "success" else "an integer"
+                raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
+                                 f"{values[pos]:g} is not {expected}")
+        if column in _RANGES:
+            lo, hi = _RANGES[column]
+            with np.errstate(invalid="ignore"):
+                wrong = (values < lo) | (values > hi) | np.isinf(values)
+            if wrong.any():
+                pos = int(np.flatnonzero(wrong)[0])
+                raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
+                                 f"{values[pos]:g} is outside [{lo:g}, {hi:g}]")
+        numeric[column] = values
+    frames = numeric["frame"]
+    if frames.size > 1 and (np.diff(frames) <= 0).any():
+        pos = int(np.flatnonzero(np.diff(frames) <= 0)[0]) + 1
+        raise ValueError(f"{path}: {_row_label(df, pos)}, column frame: frame numbers must "
+                         "increase")
+    return pd.DataFrame(numeric, index=df.index)
+
+
+def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
+    """Read and validate a ``contractions.csv`` file.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+
+    Returns
+    -------
+    DataFrame
+        Columns of :func:`contraction_columns` (then any further ones in file
+        order); ``frame`` and ``success`` as integers, the rest as floats, empty
+        cells as NaN.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If the file is not a table, required columns are missing (named), a cell
+        is not a number, ``success`` is not 0/1, frame numbers do not increase, or
+        a value is out of range (contractions and confidence outside [0, 1], AU
+        intensities outside [0, 5]); the message names the line, frame and column.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, expected a contractions.csv file")
+    try:
+        # Numeric columns parse in C; a column holding any non-number stays text and
+        # is checked cell by cell in _validate, which names the offending cell.
+        raw = pd.read_csv(path, keep_default_na=False, na_values=[""], low_memory=False)
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"{path}: file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"{path}: not a CSV table ({first})") from None
+    raw.columns = [str(c).strip() for c in raw.columns]
+    _check_frame(raw, path)
+    numeric = _validate(raw, path)
+    out = numeric.copy()
+    out["frame"] = out["frame"].astype(np.int64)
+    out["success"] = out["success"].astype(np.int64)
+    for column in raw.columns:
+        if column not in out.columns:
+            values = pd.to_numeric(raw[column], errors="coerce")
+            keep_numeric = values.notna().sum() == raw[column].notna().sum()
+            out[column] = values if keep_numeric else raw[column]
+    return out

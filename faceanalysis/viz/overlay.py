@@ -1,0 +1,164 @@
+"""Drawing contours, fiducial points and the head frame on video frames (``overlay.mp4``).
+
+Coordinates are image pixels, x to the right, y down, origin at the centre of
+the top-left pixel (the convention of OpenCV's drawing functions too). Points are
+drawn with sub-pixel precision and anti-aliasing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from faceanalysis.io.table import FIDUCIALS
+from faceanalysis.io.video import to_bgr_uint8
+
+__all__ = ["draw_overlay", "fiducials_from_row"]
+
+_SHIFT = 4  # fractional bits for sub-pixel drawing
+_ONE = 1 << _SHIFT
+
+# BGR colours: contours yellow, subject's left green, right magenta, midline cyan, head white.
+_CONTOUR = (0, 220, 255)
+_LEFT = (60, 200, 60)
+_RIGHT = (220, 60, 220)
+_MIDLINE = (255, 200, 0)
+_HEAD = (255, 255, 255)
+_LOST = (40, 40, 230)
+
+
+def _fixed(points: np.ndarray) -> np.ndarray:
+    return np.rint(points * _ONE).astype(np.int32)
+
+
+def _segments(points: np.ndarray) -> list[np.ndarray]:
+    """Split a polyline at NaN points (a contour may be partly lost)."""
+    finite = np.isfinite(points).all(axis=1)
+    out, current = [], []
+    for ok, p in zip(finite, points):
+        if ok:
+            current.append(p)
+        elif current:
+            out.append(np.array(current))
+            current = []
+    if current:
+        out.append(np.array(current))
+    return out
+
+
+def fiducials_from_row(row: Mapping) -> dict[str, tuple[float, float]]:
+    """Fiducial positions from one row of a contractions table (``fid_<name>_x/_y``).
+
+    Examples
+    --------
+    >>> fiducials_from_row({"fid_chin_x": 10.0, "fid_chin_y": 20.0})
+    {'chin': (10.0, 20.0)}
+    """
+    out = {}
+    for name in FIDUCIALS:
+        kx, ky = f"fid_{name}_x", f"fid_{name}_y"
+        if kx in row and ky in row:
+            out[name] = (float(row[kx]), float(row[ky]))
+    return out
+
+
+def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None
+                 = None, fiducials: Mapping[str, Sequence[float]] | None = None,
+                 head: Sequence[float] | None = None, lost: bool = False,
+                 label: str | None = None) -> np.ndarray:
+    """Draw tracking results on a copy of a frame.
+
+    Parameters
+    ----------
+    image : ndarray
+        The frame, any layout and type accepted by
+        :func:`faceanalysis.io.video.to_bgr_uint8` (grey, 16-bit...). Not modified.
+    contours : mapping or sequence of (K, 2) arrays, optional
+        Snake node positions ``(x, y)`` in pixels, drawn as open polylines
+        (repeat the first node to close one). NaN nodes break the line.
+    fiducials : mapping, optional
+        Name -> ``(x, y)``; names ending in ``_l`` (subject's left) are drawn in
+        green, ``_r`` in magenta, others in cyan. NaN points are skipped.
+    head : sequence of 4 floats, optional
+        Head frame ``(x, y, scale, roll)`` as in ``contractions.csv`` (and
+        ``trackers.fiducials.HeadFrame``): origin in pixels, reference length in
+        pixels, roll in radians. Drawn as its two axes, each half the reference
+        length long: x (subject's left) along ``(cos roll, sin roll)`` and y (down
+        the face) along ``(-sin roll, cos roll)``, in image coordinates.
+    lost : bool, optional
+        Mark the frame as lost (red border and "lost" label).
+    label : str, optional
+        Text for the top-left corner (e.g. frame number and time).
+
+    Returns
+    -------
+    ndarray
+        ``(H, W, 3)`` ``uint8`` BGR image.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> frame = np.zeros((64, 64), np.uint16)
+    >>> out = draw_overlay(frame, contours={"brow": np.array([[10, 20], [30, 18], [50, 20.5]])},
+    ...                    fiducials={"chin": (32, 50)}, label="frame 0")
+    >>> out.shape, out.dtype, bool(out.any())
+    ((64, 64, 3), dtype('uint8'), True)
+    """
+    canvas = to_bgr_uint8(image)
+    height, width = canvas.shape[:2]
+    thick = max(1, round(min(height, width) / 320))
+    radius = max(2, round(min(height, width) / 120))
+
+    if contours is not None:
+        items = contours.values() if isinstance(contours, Mapping) else contours
+        for curve in items:
+            points = np.asarray(curve, dtype=float)
+            if points.ndim != 2 or points.shape[1] != 2:
+                raise ValueError(f"contours must be (K, 2) arrays of (x, y), got shape "
+                                 f"{points.shape}")
+            for segment in _segments(points):
+                if len(segment) >= 2:
+                    cv2.polylines(canvas, [_fixed(segment)], False, _CONTOUR, thick,
+                                  cv2.LINE_AA, _SHIFT)
+
+    if fiducials is not None:
+        for name, point in fiducials.items():
+            x, y = (float(v) for v in point)
+            if not (math.isfinite(x) and math.isfinite(y)):
+                continue
+            colour = _LEFT if name.endswith("_l") else _RIGHT if name.endswith("_r") else _MIDLINE
+            centre = tuple(_fixed(np.array([x, y])))
+            cv2.circle(canvas, centre, radius * _ONE, colour, thick, cv2.LINE_AA, _SHIFT)
+            cv2.circle(canvas, centre, _ONE, colour, -1, cv2.LINE_AA, _SHIFT)
+
+    if head is not None:
+        hx, hy, scale, roll = (float(v) for v in head)
+        if all(math.isfinite(v) for v in (hx, hy, scale, roll)) and scale > 0:
+            origin = np.array([hx, hy])
+            c, s = math.cos(roll), math.sin(roll)
+            x_axis = origin + 0.5 * scale * np.array([c, s])
+            y_axis = origin + 0.5 * scale * np.array([-s, c])
+            for end in (x_axis, y_axis):
+                cv2.line(canvas, tuple(_fixed(origin)), tuple(_fixed(end)), _HEAD, thick,
+                         cv2.LINE_AA, _SHIFT)
+            cv2.circle(canvas, tuple(_fixed(origin)), (radius + 1) * _ONE, _HEAD, thick,
+                       cv2.LINE_AA, _SHIFT)
+
+    font_scale = max(0.35, min(height, width) / 600)
+    if lost:
+        cv2.rectangle(canvas, (0, 0), (width - 1, height - 1), _LOST, 2 * thick)
+        text = "lost"
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thick)
+        cv2.putText(canvas, text, (width - tw - 4 * thick, th + 4 * thick),
+                    cv2.FONT_HERSHEY_SIMPLEX, font_scale, _LOST, thick, cv2.LINE_AA)
+    if label:
+        (_, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thick)
+        org = (4 * thick, th + 4 * thick)
+        cv2.putText(canvas, label, org, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (0, 0, 0),
+                    thick + 2, cv2.LINE_AA)
+        cv2.putText(canvas, label, org, cv2.FONT_HERSHEY_SIMPLEX, font_scale, (255, 255, 255),
+                    thick, cv2.LINE_AA)
+    return canvas

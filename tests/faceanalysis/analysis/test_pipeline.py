@@ -1,0 +1,306 @@
+"""End-to-end analysis of rendered faces whose contractions are known."""
+
+import json
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from faceanalysis.analysis.pipeline import analyze, analyze_to_folder, reestimate
+from faceanalysis.evaluation.suite import compare, public
+from faceanalysis.io.table import FIDUCIALS, MUSCLES, contraction_columns
+
+
+@pytest.fixture(scope="module")
+def surprise(tmp_path_factory):
+    from synth.render.sequence import render_sequence
+
+    out = tmp_path_factory.mktemp("surprise")
+    files = render_sequence(out, expression="surprise", frames=24, size=256, seed=5,
+                            noise=1.0, flow=False)
+    return files
+
+
+@pytest.fixture(scope="module")
+def analysed(surprise):
+    return analyze(surprise["video"])
+
+
+def test_table_has_the_documented_columns_and_bounds(analysed):
+    t = analysed.table
+    assert list(t.columns) == contraction_columns()
+    assert len(t) == 24
+    assert t["success"].mean() > 0.9
+    ok = t["success"] == 1
+    values = t.loc[ok, list(MUSCLES)].to_numpy()
+    assert np.nanmin(values) >= 0.0 and np.nanmax(values) <= 1.0
+    assert analysed.fiducials.shape == (24, len(FIDUCIALS), 2)
+
+
+def test_surprise_raises_brows_and_drops_jaw(analysed, surprise):
+    truth = pd.read_csv(surprise["truth"])
+    est = analysed.table
+    for col in ("frontalis_inner_l", "frontalis_inner_r", "jaw_rotation"):
+        r = np.corrcoef(truth[col], est[col].fillna(0))[0, 1]
+        assert r > 0.9, (col, r)
+    apex = int(truth["frontalis_inner_l"].idxmax())
+    assert est.loc[apex, "frontalis_inner_l"] > 0.4
+    assert est.loc[0, "jaw_rotation"] < 0.02 < est.loc[apex, "jaw_rotation"]
+
+
+def test_the_model_explains_a_rendered_face(analysed):
+    from faceanalysis.analysis.pipeline import MAX_FIT_RESIDUAL
+
+    fit = analysed.metadata["model_fit"]
+    ok = analysed.table["success"].to_numpy() == 1
+    assert fit["frames_over_limit"] == 0 and fit["max_cm"] < MAX_FIT_RESIDUAL
+    assert analysed.fit_residual.shape == (24,)
+    assert np.isfinite(analysed.fit_residual[ok]).all()
+    # within the limit the confidence is the tracker's own
+    assert np.allclose(analysed.table["confidence"], analysed.track_confidence)
+
+
+def test_points_the_model_cannot_explain_lower_the_confidence(analysed):
+    from dataclasses import replace
+
+    from faceanalysis.analysis.pipeline import MAX_FIT_RESIDUAL
+
+    # the mouth's points dragged 30 px sideways on frames 10-15 (the mouth contours on
+    # another feature): no contraction of the model moves the whole mouth sideways
+    meas = analysed.measurements.copy()
+    names = ("mouth_corner_l", "mouth_corner_r", "lip_lower_centre")
+    j = [analysed.response.fiducials.index(n) for n in names]
+    meas[10:16, j, 0] += 30.0
+    bad = reestimate(replace(analysed, measurements=meas), "joint")
+    frames = np.arange(24)
+    hit = (frames >= 10) & (frames < 16)
+    assert (bad.fit_residual[hit] > MAX_FIT_RESIDUAL).all()
+    assert bad.metadata["model_fit"]["frames_over_limit"] == 6
+    conf = bad.table["confidence"].to_numpy()
+    allowed = MAX_FIT_RESIDUAL / bad.fit_residual[hit]
+    assert np.allclose(conf[hit], np.minimum(analysed.track_confidence[hit], allowed))
+    assert (conf[hit] < analysed.track_confidence[hit]).all()
+    assert np.allclose(conf[~hit], analysed.table["confidence"].to_numpy()[~hit])
+    tracked = bad.table["success"].to_numpy() == 1
+    assert bad.metadata["quality"]["mean_confidence"] == pytest.approx(conf[tracked].mean())
+
+
+def test_joint_beats_tw93_on_the_brows(analysed, surprise):
+    truth = pd.read_csv(surprise["truth"])
+    tw = reestimate(analysed, "tw93")
+    assert tw.metadata["parameters"]["estimator"] == "tw93"
+    cols = ["frontalis_major_l", "frontalis_major_r"]
+    err_joint = np.sqrt(np.nanmean((analysed.table[cols] - truth[cols]) ** 2))
+    err_tw93 = np.sqrt(np.nanmean((tw.table[cols] - truth[cols]) ** 2))
+    assert err_joint < err_tw93
+
+
+def test_fiducials_land_near_the_projected_truth(analysed, surprise):
+    report = public(compare(surprise["truth"], analysed.table))
+    assert report["frames_compared"] >= 22
+    assert report["fiducial_error_px"] < 2.0
+    # the furrows' tops, where the ravine runs on into the shading beside the nose,
+    # are found on the grey step (0.5 px here; 3.6 px on the right from the ravine)
+    by_point = report["fiducial_error_by_point"]
+    assert by_point["furrow_top_l"] < 1.0 and by_point["furrow_top_r"] < 1.0, by_point
+
+
+def test_results_folder_and_refusal_to_overwrite(surprise, tmp_path):
+    out = tmp_path / "res"
+    analyze_to_folder(surprise["video"], out, overlay=True, end=6)
+    names = {p.name for p in out.iterdir()}
+    assert {"contractions.csv", "analysis.json", "contractions.png"} <= names
+    assert names & {"overlay.mp4", "overlay.avi"}
+    meta = json.loads((out / "analysis.json").read_text())
+    assert meta["quality"]["frames_total"] == 6
+    assert meta["parameters"]["estimator"] == "joint"
+    before = (out / "contractions.csv").read_bytes()
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        analyze_to_folder(surprise["video"], out, end=6)
+    assert (out / "contractions.csv").read_bytes() == before
+
+
+def test_neutral_frame_must_be_in_range(surprise):
+    with pytest.raises(ValueError, match="neutral frame 99"):
+        analyze(surprise["video"], end=4, neutral=99)
+
+
+def test_no_face_names_the_file_and_frame(tmp_path):
+    path = tmp_path / "wall.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    for _ in range(3):
+        writer.write(np.full((120, 160, 3), 128, np.uint8))
+    writer.release()
+    with pytest.raises(ValueError, match=r"wall\.avi: no face found in frame 0"):
+        analyze(path)
+
+
+def test_unknown_estimator_lists_the_choices(surprise):
+    with pytest.raises(ValueError, match="choose from joint, tw93, flow"):
+        analyze(surprise["video"], estimator="magic")
+
+
+def test_cli_missing_file_is_one_line_exit_1(run_cli, tmp_path):
+    code, _, err = run_cli("analyze", tmp_path / "nope.mp4", "-o", tmp_path / "out")
+    assert code == 1
+    assert err.count("\n") == 1 and "nope.mp4" in err
+
+
+def test_cli_evaluate_prints_scores(run_cli, surprise, tmp_path):
+    out = tmp_path / "res"
+    code, stdout, _ = run_cli("analyze", surprise["video"], "-o", out, "--end", "8", "-q")
+    assert code == 0
+    code, stdout, _ = run_cli("evaluate", "--truth", surprise["video"].parent,
+                              "--estimate", out, "--json")
+    assert code == 0
+    report = json.loads(stdout.strip().splitlines()[-1])
+    assert report["frames"] == 8 and "jaw_rotation" in report["controls"]
+
+
+def test_rendered_faces_have_no_suspect_points(analysed):
+    assert analysed.metadata["calibration"]["suspect_points"] == []
+    assert np.nanmax(analysed.calibration.point_residuals) < 0.06
+
+
+@pytest.fixture(scope="module")
+def furrows_misplaced(surprise, tmp_path_factory):
+    """A layout whose furrows start on the mouth, 0.3 inter-eye distances too low."""
+    from trackers import detect_layout
+    from trackers.layout import FaceLayout, LayoutContour
+
+    cap = cv2.VideoCapture(str(surprise["video"]))
+    ok, img = cap.read()
+    cap.release()
+    lay = detect_layout(img, channel_order="bgr")
+    cs = dict(lay.contours)
+    for n in ("furrow_l", "furrow_r"):
+        c = cs[n]
+        cs[n] = LayoutContour(c.points + [0.0, 0.3 * lay.inter_eye], c.closed, c.kind, c.sigma,
+                              c.ends)
+    path = tmp_path_factory.mktemp("layout") / "furrows_low.json"
+    FaceLayout(cs, lay.image_size, lay.eyes, lay.face_box, lay.source, dict(lay.meta)).to_json(
+        path)
+    return path
+
+
+def test_points_on_the_wrong_feature_are_named_and_left_out(surprise, furrows_misplaced,
+                                                            caplog):
+    with caplog.at_level("WARNING", logger="faceanalysis.analysis.pipeline"):
+        a = analyze(surprise["video"], layout=furrows_misplaced, end=10)
+    suspect = a.metadata["calibration"]["suspect_points"]
+    assert suspect and all(n.startswith("furrow_") for n in suspect)
+    assert a.metadata["calibration"]["excluded_points"] == suspect
+    cols = [a.response.fiducials.index(n) for n in suspect]
+    assert np.isnan(a.measurements[:, cols]).all()
+    assert "neutral frame 0" in caplog.text and suspect[0] in caplog.text
+    kept = analyze(surprise["video"], layout=furrows_misplaced, end=10, suspect_points="keep")
+    assert kept.metadata["calibration"]["suspect_points"] == suspect
+    assert kept.metadata["calibration"]["excluded_points"] == []
+    # kept, the points are measured wherever the tracker holds their contour (a contour
+    # started on the wrong feature may still be lost on a frame) and they enter the fit
+    held = np.isfinite(kept.measurements[:, cols]).all(axis=-1)
+    assert held[0].all() and held.mean() > 0.8
+    assert not np.allclose(kept.table[list(MUSCLES)].to_numpy(float),
+                           a.table[list(MUSCLES)].to_numpy(float), equal_nan=True)
+
+
+def test_cli_keeps_suspect_points_on_request(run_cli, surprise, furrows_misplaced, tmp_path):
+    out = tmp_path / "res"
+    code, _, err = run_cli("analyze", surprise["video"], "-o", out, "--end", "6", "-q",
+                           "--layout", furrows_misplaced, "--keep-suspect-points")
+    assert code == 0 and "kept" in err
+    meta = json.loads((out / "analysis.json").read_text())
+    assert meta["calibration"]["suspect_points"] and not meta["calibration"]["excluded_points"]
+
+
+def test_suspect_points_option_is_checked(surprise):
+    with pytest.raises(ValueError, match="'exclude' or 'keep'"):
+        analyze(surprise["video"], suspect_points="drop")
+
+
+def test_a_furrow_shorter_than_on_the_neutral_frame_loses_its_lower_end():
+    from faceanalysis.analysis.pipeline import MIN_FURROW_STRETCH, faded_furrow_ends
+
+    names = ("furrow_top_l", "furrow_bottom_l", "furrow_mid_r", "furrow_bottom_r")
+
+    def frame(stretch_l, stretch_r):
+        # each point's contour length relative to the tracker's first frame
+        return [stretch_l, stretch_l, stretch_r, stretch_r]
+
+    short = MIN_FURROW_STRETCH - 0.01
+    contours = [frame(1.2, 1.0), frame(1.0, 1.0), frame(np.nan, np.nan), frame(short, 1.3),
+                frame(1.0, short), frame(MIN_FURROW_STRETCH + 1e-3, 1.0)]
+    mask = faded_furrow_ends(contours, 1, names)
+    assert mask.shape == (6, 4)
+    # only the lower ends, only where their own furrow got shorter than on frame 1
+    assert mask[:, [0, 2]].sum() == 0
+    assert mask[:, 1].tolist() == [False, False, False, True, False, False]
+    assert mask[:, 3].tolist() == [False, False, False, False, True, False]
+    # relative to the neutral frame, whichever it is
+    assert faded_furrow_ends(contours, 0, names)[:, 1].tolist() == [
+        False, True, False, True, True, True]
+    assert not faded_furrow_ends(contours, 2, names).any()
+
+
+def test_faded_furrow_ends_do_not_hide_the_jaw(tmp_path):
+    # on this face the lower furrows fade as the jaw opens, and their tracked ends
+    # then stay up: read as they are, they held the jaw error at 4.0 degrees
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path, expression="surprise", frames=24, size=256, seed=7,
+                            flow=False)
+    a = analyze(files["video"])
+    faded = a.metadata["calibration"]["faded_furrow_ends"]
+    assert set(faded) == {"furrow_bottom_l", "furrow_bottom_r"}
+    for name, count in faded.items():
+        j = a.response.fiducials.index(name)
+        assert np.isnan(a.measurements[:, j]).any(axis=1).sum() == count
+    assert public(compare(files["truth"], a.table))["jaw_rmse_deg"] < 1.0
+    # re-estimating keeps them out
+    again = reestimate(a, "joint")
+    assert np.allclose(again.table["jaw_rotation"], a.table["jaw_rotation"], equal_nan=True)
+
+
+def _zygomaticus_laughing_and_crying(table):
+    z = table[["zygomaticus_major_l", "zygomaticus_major_r"]].mean(axis=1)
+    laughing = z[(table["frame"] >= 250) & (table["frame"] <= 470)].mean()
+    crying = z[table["frame"] <= 120].mean()
+    return laughing, crying
+
+
+@pytest.mark.real_data
+def test_real_video_is_analysed_to_the_end(real_video_dir):
+    a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4")
+    t = a.table
+    assert t["frame"].iloc[-1] >= 470
+    assert t["success"].mean() > 0.8
+    tracked = t[t["success"] == 1]
+    values = tracked[list(MUSCLES)].to_numpy()
+    # NaN where a muscle's points are lost on that frame (not observed), else in [0, 1]
+    seen = np.isfinite(values)
+    assert seen.mean() > 0.85
+    assert values[seen].min() >= 0 and values[seen].max() <= 1
+    jaw = tracked["jaw_rotation"].dropna()
+    assert len(jaw) > 0.9 * len(tracked) and (jaw >= 0).all()
+    # the contours the automatic layout puts on the wrong feature are named
+    assert a.metadata["calibration"]["suspect_points"]
+
+
+@pytest.mark.real_data
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason=(
+    "issue #6, not met: laughing minus crying is -0.19, -0.18, -0.19 over three "
+    "tolerances (zygomaticus 0.18 laughing, 0.37 crying) with the lower contours "
+    "on their features. The laugh widens the mouth (read as risorius) but its corners "
+    "come out no higher in the head frame, which has no pitch (the neutral frame's head "
+    "is bowed, the laugh's tilted back); in the crying part a hand over the mouth is "
+    "followed as if it were the lips"))
+def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
+    # the requirement must hold for the default tracker and for a tolerance changed in
+    # its fifth digit, not for one rounding of one trajectory
+    for tol in (0.01, 0.01 * (1 + 1e-4), 0.01 * (1 - 1e-4)):
+        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4",
+                    tracker_options={"tol": tol})
+        laughing, crying = _zygomaticus_laughing_and_crying(a.table)
+        assert laughing > crying + 0.05, (tol, crying, laughing)

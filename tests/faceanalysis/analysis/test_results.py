@@ -1,0 +1,50 @@
+"""The output folder: refuses to overwrite, writes every result, leaves nothing half-done."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from faceanalysis.io.report import analysis_metadata, read_analysis
+from faceanalysis.analysis.results import OutputFolder
+from faceanalysis.io.table import MUSCLES, empty_table, read_contractions
+from faceanalysis.io.video import open_video
+
+
+def table(n=20):
+    t = empty_table(n, timestamps=np.arange(n) / 25)
+    t["success"] = 1
+    t["confidence"] = 0.9
+    t[list(MUSCLES)] = 0.1
+    return t
+
+
+def test_writes_all_results(tmp_path):
+    out = OutputFolder(tmp_path / "out")
+    meta = analysis_metadata({"path": "clip.mp4"}, table(), versions={"faceanalysis": "t"})
+    paths = out.write(table(), meta)
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {
+        "contractions.csv", "analysis.json", "contractions.png"}
+    assert len(read_contractions(paths["contractions"])) == 20
+    assert read_analysis(paths["analysis"])["quality"]["frames_tracked"] == 20
+    with out.overlay_writer(25, (64, 48)) as writer:
+        writer.write(np.zeros((48, 64), np.uint8))
+    assert len(list(open_video(out.overlay_mp4))) == 1
+
+
+def test_refuses_existing_results_without_overwrite(tmp_path):
+    (tmp_path / "contractions.csv").write_text("old")
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        OutputFolder(tmp_path)
+    out = OutputFolder(tmp_path, overwrite=True)
+    out.write(table(), {"format": "x"}, plot=False)
+    assert read_contractions(out.contractions_csv)["success"].sum() == 20
+
+
+def test_bad_table_writes_nothing(tmp_path):
+    bad = table()
+    bad.loc[3, "risorius_l"] = 2.0
+    out = OutputFolder(tmp_path / "out")
+    with pytest.raises(ValueError, match=r"frame 3\), column risorius_l"):
+        out.write(bad, {"format": "x"})
+    assert list((tmp_path / "out").iterdir()) == []

@@ -1,0 +1,70 @@
+"""The 'templates', 'validate' and 'classify' commands."""
+
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.mark.parametrize("cmd", ["templates", "validate", "classify"])
+def test_help(run_cli, cmd):
+    code, out, _ = run_cli(cmd, "--help")
+    assert code == 0 and "example" in out
+
+
+def test_validate_and_classify_report_user_mistakes(run_cli, tmp_path):
+    code, _, err = run_cli("validate", tmp_path / "none.mp4", "--analysis", tmp_path)
+    assert code == 1 and "none.mp4" in err
+    video = tmp_path / "v.mp4"
+    video.write_bytes(b"x")
+    code, _, err = run_cli("validate", video, "--analysis", tmp_path / "missing")
+    assert code == 1 and "missing" in err
+    code, _, err = run_cli("classify", tmp_path / "none.mp4")
+    assert code == 1 and "none.mp4" in err
+    code, _, err = run_cli("classify", video, "--method", "lk")
+    assert code == 2
+
+
+@pytest.mark.slow
+def test_templates_command_writes_npz_and_previews(run_cli, tmp_path):
+    out = tmp_path / "tpl"
+    code, stdout, _ = run_cli("templates", "-o", out, "--steps", "3", "-q")
+    assert code == 0, stdout
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["generic.npz", "generic_controls.png", "generic_energy.png",
+                     "generic_expressions.png"]
+    from faceanalysis.flow.templates import FlowTemplates
+
+    t = FlowTemplates.load(out / "generic.npz")
+    assert t.expression.shape[1] == 3 and np.abs(t.control).max() > 0
+    code, _, err = run_cli("templates", "-o", out)
+    assert code == 1 and "not empty" in err
+
+
+@pytest.mark.slow
+def test_classify_command_on_a_synthetic_video(run_cli, tmp_path):
+    from synth.render import render_sequence
+
+    paths = render_sequence(tmp_path / "seq", expression="surprise", frames=24, size=200,
+                            seed=107, head_motion=0.5, noise=1.0, flow=False)
+    code, out, err = run_cli("classify", paths["video"], "--json", "-o", tmp_path / "seg.csv")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["label"] == "surprise"
+    assert res["scores"]["surprise"] == max(res["scores"].values())
+    assert (tmp_path / "seg.csv").read_text().startswith("start,apex,end,label")
+
+
+@pytest.mark.slow
+def test_laughing_part_of_the_real_video_is_happiness(run_cli, real_video_dir):
+    video = real_video_dir / "WolfgangLanger_Pexels.mp4"
+    if not video.is_file():
+        pytest.skip("WolfgangLanger_Pexels.mp4 not found")
+    # frames 250-470 laugh; the face just before (frame 240) is the neutral reference
+    code, out, err = run_cli("classify", video, "--start", "250", "--end", "470",
+                             "--neutral", "240", "--json", "-q")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["label"] == "happiness", res["scores"]
+    seg = max(res["segments"], key=lambda s: s["end"] - s["start"])
+    assert seg["label"] == "happiness" and seg["end"] - seg["start"] > 150

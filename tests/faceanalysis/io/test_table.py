@@ -1,0 +1,213 @@
+"""contractions.csv: schema, round trip, validation messages, atomic writing, AU derivation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from faceanalysis.io.table import (
+    AU_COLUMNS,
+    FIDUCIALS,
+    HEAD_COLUMNS,
+    JAW,
+    MUSCLES,
+    au_intensities,
+    contraction_columns,
+    empty_table,
+    read_contractions,
+    with_au_columns,
+    write_contractions,
+)
+
+
+def filled_table(n=6, rng=None):
+    rng = rng or np.random.default_rng(0)
+    t = empty_table(n, frames=np.arange(10, 10 + n), timestamps=np.arange(n) / 30)
+    t["success"] = 1
+    t.loc[2, "success"] = 0
+    t["confidence"] = rng.uniform(0, 1, n)
+    t[list(HEAD_COLUMNS)] = rng.uniform(0, 200, (n, 4))
+    fid = [c for c in contraction_columns() if c.startswith("fid_")]
+    t[fid] = rng.uniform(0, 640, (n, len(fid)))
+    t[list(MUSCLES)] = rng.uniform(0, 1, (n, len(MUSCLES)))
+    t[JAW] = rng.uniform(-0.05, 0.3, n)
+    t[list(AU_COLUMNS)] = rng.uniform(0, 5, (n, len(AU_COLUMNS)))
+    lost = [c for c in contraction_columns() if c not in ("frame", "timestamp", "success")]
+    t.loc[2, lost] = np.nan
+    return t
+
+
+def test_schema_matches_design():
+    assert len(FIDUCIALS) == 11 and FIDUCIALS[0] == "brow_inner_l" and FIDUCIALS[-1] == "chin"
+    assert len(MUSCLES) == 29 and len(set(MUSCLES)) == 29
+    for name in ("zygomaticus_major_l", "zygomaticus_major_r", "levator_labii_nasi_l",
+                 "orbicularis_oris", "orbicularis_oculi_l", "orbicularis_oculi_r", "risorius_r"):
+        assert name in MUSCLES
+    cols = contraction_columns()
+    assert cols[:8] == ["frame", "timestamp", "success", "confidence",
+                        "head_x", "head_y", "head_scale", "head_roll"]
+    assert cols[8:10] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
+    assert cols.index(JAW) == cols.index("orbicularis_oculi_r") + 1
+    assert cols[-len(AU_COLUMNS):] == list(AU_COLUMNS)
+    assert AU_COLUMNS[0] == "AU01_r" and AU_COLUMNS[-1] == "AU27_r" and len(AU_COLUMNS) == 16
+    assert len(cols) == len(set(cols)) == 4 + 4 + 22 + 29 + 1 + 16
+
+
+def test_round_trip(tmp_path):
+    t = filled_table()
+    original = t.copy()
+    t["note"] = "x"  # extra columns travel after the fixed ones
+    path = write_contractions(t, tmp_path / "contractions.csv")
+    back = read_contractions(path)
+    assert list(back.columns) == contraction_columns() + ["note"]
+    assert back["frame"].dtype == np.int64 and back["success"].tolist() == [1, 1, 0, 1, 1, 1]
+    pd.testing.assert_frame_equal(back[contraction_columns()], original, check_dtype=False,
+                                  atol=1e-3, rtol=0)
+    assert back.loc[2, list(MUSCLES)].isna().all()
+    np.testing.assert_allclose(back[list(MUSCLES)], original[list(MUSCLES)], atol=5e-7)
+    np.testing.assert_allclose(back["timestamp"], original["timestamp"], atol=5e-7)
+    pd.testing.assert_frame_equal(t.drop(columns="note"), original)  # input not modified
+
+
+def test_file_format_is_fixed(tmp_path):
+    t = filled_table(3)
+    t = t[list(reversed(t.columns))]  # column order of the frame does not matter
+    path = write_contractions(t, tmp_path / "c.csv")
+    lines = path.read_text().splitlines()
+    assert lines[0] == ",".join(contraction_columns())
+    first = dict(zip(lines[0].split(","), lines[1].split(",")))
+    assert first["frame"] == "10" and first["success"] == "1"
+    assert 1 <= len(first["zygomaticus_major_l"].split(".")[1]) <= 6
+    assert len(first["fid_chin_x"].split(".")[1]) <= 3
+    assert "e" not in lines[1].lower()
+    lost = dict(zip(lines[0].split(","), lines[3].split(",")))
+    assert lost["zygomaticus_major_l"] == "" and lost["success"] == "0"
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"nope\.csv: no such file"):
+        read_contractions(tmp_path / "nope.csv")
+
+
+def test_missing_columns_are_named(tmp_path):
+    t = filled_table().drop(columns=["risorius_l", "head_roll"])
+    path = tmp_path / "c.csv"
+    t.to_csv(path, index=False)
+    with pytest.raises(ValueError, match=r"missing columns head_roll, risorius_l"):
+        read_contractions(path)
+    with pytest.raises(ValueError, match="missing columns"):
+        write_contractions(t, tmp_path / "out.csv")
+    assert not (tmp_path / "out.csv").exists()
+
+
+def write_with(tmp_path, row, column, value):
+    t = filled_table()
+    path = tmp_path / "c.csv"
+    write_contractions(t, path)
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    df.loc[row, column] = value
+    df.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize(("row", "column", "value", "match"), [
+    (3, "zygomaticus_major_l", "abc", r"line 5 \(frame 13\), column zygomaticus_major_l: "
+                                     r"'abc' is not a number"),
+    (1, "corrugator_r", "1.5", r"line 3 \(frame 11\), column corrugator_r: 1.5 is outside"),
+    (4, "orbicularis_oris", "-0.1", r"frame 14\), column orbicularis_oris: -0.1 is outside"),
+    (0, "AU12_r", "6", r"frame 10\), column AU12_r: 6 is outside \[0, 5\]"),
+    (0, "confidence", "1.2", r"column confidence"),
+    (5, "success", "2", r"frame 15\), column success: 2 is not 0 or 1"),
+    (5, "frame", "12", r"line 7 \(frame 12\), column frame: frame numbers must increase"),
+    (2, "timestamp", "", r"frame 12\), column timestamp: empty cell"),
+    (1, "fid_chin_x", "1,2", r"column fid_chin_x: '1,2' is not a number"),
+])
+def test_bad_cells_are_named(tmp_path, row, column, value, match):
+    path = write_with(tmp_path, row, column, value)
+    with pytest.raises(ValueError, match=match):
+        read_contractions(path)
+
+
+def test_write_refuses_out_of_range_values_and_leaves_no_file(tmp_path):
+    t = filled_table()
+    t.loc[4, "mentalis_l"] = 1.01
+    with pytest.raises(ValueError, match=r"frame 14\), column mentalis_l"):
+        write_contractions(t, tmp_path / "c.csv")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_empty_and_garbage_files(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    with pytest.raises(ValueError, match=r"empty\.csv: file is empty"):
+        read_contractions(empty)
+    binary = tmp_path / "bin.csv"
+    binary.write_bytes(np.random.default_rng(2).bytes(3000))
+    with pytest.raises(ValueError, match=r"bin\.csv"):
+        read_contractions(binary)
+
+
+def test_interrupted_write_keeps_previous_file(tmp_path, monkeypatch):
+    path = tmp_path / "contractions.csv"
+    write_contractions(filled_table(3), path)
+    before = path.read_bytes()
+
+    def broken_to_csv(self, *args, **kwargs):
+        target = args[0]
+        with open(target, "w") as fh:
+            fh.write("frame,timestamp\n0,0.0\n")  # half a table
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", broken_to_csv)
+    with pytest.raises(KeyboardInterrupt):
+        write_contractions(filled_table(6), path)
+    assert path.read_bytes() == before
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_empty_table_validates():
+    with pytest.raises(ValueError, match="non-negative"):
+        empty_table(-1)
+    with pytest.raises(ValueError, match="frames has 2 entries, expected 3"):
+        empty_table(3, frames=[0, 1])
+    assert len(empty_table(0)) == 0
+
+
+# -- action units --------------------------------------------------------------------------
+
+def test_names_agree_with_the_face_model():
+    facs = pytest.importorskip("synth.facs")
+    assert tuple(facs.MUSCLE_NAMES) == MUSCLES
+    assert JAW == facs.JAW
+    assert tuple(facs.au_column(n) for n in facs.CORE_AUS) == AU_COLUMNS
+
+
+def test_au_intensities_recover_the_model_action_units(tmp_path):
+    facs = pytest.importorskip("synth.facs")
+    truth = [{12: 0.6, 4: 0.3, 26: 1.0}, {1: 0.5, 2: 0.5, 15: 0.8}, {}]
+    t = empty_table(4)
+    t[list(MUSCLES)] = 0.0
+    t[JAW] = 0.0
+    for row, aus in enumerate(truth):
+        for name, value in facs.aus_to_contractions(aus).items():
+            t.loc[row, name] = value
+    t.loc[3, "corrugator_l"] = np.nan  # a lost frame
+    original = t.copy()
+    out = with_au_columns(t)
+    pd.testing.assert_frame_equal(t, original)
+    for row, aus in enumerate(truth):
+        for n in (1, 2, 4, 12, 15, 26):
+            assert out.loc[row, f"AU{n:02d}_r"] == pytest.approx(5 * aus.get(n, 0.0), abs=1e-3)
+    assert out.loc[3, list(AU_COLUMNS)].isna().all()
+    values = out.loc[:2, list(AU_COLUMNS)].to_numpy()
+    assert values.min() >= 0 and values.max() <= 5
+    write_contractions(out.assign(timestamp=0.0), tmp_path / "c.csv")  # a valid table
+
+
+def test_au_intensities_reject_infinite_values():
+    t = empty_table(2)
+    t[list(MUSCLES)] = 0.0
+    t.loc[1, "risorius_r"] = np.inf
+    with pytest.raises(ValueError, match="infinite"):
+        au_intensities(t)

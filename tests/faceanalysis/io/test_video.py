@@ -1,0 +1,508 @@
+"""Video and image-folder input, frame normalisation and atomic video output."""
+
+from __future__ import annotations
+
+import gc
+import threading
+import tracemalloc
+from contextlib import closing
+
+import cv2
+import numpy as np
+import pytest
+
+from faceanalysis.io import video_writer
+from faceanalysis.io.video import (
+    DEFAULT_FPS,
+    Frame,
+    open_video,
+    read_ahead,
+    to_bgr_uint8,
+    to_gray_float,
+)
+from faceanalysis.io.video_writer import VideoWriter
+
+W, H = 96, 64
+
+
+def frame_image(i: int, *, size=(W, H), color=True) -> np.ndarray:
+    """A frame whose brightness encodes its index (robust to lossy coding)."""
+    value = (20 + 7 * i) % 230
+    shape = (size[1], size[0], 3) if color else (size[1], size[0])
+    return np.full(shape, value, np.uint8)
+
+
+def brightness_index(image: np.ndarray) -> int:
+    value = float(np.median(image))
+    return int(round((value - 20) / 7))
+
+
+def make_video(path, n, *, fps=25.0, fourcc="mp4v", size=(W, H), color=True, noise=False):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size, color)
+    assert writer.isOpened()
+    rng = np.random.default_rng(0)
+    for i in range(n):
+        img = frame_image(i, size=size, color=color)
+        if noise:  # incompressible frames, so that damage hits several of them
+            img = rng.integers(0, 255, img.shape, dtype=np.uint8)
+        writer.write(img)
+    writer.release()
+    return path
+
+
+@pytest.fixture
+def video(tmp_path):
+    return make_video(tmp_path / "clip.mp4", 30)
+
+
+# -- video files ---------------------------------------------------------------------------
+
+def test_reads_every_frame_with_container_timestamps(video):
+    with open_video(video) as src:
+        assert src.kind == "video"
+        assert src.size == (W, H)
+        assert src.fps == pytest.approx(25.0)
+        assert src.fps_origin == "container"
+        assert src.n_frames == 30 and len(src) == 30
+        frames = list(src)
+    assert [f.index for f in frames] == list(range(30))
+    assert all(f.ok and f.image.shape == (H, W, 3) for f in frames)
+    np.testing.assert_allclose([f.timestamp for f in frames], np.arange(30) / 25.0, atol=1e-6)
+    assert [brightness_index(f.image) for f in frames] == list(range(30))
+
+
+def test_fps_override_sets_timestamps(video):
+    frames = list(open_video(video, fps=10))
+    np.testing.assert_allclose([f.timestamp for f in frames], np.arange(30) / 10.0)
+
+
+def test_start_end_select_the_right_frames(video):
+    src = open_video(video, start=7, end=12)
+    assert src.n_frames == 5
+    frames = list(src)
+    assert [f.index for f in frames] == [7, 8, 9, 10, 11]
+    assert [brightness_index(f.image) for f in frames] == [7, 8, 9, 10, 11]
+    np.testing.assert_allclose([f.timestamp for f in frames], np.arange(7, 12) / 25.0,
+                               atol=1e-6)
+
+
+def test_iterating_twice_restarts(video):
+    src = open_video(video, start=3, end=6)
+    assert [f.index for f in src] == [3, 4, 5]
+    assert [f.index for f in src] == [3, 4, 5]
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    (dict(start=30), r"start \(30\).*clip\.mp4"),
+    (dict(end=31), r"end \(31\).*clip\.mp4"),
+    (dict(start=5, end=5), r"end \(5\).*start \(5\)"),
+    (dict(start=-1), "start"),
+    (dict(start=1.5), "start"),
+    (dict(fps=0), "fps"),
+    (dict(fps=float("nan")), "fps"),
+])
+def test_bad_range_or_fps_is_named(video, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        open_video(video, **kwargs)
+
+
+def test_grey_video_is_read(tmp_path):
+    path = make_video(tmp_path / "grey.avi", 5, fourcc="MJPG", color=False)
+    frames = list(open_video(path))
+    assert len(frames) == 5 and all(f.ok for f in frames)
+    assert to_gray_float(frames[0].image).shape == (H, W)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"nothere\.mp4: no such file"):
+        open_video(tmp_path / "nothere.mp4")
+
+
+def test_random_bytes_are_not_a_video(tmp_path):
+    path = tmp_path / "noise.mp4"
+    path.write_bytes(np.random.default_rng(1).bytes(5000))
+    with pytest.raises(ValueError, match=r"noise\.mp4: not a video"):
+        open_video(path)
+
+
+def test_empty_file(tmp_path):
+    path = tmp_path / "empty.mp4"
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match=r"empty\.mp4.*empty"):
+        open_video(path)
+
+
+def test_zero_frame_video(tmp_path):
+    path = make_video(tmp_path / "none.mp4", 0)
+    assert path.exists()
+    with pytest.raises(ValueError, match=r"none\.mp4: video has no decodable frames"):
+        open_video(path)
+
+
+def test_truncated_mp4_without_index(tmp_path, video):
+    data = video.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"cut\.mp4: video has no decodable frames"):
+        open_video(cut)
+
+
+def test_truncated_avi_ends_early_and_counts_missing_frames(tmp_path):
+    full = make_video(tmp_path / "full.avi", 40, fourcc="MJPG", noise=True)
+    data = full.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: len(data) // 2])
+    src = open_video(cut)
+    assert src.n_frames == 40  # what the container announces
+    frames = list(src)
+    assert 5 < len(frames) < 40
+    assert all(f.ok for f in frames)
+    assert [f.index for f in frames] == list(range(len(frames)))
+    assert src.missing_tail == 40 - len(frames)
+    assert src.n_failed == src.missing_tail
+    # A range that lies wholly in the missing part is an error, not an empty result.
+    with pytest.raises(ValueError, match=r"cut\.avi: no frame from 38 on could be decoded"):
+        list(open_video(cut, start=38))
+
+
+def test_damaged_frames_mid_stream_are_lost_and_reading_goes_on(tmp_path):
+    path = make_video(tmp_path / "dmg.mp4", 30, noise=True)
+    data = bytearray(path.read_bytes())
+    start = len(data) // 3
+    data[start:start + 2000] = bytes(2000)
+    path.write_bytes(bytes(data))
+    src = open_video(path)
+    frames = list(src)
+    lost = [f.index for f in frames if not f.ok]
+    good = [f.index for f in frames if f.ok]
+    assert lost, "the damaged region should cost at least one frame"
+    assert max(good) > max(lost), "decoding must resume after the damage"
+    assert [f.index for f in frames] == list(range(len(frames)))
+    assert all(f.image is None for f in frames if not f.ok)
+    assert src.n_failed == len(lost) + src.missing_tail
+    ts = np.array([f.timestamp for f in frames])
+    assert np.all(np.diff(ts) > 0)
+    # Good frames after the damage keep the container's time, not a shifted one.
+    after = [f for f in frames if f.ok and f.index > max(lost)]
+    assert after[0].timestamp == pytest.approx(after[0].index / 25.0, abs=1e-6)
+
+
+def test_tiny_frames_refused_with_min_size(tmp_path):
+    path = make_video(tmp_path / "tiny.avi", 3, fourcc="MJPG", size=(48, 40))
+    with pytest.raises(ValueError, match=r"tiny\.avi: frames are 48x40 pixels.*64"):
+        open_video(path, min_size=64)
+    assert len(list(open_video(path))) == 3  # readable when no minimum is asked
+
+
+def _good_frames_and_peak_memory(frames) -> tuple[int, int]:
+    """Frames decoded and the peak of traced memory (bytes) while iterating ``frames``."""
+    gc.collect()
+    tracemalloc.start()
+    try:
+        n = sum(frame.ok for frame in frames)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return n, peak
+
+
+def test_streaming_memory_stays_flat(tmp_path):
+    path = make_video(tmp_path / "long.avi", 120, fourcc="MJPG", size=(320, 240))
+    frame_bytes = 320 * 240 * 3
+    n, peak = _good_frames_and_peak_memory(open_video(path))
+    assert n == 120
+    assert peak < 6 * frame_bytes, f"peak {peak} bytes for {frame_bytes}-byte frames"
+
+
+def test_abandoned_iteration_releases_decoder(video):
+    with open_video(video) as src:
+        for frame in src:
+            if frame.index == 2:
+                break
+    assert src._capture is None
+
+
+# -- reading ahead --------------------------------------------------------------------------
+
+def _read_ahead_threads():
+    return [t for t in threading.enumerate() if t.name == "read_ahead"]
+
+
+def test_read_ahead_yields_the_same_frames_in_order(video):
+    direct = [(f.index, f.timestamp, brightness_index(f.image)) for f in open_video(video)]
+    src = open_video(video)
+    ahead = [(f.index, f.timestamp, brightness_index(f.image)) for f in read_ahead(src, 3)]
+    assert ahead == direct
+    assert src.n_failed == 0 and not _read_ahead_threads()
+
+
+def test_read_ahead_keeps_the_counts_of_a_damaged_video(tmp_path):
+    path = make_video(tmp_path / "dmg.mp4", 30, noise=True)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3:len(data) // 3 + 2000] = bytes(2000)
+    path.write_bytes(bytes(data))
+    direct = open_video(path)
+    expect = [(f.index, f.ok) for f in direct]
+    src = open_video(path)
+    assert [(f.index, f.ok) for f in read_ahead(src)] == expect
+    assert (src.n_failed, src.missing_tail) == (direct.n_failed, direct.missing_tail)
+
+
+def test_read_ahead_raises_the_error_at_its_item():
+    def frames():
+        yield from range(3)
+        raise ValueError("clip.mp4: frame 3 cannot be decoded")
+
+    got = []
+    with pytest.raises(ValueError, match="frame 3"):
+        for item in read_ahead(frames(), 2):
+            got.append(item)
+    assert got == [0, 1, 2]
+
+
+def test_read_ahead_stops_early_and_releases_the_decoder(video):
+    with open_video(video) as src, closing(read_ahead(src, 2)) as decoded:
+        for frame in decoded:
+            if frame.index == 2:
+                break
+    assert src._capture is None
+    assert not _read_ahead_threads()
+
+
+def test_read_ahead_memory_stays_bounded(tmp_path):
+    path = make_video(tmp_path / "long.avi", 60, fourcc="MJPG", size=(320, 240))
+    frame_bytes = 320 * 240 * 3
+    n, peak = _good_frames_and_peak_memory(read_ahead(open_video(path), 4))
+    assert n == 60
+    assert peak < 10 * frame_bytes, f"peak {peak} bytes for {frame_bytes}-byte frames"
+
+
+@pytest.mark.parametrize("depth", [0, -1, 1.5, "4"])
+def test_read_ahead_refuses_a_bad_depth(depth):
+    with pytest.raises(ValueError, match="depth"):
+        read_ahead(range(3), depth)
+
+
+# -- image folders -------------------------------------------------------------------------
+
+def write_folder(folder, images, names=None, ext="png"):
+    folder.mkdir(exist_ok=True)
+    names = names or [f"frame{i}.{ext}" for i in range(len(images))]
+    for name, img in zip(names, images):
+        assert cv2.imwrite(str(folder / name), img)
+    return folder
+
+
+def test_folder_is_sorted_naturally_and_uses_default_fps(tmp_path):
+    images = [np.full((H, W), 10 * i, np.uint8) for i in range(12)]
+    folder = write_folder(tmp_path / "seq", images)
+    (folder / "notes.txt").write_text("not an image")
+    src = open_video(folder)
+    assert src.kind == "images" and src.fps == DEFAULT_FPS and src.fps_origin == "default"
+    frames = list(src)
+    assert [int(f.image[0, 0]) for f in frames] == [10 * i for i in range(12)]
+    np.testing.assert_allclose([f.timestamp for f in frames], np.arange(12) / DEFAULT_FPS)
+
+
+def test_folder_keeps_16_bit_and_grey(tmp_path):
+    images = [(np.arange(H * W).reshape(H, W) * 9 + i).astype(np.uint16) for i in range(3)]
+    folder = write_folder(tmp_path / "deep", images, ext="tif")
+    src = open_video(folder, fps=50, start=1)
+    assert src.dtype == np.uint16 and src.channels == 1
+    frames = list(src)
+    assert [f.index for f in frames] == [1, 2]
+    np.testing.assert_array_equal(frames[0].image, images[1])
+    assert frames[1].timestamp == pytest.approx(0.04)
+    grey = to_gray_float(frames[0].image)
+    assert grey.dtype == np.float32 and grey.min() >= 0 and grey.max() <= 1
+    assert grey.max() == pytest.approx(images[1].max() / 65535, rel=1e-6)
+
+
+def test_folder_with_a_broken_image_marks_it_lost(tmp_path):
+    images = [np.full((H, W, 3), 30 * i, np.uint8) for i in range(4)]
+    folder = write_folder(tmp_path / "seq", images)
+    (folder / "frame2.png").write_bytes(b"not a png")
+    src = open_video(folder)
+    frames = list(src)
+    assert [f.ok for f in frames] == [True, True, False, True]
+    assert src.n_failed == 1
+
+
+def test_folder_with_a_different_size_image_marks_it_lost(tmp_path):
+    images = [np.zeros((H, W), np.uint8)] * 2 + [np.zeros((H + 2, W), np.uint8)]
+    frames = list(open_video(write_folder(tmp_path / "seq", images)))
+    assert [f.ok for f in frames] == [True, True, False]
+
+
+def test_empty_folder(tmp_path):
+    (tmp_path / "nothing").mkdir()
+    with pytest.raises(ValueError, match=r"nothing: folder holds no images"):
+        open_video(tmp_path / "nothing")
+
+
+def test_folder_start_beyond_end(tmp_path):
+    folder = write_folder(tmp_path / "seq", [np.zeros((H, W), np.uint8)] * 3)
+    with pytest.raises(ValueError, match=r"start \(3\) is beyond the last frame \(2\)"):
+        open_video(folder, start=3)
+
+
+# -- pixel normalisation -------------------------------------------------------------------
+
+@pytest.mark.parametrize(("image", "expected"), [
+    (np.full((2, 3), 255, np.uint8), 1.0),
+    (np.full((2, 3), 32768, np.uint16), 32768 / 65535),
+    (np.full((2, 3, 1), 51, np.uint8), 0.2),
+    (np.full((2, 3), 0.25, np.float64), 0.25),
+    (np.dstack([np.full((2, 3), 255, np.uint8)] * 3 + [np.zeros((2, 3), np.uint8)]), 1.0),
+])
+def test_to_gray_float_normalises(image, expected):
+    original = image.copy()
+    grey = to_gray_float(image)
+    assert grey.shape == (2, 3) and grey.dtype == np.float32
+    np.testing.assert_allclose(grey, expected, rtol=1e-6)
+    np.testing.assert_array_equal(image, original)
+
+
+def test_to_gray_float_matches_opencv_luma(rng):
+    bgr = rng.integers(0, 256, (8, 9, 3), dtype=np.uint8)
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) / 255.0
+    np.testing.assert_allclose(to_gray_float(bgr, dtype=np.float64), expected, atol=1 / 255)
+
+
+def test_to_gray_float_rejects_bad_shapes():
+    with pytest.raises(ValueError, match="shape"):
+        to_gray_float(np.zeros((2, 3, 5)))
+    with pytest.raises(ValueError, match="pixel type"):
+        to_gray_float(np.zeros((2, 3), dtype=complex))
+
+
+def test_to_bgr_uint8():
+    out = to_bgr_uint8(np.array([[0, 65535]], np.uint16))
+    assert out.shape == (1, 2, 3) and out.dtype == np.uint8
+    assert out[0, 1].tolist() == [255, 255, 255]
+    bgra = np.zeros((2, 2, 4), np.uint8)
+    bgra[..., 0] = 9
+    assert to_bgr_uint8(bgra).shape == (2, 2, 3)
+    assert to_bgr_uint8(np.full((1, 1), 2.0))[0, 0, 0] == 255  # floats are clipped
+
+
+def test_frame_is_a_plain_record():
+    f = Frame(3, 0.1, None, False)
+    assert (f.index, f.ok) == (3, False)
+
+
+# -- writing -------------------------------------------------------------------------------
+
+def test_writer_round_trip(tmp_path):
+    out = tmp_path / "overlay.mp4"
+    with VideoWriter(out, fps=20, size=(W, H)) as writer:
+        for i in range(8):
+            writer.write(frame_image(i, color=i % 2 == 0))
+    assert writer.path == out and out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["overlay.mp4"]
+    frames = list(open_video(out))
+    assert len(frames) == 8
+    assert [brightness_index(f.image) for f in frames] == list(range(8))
+    assert open_video(out).fps == pytest.approx(20)
+
+
+def test_writer_interrupted_leaves_nothing(tmp_path):
+    out = tmp_path / "overlay.mp4"
+    with pytest.raises(RuntimeError), VideoWriter(out, fps=20, size=(W, H)) as writer:
+        writer.write(frame_image(0))
+        raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writer_keeps_previous_result_when_interrupted(tmp_path):
+    out = tmp_path / "overlay.mp4"
+    out.write_bytes(b"previous complete result")
+    with pytest.raises(KeyboardInterrupt), VideoWriter(out, fps=20, size=(W, H)) as writer:
+        writer.write(frame_image(0))
+        raise KeyboardInterrupt
+    assert out.read_bytes() == b"previous complete result"
+    assert list(tmp_path.iterdir()) == [out]
+
+
+def test_writer_rejects_wrong_size_and_empty_video(tmp_path):
+    out = tmp_path / "o.mp4"
+    writer = VideoWriter(out, fps=20, size=(W, H))
+    with pytest.raises(ValueError, match=r"frame 0 is 10x10, expected 96x64"):
+        writer.write(np.zeros((10, 10), np.uint8))
+    with pytest.raises(ValueError, match="no frames"):
+        writer.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writer_falls_back_to_mjpg_avi(tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(video_writer, "_FALLBACKS", (("XXXX", ".mp4"), ("MJPG", ".avi")))
+    with caplog.at_level("INFO"), VideoWriter(tmp_path / "o.mp4", 25, (W, H)) as writer:
+        writer.write(frame_image(1))
+    assert writer.path == tmp_path / "o.avi" and writer.path.exists()
+    assert "Motion-JPEG" in caplog.text
+    assert len(list(open_video(writer.path))) == 1
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    (dict(fps=0, size=(4, 4)), "fps"),
+    (dict(fps=25, size=(0, 4)), "size"),
+    (dict(fps=25, size="big"), "size"),
+])
+def test_writer_validates(tmp_path, args, match):
+    with pytest.raises(ValueError, match=match):
+        VideoWriter(tmp_path / "o.mp4", **args)
+
+
+def test_single_image_is_one_frame(tmp_path):
+    path = tmp_path / "still.png"
+    cv2.imwrite(str(path), np.full((H, W), 4000, np.uint16))
+    src = open_video(path)
+    frames = list(src)
+    assert src.kind == "images" and src.n_frames == 1 and len(frames) == 1
+    assert frames[0].image.dtype == np.uint16 and frames[0].image[0, 0] == 4000
+    broken = tmp_path / "broken.jpg"
+    broken.write_bytes(b"nope")
+    with pytest.raises(ValueError, match=r"broken\.jpg: cannot decode image"):
+        open_video(broken)
+
+
+def test_unreadable_file(tmp_path, video):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root reads everything")
+    video.chmod(0)
+    try:
+        with pytest.raises(PermissionError, match=r"clip\.mp4: permission denied"):
+            open_video(video)
+    finally:
+        video.chmod(0o644)
+
+
+@pytest.mark.parametrize("announced", [20, None])
+def test_frames_beyond_an_estimated_count_are_still_read(video, announced):
+    src = open_video(video)
+    src.frame_count = announced  # containers that estimate their length (or give none)
+    frames = list(src)
+    assert [f.index for f in frames] == list(range(30)) and all(f.ok for f in frames)
+    assert src.missing_tail == 0 and src.n_failed == 0
+
+
+def test_writer_refuses_to_replace_a_folder(tmp_path):
+    (tmp_path / "overlay.mp4").mkdir()
+    with pytest.raises(ValueError, match="not a regular file"):
+        VideoWriter(tmp_path / "overlay.mp4", 25, (W, H))
+
+
+def test_damaged_first_frame_is_lost_not_fatal(tmp_path):
+    path = make_video(tmp_path / "first.avi", 10, fourcc="MJPG", noise=True)
+    data = bytearray(path.read_bytes())
+    first = data.find(b"\xff\xd8")               # JPEG start of the first frame
+    second = data.find(b"\xff\xd8", first + 2)   # ... and of the second
+    data[first:second - 8] = bytes(second - 8 - first)
+    path.write_bytes(bytes(data))
+    src = open_video(path)
+    assert src.size == (W, H)
+    frames = list(src)
+    assert [f.ok for f in frames] == [False] + [True] * 9
+    assert src.n_failed == 1

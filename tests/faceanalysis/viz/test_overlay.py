@@ -1,0 +1,61 @@
+"""Drawing tracking results on frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from faceanalysis.viz.overlay import draw_overlay, fiducials_from_row
+from faceanalysis.io.table import empty_table
+
+
+def test_draws_where_the_points_are_and_leaves_input_alone():
+    image = np.zeros((120, 160), np.uint16)
+    original = image.copy()
+    out = draw_overlay(image, contours={"lip": np.array([[20.0, 100.0], [140.0, 100.0]])},
+                       fiducials={"mouth_corner_l": (140.0, 30.0),
+                                  "mouth_corner_r": (20.0, 30.0)})
+    np.testing.assert_array_equal(image, original)
+    assert out.shape == (120, 160, 3) and out.dtype == np.uint8
+    assert out[100, 40:120].any(axis=1).all()       # the contour runs along y = 100
+    assert not out[60:80, 60:100].any()             # nothing drawn elsewhere
+    left, right = out[28:33, 138:143], out[28:33, 18:23]
+    assert left.any() and right.any()
+    # Left (green) and right (magenta) sides are told apart.
+    assert left[..., 1].max() > left[..., 2].max()
+    assert right[..., 2].max() > right[..., 1].max()
+
+
+def test_nan_points_are_skipped():
+    out = draw_overlay(np.zeros((50, 50, 3), np.uint8),
+                       contours=[np.array([[5.0, 5.0], [np.nan, np.nan], [45.0, 45.0]])],
+                       fiducials={"chin": (np.nan, 3.0)}, head=(np.nan, 0, 1, 0))
+    assert not out.any()
+
+
+def test_head_frame_axes_follow_roll():
+    out = draw_overlay(np.zeros((100, 100), np.uint8), head=(50.0, 50.0, 40.0, 0.0))
+    assert out[50, 62:68].any() and out[62:68, 50].any()   # x right, y down, 20 px long
+    assert not out[50, 32:38].any() and not out[32:38, 50].any()
+    turned = draw_overlay(np.zeros((100, 100), np.uint8), head=(50.0, 50.0, 40.0, np.pi / 2))
+    assert turned[62:68, 50].any() and turned[50, 32:38].any()  # x now down, y to the left
+    assert not turned[50, 62:68].any()
+
+
+def test_lost_and_label():
+    out = draw_overlay(np.full((80, 200), 128, np.uint8), lost=True, label="frame 3")
+    assert (out[0, :, 2] > 200).all()  # red border
+    assert (out[5:20, 2:60] != 128).any()
+
+
+def test_bad_contour_shape():
+    with pytest.raises(ValueError, match=r"\(K, 2\)"):
+        draw_overlay(np.zeros((10, 10)), contours=[np.zeros((3, 3))])
+
+
+def test_fiducials_from_a_table_row():
+    t = empty_table(1)
+    t.loc[0, ["fid_chin_x", "fid_chin_y"]] = [4.0, 5.0]
+    fid = fiducials_from_row(t.iloc[0])
+    assert len(fid) == 11 and fid["chin"] == (4.0, 5.0)
+    assert np.isnan(fid["brow_mid_l"][0])

@@ -1,0 +1,121 @@
+"""contractions.png: what is drawn, and that it is written atomically."""
+
+from __future__ import annotations
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from faceanalysis.viz import plots as plotting
+from faceanalysis.viz.plots import plot_contractions
+from faceanalysis.io.table import JAW, MUSCLES, empty_table
+
+
+@pytest.fixture
+def table():
+    n = 90
+    t = empty_table(n, timestamps=np.arange(n) / 30)
+    t["success"] = 1
+    t[list(MUSCLES)] = 0.0
+    s = np.arange(n)
+    t["zygomaticus_major_l"] = 0.8 * np.exp(-0.5 * ((s - 40) / 10) ** 2)
+    t["zygomaticus_major_r"] = 0.7 * np.exp(-0.5 * ((s - 40) / 10) ** 2)
+    t["orbicularis_oris"] = 0.3
+    t[JAW] = np.radians(10) * np.exp(-0.5 * ((s - 70) / 8) ** 2)
+    t.loc[20:24, "success"] = 0
+    t.loc[20:24, list(MUSCLES) + [JAW]] = np.nan
+    return t
+
+
+def test_default_plot_draws_active_muscles_pairs_and_jaw(table):
+    original = table.copy()
+    fig = plot_contractions(table)
+    ax = fig.axes[0]
+    labels = [line.get_label() for line in ax.lines]
+    assert labels == ["zygomaticus_major_l", "zygomaticus_major_r", "orbicularis_oris"]
+    styles = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in ax.lines}
+    assert styles["zygomaticus_major_l"][0] == styles["zygomaticus_major_r"][0]
+    assert styles["zygomaticus_major_l"][1] == "-" and styles["zygomaticus_major_r"][1] == "--"
+    assert ax.get_xlabel() == "time (s)"
+    jaw_ax = fig.axes[1]
+    assert "degrees" in jaw_ax.get_ylabel()
+    np.testing.assert_allclose(np.nanmax(jaw_ax.lines[0].get_ydata()), 10, rtol=1e-3)
+    assert len(ax.collections) == 1  # the lost-frame shading
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "lost frames (5)" in legend
+    assert table.equals(original)
+
+
+def test_selected_muscles_and_frame_axis(table):
+    fig = plot_contractions(table.drop(columns="timestamp"), muscles=["orbicularis_oris"],
+                            title="one")
+    ax = fig.axes[0]
+    assert [line.get_label() for line in ax.lines] == ["orbicularis_oris"]
+    assert ax.get_xlabel() == "frame" and ax.get_title() == "one"
+
+
+def test_bad_muscle_names(table):
+    with pytest.raises(ValueError, match="unknown muscles: smile"):
+        plot_contractions(table, muscles=["smile"])
+    with pytest.raises(ValueError, match="not in the table: risorius_l"):
+        plot_contractions(table.drop(columns="risorius_l"), muscles=["risorius_l"])
+
+
+def test_no_activity_still_plots(table):
+    table[list(MUSCLES)] = 0.0
+    fig = plot_contractions(table)
+    assert len(fig.axes[0].lines) == 0
+    assert "no muscle" in fig.axes[0].texts[0].get_text()
+
+
+def test_png_written_at_publication_resolution(table, tmp_path):
+    path = tmp_path / "contractions.png"
+    plot_contractions(table, path)
+    assert [p.name for p in tmp_path.iterdir()] == ["contractions.png"]
+    image = mpimg.imread(path)
+    assert image.shape[1] >= 1400 and image.shape[0] >= 650  # 10 x 4.8 in at 150 dpi
+    assert image[..., :3].std() > 0.05  # not blank
+
+
+def test_interrupted_save_leaves_previous_png(table, tmp_path, monkeypatch):
+    path = tmp_path / "contractions.png"
+    path.write_bytes(b"old plot")
+
+    def broken_savefig(self, fname, **kwargs):
+        with open(fname, "wb") as fh:
+            fh.write(b"\x89PNG half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plotting.Figure, "savefig", broken_savefig)
+    with pytest.raises(KeyboardInterrupt):
+        plot_contractions(table, path)
+    assert path.read_bytes() == b"old plot"
+    assert list(tmp_path.iterdir()) == [path]
+
+
+def test_many_muscles_are_stacked_one_panel_per_pair(table):
+    for m in ("corrugator_l", "corrugator_r", "risorius_l", "mentalis_r",
+              "frontalis_inner_l", "levator_labii_l"):
+        table[m] = np.linspace(0, 0.5, len(table))
+    fig = plot_contractions(table)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    # zygomaticus major, orbicularis oris + 5 more pairs, then the jaw panel
+    assert len(fig.axes) == 8 and labels[-1] == "jaw (deg)"
+    zyg = fig.axes[labels.index("zygomaticus major")]
+    assert [line.get_label() for line in zyg.lines] == ["zygomaticus_major_l",
+                                                         "zygomaticus_major_r"]
+    assert all(len(ax.collections) == 1 for ax in fig.axes)  # lost frames on every panel
+    single = plot_contractions(table, layout="single")
+    assert len(single.axes) == 2  # one axis + the jaw's secondary axis
+    with pytest.raises(ValueError, match="layout"):
+        plot_contractions(table, layout="grid")
+
+
+def test_isolated_lost_frames_are_visible(table):
+    table["success"] = 1
+    table.loc[[10, 50], "success"] = 0
+    fig = plot_contractions(table)
+    (bars,) = fig.axes[0].collections
+    assert len(bars.get_paths()) == 2
+    widths = [np.ptp(p.vertices[:, 0]) for p in bars.get_paths()]
+    np.testing.assert_allclose(widths, 1 / 30, rtol=1e-6)  # one frame wide
