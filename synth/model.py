@@ -32,6 +32,7 @@ from .integrators import (
     stable_timestep,
     verlet_step,
 )
+from .facs import JAW
 from .lattice import Lattice, build_lattice, prism_volumes, rotate_about_jaw
 from .muscles import MuscleSet, load_muscles, muscle_force_basis
 
@@ -43,8 +44,6 @@ __all__ = ["FaceModel", "DEFAULT_RESOLUTION", "MAX_JAW_ROTATION", "JAW"]
 DEFAULT_RESOLUTION = 0.4
 #: Largest jaw rotation accepted (radians), "fully open".
 MAX_JAW_ROTATION = 0.5
-#: Name of the jaw degree of freedom.
-JAW = "jaw_rotation"
 
 _METHODS_EQ = ("implicit", "rk2", "verlet")
 _METHODS_STEP = ("rk2", "verlet")

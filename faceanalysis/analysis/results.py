@@ -1,6 +1,6 @@
-"""The output folder of an analysis: one place for file names and how each file is written.
+"""The result of an analysis and its output folder.
 
-:class:`OutputFolder` checks the folder when it is created (so that a run fails
+:class:`Analysis` holds the table, the metadata and what led to them. :class:`OutputFolder` checks the folder when it is created (so that a run fails
 before any work if ``OUT`` holds results and ``overwrite`` is false), then writes
 each result atomically: ``contractions.csv``, ``analysis.json``,
 ``contractions.png`` and, on request, ``overlay.mp4``.
@@ -10,17 +10,87 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
+from faceanalysis.estimation.calibration import Calibration
+from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.outputs import prepare_output_dir
-from faceanalysis.viz.plots import plot_contractions
 from faceanalysis.io.report import write_analysis
-from faceanalysis.io.table import write_contractions
+from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, write_contractions
 from faceanalysis.io.video_writer import VideoWriter
+from faceanalysis.tracking import Tracks
+from faceanalysis.viz.plots import plot_contractions
 
-__all__ = ["OutputFolder"]
+__all__ = ["Analysis", "OutputFolder"]
+
+
+@dataclass
+class Analysis:
+    """The result of :func:`~faceanalysis.analysis.pipeline.analyze`.
+
+    Attributes
+    ----------
+    table : DataFrame
+        One row per frame, the columns of ``contractions.csv`` (see
+        :func:`faceanalysis.io.table.contraction_columns`).
+    contours : list of dict or None
+        Per frame, contour name -> (n, 2) node positions in pixels (None for frames
+        that could not be decoded).
+    metadata : dict
+        The content of ``analysis.json``.
+    calibration : Calibration
+        The neutral-frame calibration.
+    response : FiducialResponse
+        The model response the estimate inverted.
+    measurements : ndarray, shape (T, P, 2)
+        Image positions of the response's measurement points (the 11 fiducials and
+        the lower lip's centre) per frame; NaN for lost frames.
+    fit_residual : ndarray, shape (T,)
+        Per frame, the root-mean-square distance in model cm between the measured
+        point displacements and the face model's prediction at the estimate (see
+        :data:`faceanalysis.analysis.pipeline.MAX_FIT_RESIDUAL`); NaN for lost frames.
+    track_confidence : ndarray, shape (T,)
+        The tracker's confidence alone; the table's ``confidence`` is its minimum with
+        ``MAX_FIT_RESIDUAL / fit_residual``.
+    tracks : Tracks or None
+        What the tracker saw (:func:`faceanalysis.tracking.track`).
+    """
+
+    table: pd.DataFrame
+    contours: list
+    metadata: dict
+    calibration: Calibration | None = None
+    response: FiducialResponse | None = None
+    measurements: np.ndarray | None = None
+    timings: dict = field(default_factory=dict)
+    fit_residual: np.ndarray | None = None
+    track_confidence: np.ndarray | None = None
+    tracks: Tracks | None = None
+
+    @property
+    def fiducials(self) -> np.ndarray:
+        """Tracked fiducials, shape (T, 11, 2), pixels; NaN for lost frames."""
+        cols = [c for name in FIDUCIALS for c in (f"fid_{name}_x", f"fid_{name}_y")]
+        return self.table[cols].to_numpy(float).reshape(len(self.table), len(FIDUCIALS), 2)
+
+    @property
+    def contractions(self) -> pd.DataFrame:
+        """Muscle columns and ``jaw_rotation``, indexed by frame."""
+        return self.table.set_index("frame")[[*MUSCLES, JAW]]
+
+    def plot(self, path: str | os.PathLike | None = None, **kwargs):
+        """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given."""
+        return plot_contractions(self.table, path, **kwargs)
+
+    def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write ``contractions.csv``, ``analysis.json`` and ``contractions.png`` to ``output``."""
+        folder = OutputFolder(output, overwrite=overwrite)
+        return folder.write(self.table, self.metadata, title=self.metadata.get("input", {})
+                            .get("name"))
 
 
 class OutputFolder:

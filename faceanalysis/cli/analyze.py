@@ -14,10 +14,10 @@ HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)
 
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     """Options of the analysis itself (shared with ``batch``)."""
-    from faceanalysis.estimation.estimators import ESTIMATORS
+    from faceanalysis.estimation.registry import ESTIMATORS
 
     group = parser.add_argument_group("analysis")
-    group.add_argument("--estimator", choices=ESTIMATORS, default="joint",
+    group.add_argument("--estimator", choices=tuple(ESTIMATORS), default="joint",
                        help="joint: bounded least squares through the face model (default); "
                             "tw93: the paper's per-muscle inversion of eq. 5; flow: dense optical "
                             "flow on the model's per-muscle flow templates")

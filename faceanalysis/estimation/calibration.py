@@ -15,31 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def to_head_frame(points: np.ndarray, head: np.ndarray) -> np.ndarray:
-    """Express image points in the head reference frame.
-
-    Parameters
-    ----------
-    points : ndarray, shape (..., F, 2)
-        Image points (x right, y down, pixels).
-    head : ndarray, shape (..., 4)
-        Head frame per frame: origin x, origin y, scale (px per unit), roll (radians):
-        the angle of the head's x axis in image coordinates, ``atan2(dy, dx)`` with y
-        down, so a positive roll is clockwise on screen.
-
-    Returns
-    -------
-    ndarray, shape (..., F, 2)
-        ``R(-roll) (p - origin) / scale``: translation, in-plane rotation and scale removed.
-    """
-    points = np.asarray(points, dtype=float)
-    head = np.asarray(head, dtype=float)
-    rel = points - head[..., None, 0:2]
-    cos, sin = np.cos(head[..., 3])[..., None], np.sin(head[..., 3])[..., None]
-    x = cos * rel[..., 0] + sin * rel[..., 1]
-    y = -sin * rel[..., 0] + cos * rel[..., 1]
-    return np.stack([x, y], axis=-1) / head[..., 2, None, None]
+from faceanalysis.tracking import to_head_frame
 
 
 #: A neutral point this far (head-frame units) from the calibrated model's is suspect

@@ -35,7 +35,9 @@ import numpy as np
 
 from faceanalysis.estimation.response import FiducialResponse
 
-ESTIMATORS = ("joint", "tw93", "flow")
+#: The estimators that read points only (the ``flow`` estimator also needs the video;
+#: all three are in :data:`faceanalysis.estimation.registry.ESTIMATORS`).
+POINT_ESTIMATORS = ("joint", "tw93")
 
 #: The ``joint`` fit's default sparsity weight (see :func:`estimate_joint`). Chosen on
 #: four identities of the standard suite (0.001-0.03 tried) and checked on the other six:
@@ -453,6 +455,7 @@ def estimate(displacements: np.ndarray, response: FiducialResponse, *,
         return estimate_tw93(displacements, response)
     if estimator == "flow":
         raise ValueError("the flow estimator works on the video's dense motion, not on "
-                         "fiducials; use faceanalysis.analysis.pipeline.analyze(..., estimator='flow') "
+                         "fiducials; use faceanalysis.analyze(..., estimator='flow') "
                          "or faceanalysis.estimation.flow.estimate_flow")
-    raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    raise ValueError(f"unknown estimator {estimator!r}; choose from "
+                     f"{', '.join(POINT_ESTIMATORS)}")

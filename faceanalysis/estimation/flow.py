@@ -228,7 +228,8 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         Index = the table's rows; one column per fitted control (muscles,
         ``jaw_rotation``); NaN for lost frames.
     """
-    from faceanalysis.flow.dense import heads_from_table, video_face_flow
+    from faceanalysis.flow.dense import video_face_flow
+    from faceanalysis.io.table import heads_from_table
     from faceanalysis.flow.templates import personalize_from_table
 
     if templates is None:

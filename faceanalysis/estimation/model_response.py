@@ -49,7 +49,8 @@ def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
         repr((controls, n_levels, jaw_max, n_samples, MEASUREMENT_POINTS,
               sorted(CURVE_POINTS.items()))).encode(),
         # the physics code: a solver change makes the table stale
-        source_digest(("synth",), ("model_response.py", "response.py")).encode(),
+        source_digest(("synth",), ("faceanalysis.estimation.model_response",
+                                    "faceanalysis.estimation.response")).encode(),
     ])
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
-from faceanalysis.estimation.estimators import ESTIMATORS, estimate
+from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
 from faceanalysis.evaluation.suite import SuiteConfig, pool, public, script_kwargs
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.table import JAW, MUSCLES
@@ -130,7 +130,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     from synth.render.sequence import contraction_timeline
 
     estimators = tuple(estimators)
-    choices = tuple(e for e in ESTIMATORS if e != "flow")
+    choices = POINT_ESTIMATORS
     bad = [e for e in estimators if e not in choices]
     if bad or not estimators:
         raise ValueError(f"unknown estimators {bad} for the ceiling; choose from "

@@ -318,8 +318,9 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     -------
     ValidationResult
     """
-    from faceanalysis.estimation.calibration import to_head_frame
-    from faceanalysis.flow.dense import heads_from_table, video_face_flow
+    from faceanalysis.tracking import to_head_frame
+    from faceanalysis.flow.dense import video_face_flow
+    from faceanalysis.io.table import heads_from_table
     from faceanalysis.io.table import FIDUCIALS, read_contractions
     from faceanalysis.flow.templates import ModelView, SubjectWarp
 

@@ -43,8 +43,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["FLOW_METHODS", "STABILIZATION", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales",
            "head_array", "grid_image_points", "vectors_to_head", "image_flow_to_grid",
-           "stabilize", "face_flow", "rigid_basis", "remove_rigid", "track_heads",
-           "heads_from_table", "video_face_flow", "flow_to_colour"]
+           "stabilize", "face_flow", "rigid_basis", "remove_rigid", 
+           "video_face_flow", "flow_to_colour"]
 
 #: Optical-flow methods, first = default.
 FLOW_METHODS = ("dis", "farneback", "tvl1")
@@ -643,76 +643,6 @@ def remove_rigid(displacement: np.ndarray, mask: np.ndarray, basis: np.ndarray |
 
 
 # ---------------------------------------------------------------------------- videos
-def heads_from_table(table: pd.DataFrame) -> np.ndarray:
-    """Head frames ``(T, 4)`` from a contractions table (NaN where ``success == 0``)."""
-    cols = ["head_x", "head_y", "head_scale", "head_roll"]
-    missing = [c for c in cols if c not in table.columns]
-    if missing:
-        raise ValueError(f"table lacks head-frame columns {missing}")
-    h = table[cols].to_numpy(float).copy()
-    if "success" in table.columns:
-        h[table["success"].to_numpy() == 0] = np.nan
-    return h
-
-
-def track_heads(video: str | os.PathLike, *, fps: float | None = None, start: int = 0,
-                end: int | None = None, layout=None) -> pd.DataFrame:
-    """Head frames and fiducials of a video from the contour tracker (no muscle estimation).
-
-    A frame succeeds as in :func:`faceanalysis.analysis.pipeline.analyze`
-    (:func:`~faceanalysis.analysis.pipeline.measure_frame`: head frame and at least
-    :data:`~faceanalysis.analysis.pipeline.MIN_POINTS` fiducials known; a fiducial is unknown when
-    the contour it lies on is lost): the flow needs the head frame, not every contour.
-
-    Returns
-    -------
-    DataFrame with ``frame, timestamp, success, head_x, head_y, head_scale, head_roll`` and
-    ``fid_<name>_x, fid_<name>_y`` for the 11 fiducials (NaN where the face or the
-    fiducial's contour is lost).
-    """
-    from faceanalysis.analysis.pipeline import measure_frame
-    from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
-    from trackers import Tracker, detect_layout
-
-    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE)
-    rows = []
-    tracker = None
-    with source, closing(read_ahead(source)) as decoded:
-        for frame in decoded:
-            rec = {"frame": frame.index, "timestamp": frame.timestamp, "success": 0,
-                   "head_x": np.nan, "head_y": np.nan, "head_scale": np.nan,
-                   "head_roll": np.nan}
-            rec.update({f"fid_{n}_{k}": np.nan for n in FIDUCIALS for k in "xy"})
-            if frame.ok:
-                res = None
-                try:
-                    fresh = tracker is None
-                    if fresh:
-                        lay = layout if layout is not None else detect_layout(
-                            frame.image, frame_index=frame.index, channel_order="bgr")
-                        tracker = Tracker(lay, channel_order="bgr")
-                    res = tracker.track(frame.image)
-                    for _ in range(2 if fresh else 0):   # let fresh contours settle
-                        if res.success:
-                            break
-                        res = tracker.track(frame.image)
-                except ValueError as exc:     # no face / contours off the image: lost
-                    log.warning("%s: frame %d lost (%s)", video, frame.index, exc)
-                    if layout is None:
-                        tracker = None          # look for the face again on the next frame
-                if res is not None:
-                    head, points, good = measure_frame(res, FIDUCIALS)
-                    if good:
-                        rec.update(success=1, head_x=head[0], head_y=head[1],
-                                   head_scale=head[2], head_roll=head[3])
-                        for n, (x, y) in zip(FIDUCIALS, points):
-                            rec[f"fid_{n}_x"], rec[f"fid_{n}_y"] = float(x), float(y)
-            rows.append(rec)
-    if not rows:
-        raise ValueError(f"{video}: no frames in the requested range")
-    return pd.DataFrame(rows)
-
-
 def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = None,
                     neutral: int | None = None, method: str = "dis",
                     grid: FaceGrid | None = None, fps: float | None = None, start: int = 0,
@@ -725,7 +655,8 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     video : path-like
     table : DataFrame, optional
         Head frames per frame (``frame, head_*`` and ``success`` columns, e.g. an analysis's
-        ``contractions.csv``); default: tracked with :func:`track_heads`.
+        ``contractions.csv``); default: tracked with
+        :func:`faceanalysis.tracking.track` (``redetect=True``).
     neutral : int, optional
         Frame number of the reference (neutral) frame; default the first tracked frame.
     method, grid, px_per_unit, normalize, stabilization
@@ -741,10 +672,11 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     import time
 
     from faceanalysis.io.video import open_video
+    from faceanalysis.tracking import track
 
     grid = grid or FaceGrid()
     if table is None:
-        table = track_heads(video, fps=fps, start=start, end=end)
+        table = track(video, fps=fps, start=start, end=end, redetect=True).table
     if "frame" not in table.columns:
         raise ValueError("table lacks the 'frame' column")
     heads = heads_from_table(table)

@@ -341,7 +341,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     **kwargs
         Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
     """
-    from faceanalysis.flow.dense import track_heads, video_face_flow
+    from faceanalysis.flow.dense import video_face_flow
+    from faceanalysis.tracking import track
     from faceanalysis.flow.templates import personalize_from_table
 
     if templates is None:
@@ -354,7 +355,7 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     if end is not None and neutral is not None and neutral >= end:
         raise ValueError(f"neutral frame {neutral} lies after the range end {end}")
     if table is None:
-        table = track_heads(video, fps=fps, start=first, end=end)
+        table = track(video, fps=fps, start=first, end=end, redetect=True).table
     ff = video_face_flow(video, table=table, neutral=neutral, method=method,
                          grid=templates.grid, fps=fps, start=first, end=end)
     if personalised:
@@ -414,7 +415,7 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
 
     imgs = seq.images
     bgr = [cv2.cvtColor(im, cv2.COLOR_RGB2BGR) if im.ndim == 3 else im for im in imgs]
-    from faceanalysis.flow.dense import heads_from_table
+    from faceanalysis.io.table import heads_from_table
     from faceanalysis.io.table import FIDUCIALS
 
     tracker = Tracker(detect_layout(bgr[0], channel_order="bgr"), channel_order="bgr")

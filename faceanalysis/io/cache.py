@@ -23,7 +23,7 @@ def cache_dir() -> Path:
 @lru_cache(maxsize=8)
 def source_digest(packages: tuple[str, ...], modules: tuple[str, ...] = ()) -> str:
     """SHA-1 of the sources of ``packages`` (``.py``, ``.toml``, ``.json``) and of the
-    ``faceanalysis`` ``modules`` named (e.g. ``"templates.py"``)."""
+    ``modules`` named (e.g. ``"faceanalysis.flow.templates"``)."""
     h = hashlib.sha1()
     for pkg in packages:
         spec = importlib.util.find_spec(pkg)
@@ -34,7 +34,7 @@ def source_digest(packages: tuple[str, ...], modules: tuple[str, ...] = ()) -> s
             for f in sorted(root.rglob(pattern)):
                 h.update(f.read_bytes())
     for name in modules:
-        h.update((Path(__file__).parent / name).read_bytes())
+        h.update(Path(importlib.util.find_spec(name).origin).read_bytes())
     return h.hexdigest()
 
 

@@ -34,6 +34,8 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.io.outputs import atomic_path
+from synth.facs import JAW, MUSCLE_NAMES, PAIRED_MUSCLES
+from trackers.fiducials import FIDUCIAL_NAMES
 
 __all__ = [
     "AU_COLUMNS",
@@ -53,29 +55,11 @@ __all__ = [
     "write_contractions",
 ]
 
-#: The 11 fiducial points of 004 section V-D, ``_l`` = subject's left.
-FIDUCIALS: tuple[str, ...] = (
-    "brow_inner_l", "brow_mid_l", "brow_outer_l",
-    "brow_inner_r", "brow_mid_r", "brow_outer_r",
-    "mouth_corner_l", "mouth_corner_r",
-    "furrow_top_l", "furrow_top_r",
-    "chin",
-)
-
-#: Paired muscles, without their ``_l``/``_r`` suffix, in DESIGN.md order.
-MUSCLE_BASES: tuple[str, ...] = (
-    "frontalis_inner", "frontalis_major", "frontalis_outer", "corrugator",
-    "zygomaticus_major", "zygomaticus_minor", "levator_labii_nasi", "levator_labii",
-    "depressor_anguli", "depressor_labii", "mentalis", "buccinator", "risorius",
-)
-
-#: Every muscle column: each pair left then right, then the sphincters.
-MUSCLES: tuple[str, ...] = tuple(
-    f"{base}_{side}" for base in MUSCLE_BASES for side in ("l", "r")
-) + ("orbicularis_oris", "orbicularis_oculi_l", "orbicularis_oculi_r")
-
-#: Jaw rotation column (radians), written after the muscles.
-JAW = "jaw_rotation"
+# The names belong to the packages that define them: the trackers' fiducials, the face
+# model's muscles and jaw. The table re-exports them under its column-oriented names.
+FIDUCIALS: tuple[str, ...] = FIDUCIAL_NAMES
+MUSCLE_BASES: tuple[str, ...] = PAIRED_MUSCLES
+MUSCLES: tuple[str, ...] = MUSCLE_NAMES
 
 #: Per-frame bookkeeping columns.
 FRAME_COLUMNS: tuple[str, ...] = ("frame", "timestamp", "success", "confidence")
@@ -109,6 +93,25 @@ _RANGES: dict[str, tuple[float, float]] = {
     "confidence": (0.0, 1.0), **{m: (0.0, 1.0) for m in MUSCLES},
     **{a: (0.0, 5.0) for a in AU_COLUMNS},
 }
+
+
+def heads_from_table(table: pd.DataFrame) -> np.ndarray:
+    """Head frames ``(T, 4)`` from a contractions table (NaN where ``success == 0``).
+
+    Examples
+    --------
+    >>> t = pd.DataFrame({"head_x": [1.0, 2.0], "head_y": [0.0, 0.0], "head_scale": [9.0, 9.0],
+    ...                   "head_roll": [0.0, 0.0], "success": [1, 0]})
+    >>> heads_from_table(t)[:, 0].tolist()
+    [1.0, nan]
+    """
+    missing = [c for c in HEAD_COLUMNS if c not in table.columns]
+    if missing:
+        raise ValueError(f"table lacks head-frame columns {missing}")
+    h = table[list(HEAD_COLUMNS)].to_numpy(float).copy()
+    if "success" in table.columns:
+        h[table["success"].to_numpy() == 0] = np.nan
+    return h
 
 
 def contraction_columns() -> list[str]:

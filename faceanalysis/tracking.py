@@ -1,0 +1,464 @@
+"""The one loop over a video's frames: contours, points and head frame per frame.
+
+:func:`track` streams a video (file, image folder or single image) through the nine
+snakes of :mod:`trackers` and returns :class:`Tracks`: per frame the head reference
+frame, the 11 fiducials, the measurement points an estimator reads, the tracker's
+confidence and the contours. Everything above it (calibration, estimators, the flow
+pass, validation, recognition) starts from a :class:`Tracks` or its table, so every
+command sees the same frames succeed and fail.
+
+Frames are streamed: memory holds the per-frame measurements (a few hundred bytes a
+frame) and the contours, never the frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from contextlib import closing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.io.report import input_metadata
+from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS
+from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CURVE_POINTS",
+    "MIN_FURROW_STRETCH",
+    "MIN_POINTS",
+    "POINT_CONTOUR",
+    "Tracks",
+    "faded_furrow_ends",
+    "measure_frame",
+    "progress_bar",
+    "to_head_frame",
+    "track",
+]
+
+#: Measurement points read off a contour instead of a landmark: name -> (contour, fraction
+#: of its arc length from its first end). The contour names are shared by the trackers
+#: (:data:`trackers.layout.CONTOUR_NAMES`) and the face mesh's feature curves
+#: (:attr:`synth.mesh.FaceMesh.feature_curves`); both run from the furrow's top down.
+#: The middle and lower end of each nasolabial furrow follow the cheek where the
+#: zygomaticus, the levators, risorius and the jaw pull it, which is what tells those
+#: controls apart from the mouth corners alone.
+CURVE_POINTS: dict[str, tuple[str, float]] = {
+    **{f"furrow_mid_{s}": (f"furrow_{s}", 0.5) for s in "lr"},
+    **{f"furrow_bottom_{s}": (f"furrow_{s}", 1.0) for s in "lr"},
+}
+
+# How a measurement point that is not one of the 11 fiducials is read off the contours.
+_CONTOUR_POINTS = {"lip_lower_centre": ("lower_lip", 0.5), **CURVE_POINTS}
+
+#: The contour each measurement point comes from: a point is missing on a frame where
+#: its contour is lost (e.g. the chin below the bottom of the frame), while the points
+#: of the other contours still count.
+POINT_CONTOUR = {
+    **{f"brow_{p}_{s}": f"brow_{s}" for p in ("inner", "mid", "outer") for s in "lr"},
+    "mouth_corner_l": "upper_lip", "mouth_corner_r": "upper_lip",
+    "furrow_top_l": "furrow_l", "furrow_top_r": "furrow_r",
+    "chin": "chin_boss", "lip_lower_centre": "lower_lip",
+    **{name: contour for name, (contour, _) in CURVE_POINTS.items()},
+}
+
+#: A frame is tracked (``success = 1``) when its head frame is known and at least this
+#: many measurement points are; controls that only the missing points observe are NaN.
+MIN_POINTS = 7
+
+#: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
+#: tracked furrow is at least this long relative to the neutral frame. The face model
+#: never shortens a nasolabial furrow by more than 1.4 % (risorius at full contraction)
+#: and opening the jaw lengthens it by 18 %; a tracked furrow that got shorter ends
+#: where its line faded out (the stretched lower furrow fades as the jaw opens), not
+#: where the model's furrow ends, and its end would read as a jaw that did not open.
+MIN_FURROW_STRETCH = 0.98
+
+# The measurement points at a contour's lower end: name -> contour.
+_END_POINTS = {name: contour for name, (contour, fraction) in CURVE_POINTS.items()
+               if fraction == 1.0}
+
+
+def to_head_frame(points: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """Express image points in the head reference frame.
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., F, 2)
+        Image points (x right, y down, pixels).
+    head : ndarray, shape (..., 4)
+        Head frame per frame: origin x, origin y, scale (px per unit), roll (radians):
+        the angle of the head's x axis in image coordinates, ``atan2(dy, dx)`` with y
+        down, so a positive roll is clockwise on screen.
+
+    Returns
+    -------
+    ndarray, shape (..., F, 2)
+        ``R(-roll) (p - origin) / scale``: translation, in-plane rotation and scale removed.
+
+    Examples
+    --------
+    >>> to_head_frame([[12.0, 20.0]], [10.0, 20.0, 2.0, 0.0]).tolist()
+    [[1.0, 0.0]]
+    """
+    points = np.asarray(points, dtype=float)
+    head = np.asarray(head, dtype=float)
+    rel = points - head[..., None, 0:2]
+    cos, sin = np.cos(head[..., 3])[..., None], np.sin(head[..., 3])[..., None]
+    x = cos * rel[..., 0] + sin * rel[..., 1]
+    y = -sin * rel[..., 0] + cos * rel[..., 1]
+    return np.stack([x, y], axis=-1) / head[..., 2, None, None]
+
+
+def faded_furrow_ends(stretch, neutral: int, names) -> np.ndarray:
+    """Where a furrow's lower end is not measured (see :data:`MIN_FURROW_STRETCH`).
+
+    Parameters
+    ----------
+    stretch : array_like, shape (T, len(names))
+        Per frame, the length of the contour each point lies on relative to the
+        tracker's first frame (:attr:`trackers.ContourQuality.stretch`); NaN where the
+        frame was not tracked.
+    neutral : int
+        Row of ``stretch`` of the neutral frame.
+    names : sequence of str
+        Measurement points.
+
+    Returns
+    -------
+    ndarray of bool, shape (T, len(names))
+        True for a ``furrow_bottom_*`` point on a frame where its furrow is shorter
+        than :data:`MIN_FURROW_STRETCH` of its length on the neutral frame.
+
+    Examples
+    --------
+    >>> faded_furrow_ends([[1.0, 1.0], [np.nan, np.nan], [0.9, 0.9]], 0,
+    ...                   ["furrow_top_l", "furrow_bottom_l"])
+    array([[False, False],
+           [False, False],
+           [False,  True]])
+    """
+    s = np.asarray(stretch, dtype=float)
+    if s.ndim != 2 or s.shape[1] != len(names):
+        raise ValueError(f"stretch must have shape (T, {len(names)}), got {s.shape}")
+    if not 0 <= neutral < len(s):
+        raise ValueError(f"neutral must be a row of stretch (0..{len(s) - 1}), got {neutral}")
+    ends = np.array([name in _END_POINTS for name in names])
+    with np.errstate(invalid="ignore"):
+        return ends & (s < MIN_FURROW_STRETCH * s[neutral])
+
+
+def _measure(result, names: tuple[str, ...]) -> np.ndarray:
+    from trackers.fiducials import arc_point
+
+    out = np.empty((len(names), 2))
+    lost = {name for name, q in result.quality.items() if q.lost}
+    for j, name in enumerate(names):
+        if POINT_CONTOUR.get(name) in lost:
+            out[j] = np.nan
+        elif name in result.fiducials:
+            out[j] = result.fiducials[name]
+        elif name in _CONTOUR_POINTS:
+            contour, fraction = _CONTOUR_POINTS[name]
+            out[j] = arc_point(result.contours[contour], fraction)
+        else:
+            raise ValueError(f"the tracker cannot measure the point {name!r}")
+    return out
+
+
+def measure_frame(result, names: tuple[str, ...]):
+    """Head frame (4,), points (len(names), 2) and success of one tracked frame.
+
+    A point is NaN when the contour it lies on is lost; the frame succeeds when its
+    head frame is finite and at least :data:`MIN_POINTS` points are known.
+    """
+    head = result.head
+    head_row = np.array([head.x, head.y, head.scale, head.roll], float)
+    points = _measure(result, names)
+    good = bool(np.isfinite(head_row).all()
+                and np.isfinite(points).all(axis=1).sum() >= MIN_POINTS)
+    return head_row, points, good
+
+
+def _confidence(result) -> float:
+    """Smallest relative potential depth over the contours that are not lost, in [0, 1]."""
+    depths = [q.depth for q in result.quality.values() if not q.lost]
+    return float(np.clip(min(depths), 0.0, 1.0)) if depths else 0.0
+
+
+def progress_bar(total, enabled: bool, desc: str, *, unit: str = "frame"):
+    """A tqdm bar on stderr, or None when ``enabled`` is false (the library's default)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
+                dynamic_ncols=True)
+
+
+def load_layout(layout, frame_size):
+    """A :class:`trackers.FaceLayout` from a layout, a JSON file of one, or None."""
+    from trackers import FaceLayout
+
+    if layout is None or isinstance(layout, FaceLayout):
+        return layout
+    path = Path(layout)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such layout file")
+    lay = FaceLayout.from_json(path)
+    if tuple(lay.image_size) != tuple(frame_size):
+        raise ValueError(f"{path}: layout is for {lay.image_size[0]}x{lay.image_size[1]} frames, "
+                         f"the video has {frame_size[0]}x{frame_size[1]}")
+    return lay
+
+
+@dataclass
+class Tracks:
+    """What :func:`track` saw in a video, frame by frame.
+
+    Attributes
+    ----------
+    video : str
+        The input's path.
+    input : dict
+        The input's metadata (:func:`faceanalysis.io.report.input_metadata`).
+    frames, timestamps : ndarray, shape (T,)
+        Absolute frame numbers and their times in seconds.
+    success : ndarray of bool, shape (T,)
+        Head frame known and at least :data:`MIN_POINTS` points measured.
+    confidence : ndarray, shape (T,)
+        The tracker's confidence (smallest relative potential depth of the contours
+        that are held), 0 on lost frames.
+    heads : ndarray, shape (T, 4)
+        Head frame (origin x, y, scale, roll); NaN on lost frames.
+    fiducials : ndarray, shape (T, 11, 2)
+        The 11 fiducials in pixels (:data:`~faceanalysis.io.table.FIDUCIALS` order);
+        NaN on lost frames and where the fiducial's contour is lost.
+    point_names : tuple of str
+        The measurement points.
+    points : ndarray, shape (T, len(point_names), 2)
+        Measurement points in pixels, NaN as for ``fiducials``.
+    stretch : ndarray, shape (T, len(point_names))
+        Length of each point's contour relative to the tracker's first frame.
+    contours : list
+        Per frame, contour name -> (n, 2) nodes (None for frames that did not decode).
+    timings : dict
+        ``track_s`` (time in the tracker) and ``frames``.
+    """
+
+    video: str
+    input: dict
+    frames: np.ndarray
+    timestamps: np.ndarray
+    success: np.ndarray
+    confidence: np.ndarray
+    heads: np.ndarray
+    fiducials: np.ndarray
+    point_names: tuple
+    points: np.ndarray
+    stretch: np.ndarray
+    contours: list
+    timings: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """``frame, timestamp, success``, the head columns and ``fid_<name>_x/_y``:
+        the tracking part of ``contractions.csv``."""
+        out = {"frame": self.frames.astype(np.int64), "timestamp": self.timestamps,
+               "success": self.success.astype(np.int64)}
+        for j, col in enumerate(HEAD_COLUMNS):
+            out[col] = self.heads[:, j]
+        for j, name in enumerate(FIDUCIALS):
+            out[f"fid_{name}_x"] = self.fiducials[:, j, 0]
+            out[f"fid_{name}_y"] = self.fiducials[:, j, 1]
+        return pd.DataFrame(out)
+
+
+def _detect(image, frame_index: int, video):
+    from trackers import detect_layout
+
+    try:
+        return detect_layout(image, frame_index=frame_index, channel_order="bgr")
+    except ValueError as exc:
+        # the detector names the frame; the user needs the file too
+        raise ValueError(f"{video}: {exc}") from None
+
+
+def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS),
+          fps: float | None = None, start: int = 0, end: int | None = None, layout=None,
+          tracker_options: dict | None = None, backend: str = "numpy",
+          device: str | None = None, redetect: bool = False,
+          overlay: str | os.PathLike | None = None, progress: bool = False) -> Tracks:
+    """Track the face in a video: head frame, fiducials and measurement points per frame.
+
+    Parameters
+    ----------
+    video : path-like
+        Video file, folder of images, or a single image.
+    points : tuple of str, keyword-only
+        Measurement points to read: fiducials (:data:`~faceanalysis.io.table.FIDUCIALS`),
+        ``lip_lower_centre`` and the :data:`CURVE_POINTS`. A frame succeeds when at
+        least :data:`MIN_POINTS` of them are measured.
+    fps : float, optional
+        Frame rate, overriding the container's.
+    start, end : int, optional
+        Frame range ``[start, end)``.
+    layout : FaceLayout or path-like, optional
+        Initial contours (e.g. corrected by hand and saved with ``FaceLayout.to_json``);
+        by default they are placed by OpenCV's face and eye detectors on the first frame.
+    tracker_options : dict, optional
+        Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
+    backend : {'numpy', 'torch'}, keyword-only
+        Where the snakes relax: compiled NumPy/Numba (default) or batched torch (the
+        ``[torch]`` extra; same contours within 1e-6 px).
+    device : str, optional
+        Torch device with ``backend='torch'``.
+    redetect : bool, keyword-only
+        False (default): no face on the first frame is a ``ValueError``. True: a frame
+        where the face is not found or the contours leave the image is lost, the face is
+        looked for again on the next frame, and fresh contours get two more relaxations
+        to settle.
+    overlay : path-like, optional
+        Write the frames with contours, fiducials and head frame drawn to this video.
+    progress : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    Tracks
+
+    Raises
+    ------
+    FileNotFoundError
+        If the video (or layout file) does not exist.
+    ValueError
+        Unreadable video, an empty frame range, no face on the first frame (without
+        ``redetect``), unknown points or bad parameters.
+    """
+    from trackers.torch_backend import check_backend, make_tracker
+
+    points = tuple(points)
+    unknown = [p for p in points if p not in POINT_CONTOUR]
+    if unknown:
+        raise ValueError(f"unknown measurement points {unknown}; choose from "
+                         f"{', '.join(POINT_CONTOUR)}")
+    check_backend(backend, device)
+    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE)
+    n_fid = len(FIDUCIALS)
+    fid_of_point = [points.index(n) if n in points else None for n in FIDUCIALS]
+    point_contours = [POINT_CONTOUR[p] for p in points]   # once, not per frame
+    nan_fid = np.full((n_fid, 2), np.nan)
+    nan_pts = np.full((len(points), 2), np.nan)
+    nan_stretch = np.full(len(points), np.nan)
+    nan_head = np.full(4, np.nan)
+    frames, stamps, ok, conf = [], [], [], []
+    fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
+    tracker = None
+    writer = None
+    t_track = 0.0
+    bar = progress_bar(source.n_frames, progress, "track")
+    try:
+        # decoding runs ahead in a thread; closing() stops it before the source closes
+        with source, closing(read_ahead(source)) as decoded:
+            for frame in decoded:
+                frames.append(frame.index)
+                stamps.append(frame.timestamp)
+                res = None
+                if frame.ok:
+                    t0 = time.perf_counter()
+                    res = _track_frame(tracker, frame, video, layout, source.size,
+                                       redetect, backend, device, tracker_options,
+                                       make_tracker)
+                    tracker = res[0]
+                    res = res[1]
+                    t_track += time.perf_counter() - t0
+                if res is None:
+                    good, c = False, 0.0
+                    fids, pts, head, stretch = nan_fid, nan_pts, nan_head, nan_stretch
+                else:
+                    head, pts, good = measure_frame(res, points)
+                    c = _confidence(res)
+                    fids = np.array([res.fiducials[n] for n in FIDUCIALS], float)
+                    for j, p in enumerate(fid_of_point):
+                        if p is not None and not np.isfinite(pts[p]).all():
+                            fids[j] = np.nan
+                    stretch = np.array([res.quality[c_].stretch for c_ in point_contours])
+                    if not good:
+                        fids, pts, head = nan_fid, nan_pts, nan_head
+                ok.append(good)
+                conf.append(c)
+                fid_rows.append(fids)
+                pt_rows.append(pts)
+                head_rows.append(head)
+                stretch_rows.append(stretch)
+                contours.append(None if res is None else res.contours)
+                if overlay is not None and frame.ok:
+                    if writer is None:
+                        from faceanalysis.io.video_writer import VideoWriter
+
+                        writer = VideoWriter(overlay, source.fps, source.size)
+                    writer.write(_draw(frame, contours[-1], fids, head if good else None,
+                                       not good))
+                if bar is not None:
+                    bar.update(1)
+        if writer is not None:
+            writer.close()
+            writer = None
+    finally:
+        if bar is not None:
+            bar.close()
+        if writer is not None:
+            writer.abort()
+    if not frames:
+        raise ValueError(f"{video}: no frames in the requested range")
+    return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
+                  timestamps=np.array(stamps, float), success=np.array(ok, bool),
+                  confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
+                  fiducials=np.stack(fid_rows), point_names=points,
+                  points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
+                  contours=contours, timings={"track_s": t_track, "frames": len(frames)})
+
+
+def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
+                 tracker_options, make_tracker):
+    """(tracker, result) for one decoded frame; result None when the frame is lost."""
+    fresh = tracker is None
+    try:
+        if fresh:
+            lay = load_layout(layout, size)
+            if lay is None:
+                lay = _detect(frame.image, frame.index, video)
+            tracker = make_tracker(lay, backend=backend, device=device, channel_order="bgr",
+                                   **(tracker_options or {}))
+        res = tracker.track(frame.image)
+        for _ in range(2 if fresh and redetect else 0):   # let fresh contours settle
+            if res.success:
+                break
+            res = tracker.track(frame.image)
+    except ValueError as exc:
+        if not redetect:
+            raise
+        # no face, or contours off the image: this frame is lost
+        log.warning("%s: frame %d lost (%s)", video, frame.index, exc)
+        if layout is None:
+            tracker = None          # look for the face again on the next frame
+        return tracker, None
+    return tracker, res
+
+
+def _draw(frame, contours, fids, head, lost):
+    from faceanalysis.viz.overlay import draw_overlay
+
+    return draw_overlay(frame.image, contours=contours,
+                        fiducials=dict(zip(FIDUCIALS, fids.tolist())), head=head, lost=lost,
+                        label=f"frame {frame.index}  {frame.timestamp:.2f} s")
