@@ -141,8 +141,8 @@ def _recognition_figures(quick: bool) -> list[Figure]:
 
 
 def _validation_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.flow.templates import default_templates
     from faceanalysis.evaluation.validation import evaluate_validation
+    from faceanalysis.flow.templates import default_templates
 
     ids = range(101, 102) if quick else range(101, 104)
     exprs = ("happiness", "surprise") if quick else ("happiness", "surprise", "anger",

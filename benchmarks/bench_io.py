@@ -26,7 +26,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _harness import Figure, median_time, ratio  # noqa: E402
 
-from faceanalysis.viz.plots import plot_contractions  # noqa: E402
 from faceanalysis.io.table import (  # noqa: E402
     JAW,
     MUSCLES,
@@ -37,6 +36,7 @@ from faceanalysis.io.table import (  # noqa: E402
     write_contractions,
 )
 from faceanalysis.io.video import open_video  # noqa: E402
+from faceanalysis.viz.plots import plot_contractions  # noqa: E402
 
 W, H = 640, 480
 

@@ -60,8 +60,8 @@ def run(quick: bool) -> list[Figure]:
     import pandas as pd
 
     from faceanalysis.analysis.pipeline import analyze
-    from faceanalysis.resynthesis.pipeline import personalize, resynthesize
     from faceanalysis.io.table import MUSCLES
+    from faceanalysis.resynthesis.pipeline import personalize, resynthesize
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .facs import JAW
 from .forces import TissueSystem
 from .integrators import (
     DynamicState,
@@ -32,7 +33,6 @@ from .integrators import (
     stable_timestep,
     verlet_step,
 )
-from .facs import JAW
 from .lattice import Lattice, build_lattice, prism_volumes, rotate_about_jaw
 from .muscles import MuscleSet, load_muscles, muscle_force_basis
 

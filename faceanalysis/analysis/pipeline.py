@@ -26,8 +26,14 @@ from faceanalysis.estimation.estimators import fit_residual
 from faceanalysis.estimation.registry import ESTIMATORS, Observations, run_estimator
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import analysis_metadata, quality_summary
-from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES, empty_table, \
-    with_au_columns
+from faceanalysis.io.table import (
+    FIDUCIALS,
+    HEAD_COLUMNS,
+    JAW,
+    MUSCLES,
+    empty_table,
+    with_au_columns,
+)
 from faceanalysis.tracking import Tracks, faded_furrow_ends, track
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,7 @@
 """The result of an analysis and its output folder.
 
-:class:`Analysis` holds the table, the metadata and what led to them. :class:`OutputFolder` checks the folder when it is created (so that a run fails
+:class:`Analysis` holds the table, the metadata and what led to them.
+:class:`OutputFolder` checks the folder when it is created (so that a run fails
 before any work if ``OUT`` holds results and ``overwrite`` is false), then writes
 each result atomically: ``contractions.csv``, ``analysis.json``,
 ``contractions.png`` and, on request, ``overlay.mp4``.

@@ -53,7 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.evaluation import suite as evaluation
+    from faceanalysis.evaluation import scores, suite
 
     if args.suite and (args.truth or args.estimate):
         raise ValueError("--suite runs its own sequences; do not combine it with "
@@ -64,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
         if args.output is not None:
             raise ValueError("--suite ceiling writes nothing; it prints its table "
                              "(use --json for JSON)")
-        config = evaluation.SuiteConfig(identities=args.identities, frames=args.frames)
+        config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
         reports = measurement_ceiling(config, own_response=args.own_response,
                                       progress=not args.quiet)
         if not args.json:
-            print(evaluation.format_table(reports))
+            print(scores.format_table(reports))
         print(json.dumps(reports))
         return 0
     if args.own_response:
@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
     if args.suite:
         if args.output is None:
             raise ValueError("--suite needs -o OUT")
-        config = evaluation.SuiteConfig(identities=args.identities, frames=args.frames)
-        report = evaluation.run_suite(args.output, config=config, overwrite=args.overwrite,
+        config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
+        report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
                                       progress=not args.quiet)
         if args.json:
             print(json.dumps(report["estimators"]))
@@ -87,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.truth is None or args.estimate is None:
         raise ValueError("give --truth DIR and --estimate DIR, or --suite standard -o OUT")
-    report = evaluation.public(evaluation.compare(args.truth, args.estimate))
+    report = scores.evaluate(args.truth, args.estimate)
     if not args.json:
-        print(evaluation.format_table({"estimate": report}))
+        print(scores.format_table({"estimate": report}))
     print(json.dumps(report))
     return 0

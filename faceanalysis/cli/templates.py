@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from faceanalysis.io.outputs import prepare_output_dir
     from faceanalysis.flow.templates import make_templates, personalize_from_table, write_templates
+    from faceanalysis.io.outputs import prepare_output_dir
 
     if args.subject is not None:
         csv = args.subject / "contractions.csv" if args.subject.is_dir() else args.subject

@@ -17,7 +17,6 @@ import numpy as np
 
 from faceanalysis.tracking import to_head_frame
 
-
 #: A neutral point this far (head-frame units) from the calibrated model's is suspect
 #: (:func:`find_suspect`): on 77 rendered sequences of 7 faces the farthest point was
 #: 0.051 away, while the contours that settled on the wrong feature on the real clips

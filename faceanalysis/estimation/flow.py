@@ -229,8 +229,8 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         ``jaw_rotation``); NaN for lost frames.
     """
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.io.table import heads_from_table
     from faceanalysis.flow.templates import personalize_from_table
+    from faceanalysis.io.table import heads_from_table
 
     if templates is None:
         from faceanalysis.flow.templates import default_templates

@@ -12,10 +12,11 @@ import logging
 import numpy as np
 
 from faceanalysis._version import __version__
+from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.cache import cache_dir, digest_of, source_digest
 from faceanalysis.io.outputs import atomic_path
-from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.table import FIDUCIALS
+from faceanalysis.tracking import CURVE_POINTS
 
 log = logging.getLogger(__name__)
 
@@ -53,19 +54,6 @@ def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
                                     "faceanalysis.estimation.response")).encode(),
     ])
 
-
-#: Measurement points read off a contour instead of a landmark: name -> (contour, fraction
-#: of its arc length from its first end). The contour names are shared by the trackers
-#: (:data:`trackers.layout.CONTOUR_NAMES`) and the face mesh's feature curves
-#: (:attr:`synth.mesh.FaceMesh.feature_curves`); both run from the furrow's top down.
-#: The middle and lower end of each nasolabial furrow follow the cheek where the
-#: zygomaticus, the levators, risorius and the jaw pull it: on the synthetic suite they
-#: took the jaw error of ``joint`` from 1.0 to 0.7 degrees and the median RMSE over the
-#: muscles from 0.15 to 0.13.
-CURVE_POINTS: dict[str, tuple[str, float]] = {
-    **{f"furrow_mid_{s}": (f"furrow_{s}", 0.5) for s in "lr"},
-    **{f"furrow_bottom_{s}": (f"furrow_{s}", 1.0) for s in "lr"},
-}
 
 #: Measurement points: the 11 fiducials of 004, the centre of the lower lip's lower
 #: border, which the lower-lip snake tracks and which no fiducial observes (it is what

@@ -26,8 +26,9 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
-from faceanalysis.evaluation.suite import SuiteConfig, pool, public, script_kwargs
 from faceanalysis.estimation.response import FiducialResponse
+from faceanalysis.evaluation.scores import pool, public
+from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
 from faceanalysis.io.table import JAW, MUSCLES
 
 __all__ = ["perfect_measurements", "measurement_ceiling", "identifiability"]
@@ -103,7 +104,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     Returns
     -------
     dict
-        Estimator name -> the pooled report of :func:`faceanalysis.evaluation.suite.pool`
+        Estimator name -> the pooled report of :func:`faceanalysis.evaluation.scores.pool`
         (JSON-ready: ``controls`` name -> ``rmse``, ``r``, ``truth_max``,
         ``estimate_max``; ``jaw_rmse_deg``; ``frames``; ``sequences``), with
         ``points`` (the measurement points used). Fiducial errors are ``None``: the

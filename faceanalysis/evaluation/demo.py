@@ -28,7 +28,7 @@ def run_demo(output: str | os.PathLike, *, expression: str = "surprise", frames:
         Paths of the main files, by name.
     """
     from faceanalysis.analysis.pipeline import analyze_to_folder
-    from faceanalysis.evaluation.suite import compare, public
+    from faceanalysis.evaluation.scores import compare, public
     from synth.render.sequence import render_sequence
 
     out = prepare_output_dir(output, overwrite=overwrite)

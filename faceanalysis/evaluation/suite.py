@@ -1,17 +1,10 @@
-"""Closed-loop evaluation: analyse synthetic video whose answer is known.
+"""The standard suite: analyse synthetic video whose answer is known.
 
-The face model renders sequences from known contractions (:mod:`synth.render`);
-the analysis estimates them back; this module compares the two. :func:`compare`
-scores one analysis against one ground truth; :func:`run_suite` renders the
-standard suite (the six primary expressions and mixed action-unit scripts over
-several identities, with head motion, sensor noise and illumination change),
-analyses every sequence with each estimator and pools the scores.
-
-Scores (pooled over all tracked frames of all sequences):
-
-* per control: RMSE (contraction units; jaw in radians) and Pearson r;
-* jaw: RMSE in degrees;
-* fiducials: mean distance in pixels between tracked and projected fiducials.
+The face model renders sequences from known contractions (:mod:`synth.render`); the
+analysis estimates them back; :mod:`faceanalysis.evaluation.scores` compares the two.
+:func:`run_suite` renders the standard suite (the six primary expressions and mixed
+action-unit scripts over several identities, with head motion, sensor noise and
+illumination change), analyses every sequence with each estimator and pools the scores.
 """
 
 from __future__ import annotations
@@ -27,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from faceanalysis.evaluation.scores import compare, format_table, pool, public
 from faceanalysis.io.outputs import atomic_path, prepare_output_dir, write_text_atomic
-from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
 
 log = logging.getLogger(__name__)
 
@@ -43,152 +36,6 @@ STANDARD_SEQUENCES: tuple[tuple[str, str], ...] = (
 #: Identity seeds of the suite; seed 0 is the generic face, which is left out so that
 #: the suite tests faces the response table was not made from.
 SUITE_SEEDS_START = 101
-
-
-def _load_table(source, name: str) -> pd.DataFrame:
-    if isinstance(source, pd.DataFrame):
-        return source
-    path = Path(source)
-    if path.is_dir():
-        path = path / name
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    return pd.read_csv(path)
-
-
-def compare(truth, estimate, *, controls=None) -> dict:
-    """Score an estimated contractions table against ground truth.
-
-    Parameters
-    ----------
-    truth : DataFrame or path
-        ``truth.csv`` of a synthetic sequence (or its folder).
-    estimate : DataFrame or path
-        ``contractions.csv`` of its analysis (or the analysis folder).
-    controls : sequence of str, optional
-        Controls to score (default: every muscle and the jaw present in both).
-
-    Returns
-    -------
-    dict
-        ``frames``, ``frames_compared``, ``controls`` (name -> rmse, r, truth_max),
-        ``jaw_rmse_deg``, ``fiducial_error_px`` (mean), ``fiducial_error_by_point``, and the
-        aligned arrays under ``_pairs`` (for pooling; not JSON).
-    """
-    t = _load_table(truth, "truth.csv")
-    e = _load_table(estimate, "contractions.csv")
-    for df, what in ((t, "truth"), (e, "estimate")):
-        if "frame" not in df.columns:
-            raise ValueError(f"{what} table has no 'frame' column")
-    merged = t.merge(e, on="frame", suffixes=("_t", "_e"))
-    if merged.empty:
-        raise ValueError("truth and estimate share no frame numbers")
-    ok = merged["success_e"].to_numpy() == 1 if "success_e" in merged else \
-        np.ones(len(merged), bool)
-    if controls is None:
-        controls = [c for c in (*MUSCLES, JAW) if c in t.columns and c in e.columns]
-    pairs = {c: (merged[f"{c}_t"].to_numpy(float)[ok], merged[f"{c}_e"].to_numpy(float)[ok])
-             for c in controls}
-    fid_t = np.stack([merged[[f"fid_{n}_x_t", f"fid_{n}_y_t"]].to_numpy(float)
-                      for n in FIDUCIALS], axis=1)[ok]
-    fid_e = np.stack([merged[[f"fid_{n}_x_e", f"fid_{n}_y_e"]].to_numpy(float)
-                      for n in FIDUCIALS], axis=1)[ok]
-    visible = np.ones(fid_t.shape[:2], bool)
-    vis_cols = [f"fid_{n}_visible" for n in FIDUCIALS]
-    if all(c in merged.columns for c in vis_cols):
-        visible = merged[vis_cols].to_numpy()[ok].astype(bool)
-    dist = np.hypot(*(fid_e - fid_t).transpose(2, 0, 1))
-    pairs["_fiducials"] = (dist, visible)
-    report = _scores(pairs)
-    report.update(frames=int(len(merged)), frames_compared=int(ok.sum()))
-    report["_pairs"] = pairs
-    return report
-
-
-def _pearson(a: np.ndarray, b: np.ndarray) -> float | None:
-    if a.size < 3 or np.std(a) < 1e-9 or np.std(b) < 1e-9:
-        return None
-    return float(np.corrcoef(a, b)[0, 1])
-
-
-def _scores(pairs: dict) -> dict:
-    controls = {}
-    for name, (t, e) in pairs.items():
-        if name.startswith("_"):
-            continue
-        good = np.isfinite(t) & np.isfinite(e)
-        t, e = t[good], e[good]
-        controls[name] = {
-            "rmse": float(np.sqrt(np.mean((t - e) ** 2))) if t.size else None,
-            "r": _pearson(t, e),
-            "truth_max": float(np.max(t)) if t.size else None,
-            "estimate_max": float(np.max(e)) if e.size else None,
-        }
-    out = {"controls": controls}
-    jaw = controls.get(JAW)
-    out["jaw_rmse_deg"] = None if not jaw or jaw["rmse"] is None else float(
-        np.degrees(jaw["rmse"]))
-    if "_fiducials" not in pairs:          # exact measurements (faceanalysis.evaluation.ceiling)
-        out["fiducial_error_px"] = None
-        out["fiducial_error_by_point"] = None
-        return out
-    dist, visible = pairs["_fiducials"]
-    valid = visible & np.isfinite(dist)
-    out["fiducial_error_px"] = float(dist[valid].mean()) if valid.any() else None
-    out["fiducial_error_by_point"] = {
-        n: (float(dist[:, j][valid[:, j]].mean()) if valid[:, j].any() else None)
-        for j, n in enumerate(FIDUCIALS)}
-    return out
-
-
-def pool(reports: list[dict]) -> dict:
-    """Pool several :func:`compare` reports (all frames of all sequences together)."""
-    if not reports:
-        raise ValueError("nothing to pool")
-    names = [k for k in reports[0]["_pairs"] if not k.startswith("_")]
-    pairs = {n: (np.concatenate([r["_pairs"][n][0] for r in reports]),
-                 np.concatenate([r["_pairs"][n][1] for r in reports])) for n in names}
-    if all("_fiducials" in r["_pairs"] for r in reports):
-        pairs["_fiducials"] = tuple(np.concatenate([r["_pairs"]["_fiducials"][k]
-                                                    for r in reports]) for k in (0, 1))
-    out = _scores(pairs)
-    out["frames"] = int(sum(r["frames"] for r in reports))
-    out["frames_compared"] = int(sum(r["frames_compared"] for r in reports))
-    out["sequences"] = len(reports)
-    return out
-
-
-def public(report: dict) -> dict:
-    """The report without its private arrays (JSON-ready)."""
-    return {k: v for k, v in report.items() if not k.startswith("_")}
-
-
-def format_table(reports: dict[str, dict], *, controls=None) -> str:
-    """Markdown table of per-control RMSE and r, one column pair per estimator."""
-    names = list(reports)
-    first = reports[names[0]]["controls"]
-    controls = controls or [c for c in first if any(
-        (reports[n]["controls"].get(c, {}).get("truth_max") or 0) > 1e-6
-        or (reports[n]["controls"].get(c, {}).get("estimate_max") or 0) > 1e-6 for n in names)]
-    head = "| control | " + " | ".join(f"{n} RMSE | {n} r" for n in names) + " |"
-    lines = [head, "|---|" + "---:|---:|" * len(names)]
-    for c in controls:
-        cells = []
-        for n in names:
-            s = reports[n]["controls"].get(c, {})
-            rmse, r = s.get("rmse"), s.get("r")
-            cells.append("-" if rmse is None else f"{rmse:.3f}")
-            cells.append("-" if r is None else f"{r:.3f}")
-        lines.append(f"| {c} | " + " | ".join(cells) + " |")
-    for label, key in (("jaw error (deg)", "jaw_rmse_deg"),
-                       ("fiducial error (px)", "fiducial_error_px")):
-        cells = " | ".join(f"{_fmt(reports[n].get(key))} | " for n in names)
-        lines.append(f"| {label} | {cells}|")
-    return "\n".join(lines)
-
-
-def _fmt(v) -> str:
-    return "-" if v is None else f"{v:.3f}"
 
 
 def script_kwargs(kind: str, spec: str) -> dict:

@@ -318,11 +318,10 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     -------
     ValidationResult
     """
-    from faceanalysis.tracking import to_head_frame
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.io.table import heads_from_table
-    from faceanalysis.io.table import FIDUCIALS, read_contractions
     from faceanalysis.flow.templates import ModelView, SubjectWarp
+    from faceanalysis.io.table import FIDUCIALS, heads_from_table, read_contractions
+    from faceanalysis.tracking import to_head_frame
 
     folder = Path(analysis)
     csv = folder / "contractions.csv"

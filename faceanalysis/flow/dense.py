@@ -30,20 +30,17 @@ from __future__ import annotations
 import logging
 import math
 import os
-from contextlib import closing
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 import pandas as pd
 
-from faceanalysis.io.table import FIDUCIALS
-
 log = logging.getLogger(__name__)
 
 __all__ = ["FLOW_METHODS", "STABILIZATION", "FaceGrid", "FaceFlow", "compute_flow", "tvl1_scales",
            "head_array", "grid_image_points", "vectors_to_head", "image_flow_to_grid",
-           "stabilize", "face_flow", "rigid_basis", "remove_rigid", 
+           "stabilize", "face_flow", "rigid_basis", "remove_rigid",
            "video_face_flow", "flow_to_colour"]
 
 #: Optical-flow methods, first = default.
@@ -671,6 +668,7 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     """
     import time
 
+    from faceanalysis.io.table import heads_from_table
     from faceanalysis.io.video import open_video
     from faceanalysis.tracking import track
 

@@ -342,8 +342,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
     """
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.tracking import track
     from faceanalysis.flow.templates import personalize_from_table
+    from faceanalysis.tracking import track
 
     if templates is None:
         from faceanalysis.flow.templates import default_templates
@@ -415,8 +415,7 @@ def synthetic_face_flow(seq, grid, *, method: str = "dis"):
 
     imgs = seq.images
     bgr = [cv2.cvtColor(im, cv2.COLOR_RGB2BGR) if im.ndim == 3 else im for im in imgs]
-    from faceanalysis.io.table import heads_from_table
-    from faceanalysis.io.table import FIDUCIALS
+    from faceanalysis.io.table import FIDUCIALS, heads_from_table
 
     tracker = Tracker(detect_layout(bgr[0], channel_order="bgr"), channel_order="bgr")
     rows = []

@@ -619,8 +619,8 @@ def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> Flo
     the generic ones when the fiducials are missing or implausible
     (:func:`implausible_fiducials`: warping the templates onto a mistracked feature
     would move the expressions' flow onto the wrong part of the face)."""
-    from faceanalysis.tracking import to_head_frame
     from faceanalysis.io.table import heads_from_table
+    from faceanalysis.tracking import to_head_frame
 
     cols = [c for n in FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
     if any(c not in table.columns for c in cols):
@@ -652,7 +652,8 @@ def _model_key(model, grid: FaceGrid, extra) -> str:
     h.update(np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes())
     h.update(repr(getattr(model, "parameters_digest", lambda: "")()).encode())
     h.update(repr((tuple(model.muscle_names), grid.as_dict(), extra)).encode())
-    h.update(source_digest(("synth", "trackers"), ("faceanalysis.flow.templates", "faceanalysis.flow.dense")).encode())
+    h.update(source_digest(("synth", "trackers"), ("faceanalysis.flow.templates",
+                                                   "faceanalysis.flow.dense")).encode())
     return h.hexdigest()[:16]
 
 

@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import importlib
 import json
 import math
 import os
+import platform
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from faceanalysis._version import __version__
 from faceanalysis.io.outputs import write_text_atomic
 
 __all__ = [
@@ -173,6 +176,23 @@ def input_metadata(source) -> dict:
     }
 
 
+_LIBRARIES = ["numpy", "scipy", "cv2", "skimage", "pandas", "matplotlib", "numba", "dask",
+              "distributed", "torch", "kornia"]
+
+
+def software_versions() -> dict[str, str | None]:
+    """Version of the toolkit, Python and every library it can use (None if absent)."""
+    out: dict[str, str | None] = {"faceanalysis": __version__, "python": platform.python_version()}
+    for name in _LIBRARIES:
+        try:
+            module = importlib.import_module(name)
+        except ImportError:
+            out[name] = None
+        else:
+            out[name] = getattr(module, "__version__", "unknown")
+    return out
+
+
 def analysis_metadata(source, table: pd.DataFrame | None = None, *,
                       parameters: Mapping | None = None,
                       versions: Mapping[str, str | None] | None = None,
@@ -191,7 +211,7 @@ def analysis_metadata(source, table: pd.DataFrame | None = None, *,
     parameters : mapping, optional
         The analysis parameters (tracker, estimator, calibration settings...).
     versions : mapping, optional
-        Software versions; :func:`faceanalysis.cli.info.versions` by default.
+        Software versions; :func:`software_versions` by default.
     command : sequence of str, optional
         The command line, if run from one.
     elapsed_s : float, optional
@@ -223,9 +243,7 @@ def analysis_metadata(source, table: pd.DataFrame | None = None, *,
     (1, 'joint')
     """
     if versions is None:
-        from faceanalysis.cli.info import versions as _versions
-
-        versions = _versions()
+        versions = software_versions()
     info = input_metadata(source)
     missing = int(info.get("missing_tail") or 0)
     meta = {

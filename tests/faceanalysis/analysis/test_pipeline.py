@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from faceanalysis.analysis.pipeline import analyze, analyze_to_folder, reestimate
-from faceanalysis.evaluation.suite import compare, public
+from faceanalysis.evaluation.scores import compare, public
 from faceanalysis.io.table import FIDUCIALS, MUSCLES, contraction_columns
 
 
@@ -220,7 +220,7 @@ def test_suspect_points_option_is_checked(surprise):
 
 
 def test_a_furrow_shorter_than_on_the_neutral_frame_loses_its_lower_end():
-    from faceanalysis.analysis.pipeline import MIN_FURROW_STRETCH, faded_furrow_ends
+    from faceanalysis.tracking import MIN_FURROW_STRETCH, faded_furrow_ends
 
     names = ("furrow_top_l", "furrow_bottom_l", "furrow_mid_r", "furrow_bottom_r")
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from faceanalysis.io.report import analysis_metadata, read_analysis
 from faceanalysis.analysis.results import OutputFolder
+from faceanalysis.io.report import analysis_metadata, read_analysis
 from faceanalysis.io.table import MUSCLES, empty_table, read_contractions
 from faceanalysis.io.video import open_video
 

@@ -7,7 +7,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from faceanalysis.analysis.pipeline import POINT_CONTOUR, _measure
 from faceanalysis.estimation.model_response import (
     CURVE_POINTS,
     MEASUREMENT_POINTS,
@@ -15,6 +14,7 @@ from faceanalysis.estimation.model_response import (
     model_points,
 )
 from faceanalysis.io.table import FIDUCIALS
+from faceanalysis.tracking import POINT_CONTOUR, _measure
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from faceanalysis.evaluation.ceiling import identifiability, measurement_ceiling, perfect_measurements
-from faceanalysis.evaluation.suite import SuiteConfig
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS, model_response
+from faceanalysis.evaluation.ceiling import (
+    identifiability,
+    measurement_ceiling,
+    perfect_measurements,
+)
+from faceanalysis.evaluation.suite import SuiteConfig
 
 SMALL = SuiteConfig(identities=1, frames=6,
                     sequences=(("expression", "surprise"), ("au", "12:0.7,26:0.6")))

@@ -7,8 +7,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from faceanalysis.flow.dense import FaceGrid
-from faceanalysis.flow.templates import ModelView, make_templates
 from faceanalysis.evaluation.validation import (
     flow_agreement,
     resynthesis_flow,
@@ -16,6 +14,8 @@ from faceanalysis.evaluation.validation import (
     summarize,
     validate,
 )
+from faceanalysis.flow.dense import FaceGrid
+from faceanalysis.flow.templates import ModelView, make_templates
 
 GRID = FaceGrid(rows=40, cols=30)
 

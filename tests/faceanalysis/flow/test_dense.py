@@ -210,29 +210,3 @@ def test_colour_wheel():
     assert rgb.shape == (4, 4, 3) and rgb.dtype == np.uint8
     assert rgb[1, 1].tolist() == [255, 255, 255]
     assert rgb[0, 0].tolist() != rgb[2, 2].tolist()
-
-
-def test_track_heads_keeps_the_head_frame_when_one_contour_is_lost(tmp_path):
-    from faceanalysis.flow.dense import track_heads
-    from tests.trackers.conftest import draw_face
-    from trackers import layout_from_eyes
-
-    eyes = ((96.0, 105.0), (159.0, 105.0))
-    img, _ = draw_face(eyes=eyes)
-    lay = layout_from_eyes(*eyes, (256, 256))
-    blank = img.copy()
-    p = lay.contours["brow_l"].points
-    x0, y0 = np.floor(p.min(0)).astype(int) - 8
-    x1, y1 = np.ceil(p.max(0)).astype(int) + 8
-    blank[y0:y1, x0:x1] = 190                       # the left brow vanishes
-    path = tmp_path / "face.avi"
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (256, 256))
-    for f in (img, img, blank, blank, img):
-        vw.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) if f.ndim == 2 else f)
-    vw.release()
-    t = track_heads(path, layout=lay)
-    assert t["success"].tolist() == [1, 1, 1, 1, 1]
-    lost = t.loc[2:3]
-    assert lost[[f"fid_brow_{p}_l_x" for p in ("inner", "mid", "outer")]].isna().all().all()
-    assert lost[["fid_brow_inner_r_x", "fid_chin_y", "head_scale"]].notna().all().all()
-    np.testing.assert_allclose(t["head_x"], t.loc[0, "head_x"], atol=1.5)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from faceanalysis.flow.dense import FaceGrid, rigid_basis
 from faceanalysis.estimation.flow import FLOW_CONTROLS, FlowDesign, estimate_contractions
+from faceanalysis.flow.dense import FaceGrid, rigid_basis
 from faceanalysis.flow.recognition import (
     CLASSES,
     calibrate_threshold,

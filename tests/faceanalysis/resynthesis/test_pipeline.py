@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from faceanalysis.resynthesis.pipeline import resynthesize
 from faceanalysis.io.table import FIDUCIALS, MUSCLES, empty_table, write_contractions
+from faceanalysis.resynthesis.pipeline import resynthesize
 
 SMILE = ("zygomaticus_major_l", "zygomaticus_major_r")
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from faceanalysis.viz.overlay import draw_overlay, fiducials_from_row
 from faceanalysis.io.table import empty_table
+from faceanalysis.viz.overlay import draw_overlay, fiducials_from_row
 
 
 def test_draws_where_the_points_are_and_leaves_input_alone():

@@ -6,9 +6,9 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
+from faceanalysis.io.table import JAW, MUSCLES, empty_table
 from faceanalysis.viz import plots as plotting
 from faceanalysis.viz.plots import plot_contractions
-from faceanalysis.io.table import JAW, MUSCLES, empty_table
 
 
 @pytest.fixture

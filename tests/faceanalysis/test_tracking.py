@@ -1,0 +1,90 @@
+"""The one loop over a video's frames."""
+
+import cv2
+import numpy as np
+import pytest
+
+from faceanalysis.tracking import MIN_POINTS, POINT_CONTOUR, Tracks, to_head_frame, track
+from tests.trackers.conftest import draw_face
+from trackers import layout_from_eyes
+
+
+def _face_video(tmp_path, frames_lost_brow=(2, 3)):
+    """Five frames of a drawn face; on ``frames_lost_brow`` its left brow vanishes."""
+
+    eyes = ((96.0, 105.0), (159.0, 105.0))
+    img, _ = draw_face(eyes=eyes)
+    lay = layout_from_eyes(*eyes, (256, 256))
+    blank = img.copy()
+    p = lay.contours["brow_l"].points
+    x0, y0 = np.floor(p.min(0)).astype(int) - 8
+    x1, y1 = np.ceil(p.max(0)).astype(int) + 8
+    blank[y0:y1, x0:x1] = 190                       # the left brow vanishes
+    path = tmp_path / "face.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (256, 256))
+    for i in range(5):
+        f = blank if i in frames_lost_brow else img
+        vw.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) if f.ndim == 2 else f)
+    vw.release()
+    return path, lay
+
+
+def test_a_lost_contour_leaves_the_head_frame_and_the_other_points(tmp_path):
+    path, lay = _face_video(tmp_path)
+    t = track(path, layout=lay, redetect=True).table
+    assert t["success"].tolist() == [1, 1, 1, 1, 1]
+    lost = t.loc[2:3]
+    assert lost[[f"fid_brow_{p}_l_x" for p in ("inner", "mid", "outer")]].isna().all().all()
+    assert lost[["fid_brow_inner_r_x", "fid_chin_y", "head_scale"]].notna().all().all()
+    np.testing.assert_allclose(t["head_x"], t.loc[0, "head_x"], atol=1.5)
+
+
+def test_tracks_hold_every_frame_and_the_points_asked_for(tmp_path):
+    path, lay = _face_video(tmp_path, frames_lost_brow=())
+    points = ("brow_inner_l", "mouth_corner_r", "lip_lower_centre", "furrow_mid_l", "chin",
+              "brow_mid_r", "brow_outer_r")
+    tr = track(path, layout=lay, points=points)
+    assert isinstance(tr, Tracks) and len(tr) == 5
+    assert tr.points.shape == (5, len(points), 2) and tr.stretch.shape == (5, len(points))
+    assert tr.success.all() and (tr.confidence > 0).all()
+    # a fiducial among the points is the same number in both arrays
+    np.testing.assert_array_equal(tr.points[:, 0], tr.fiducials[:, 0])
+    assert tr.table.columns[:3].tolist() == ["frame", "timestamp", "success"]
+
+
+def test_unknown_points_are_refused_with_the_valid_names(tmp_path):
+    path, lay = _face_video(tmp_path, frames_lost_brow=())
+    with pytest.raises(ValueError, match="unknown measurement points.*brow_inner_l"):
+        track(path, layout=lay, points=("nose_tip",))
+
+
+def test_without_redetect_a_frame_without_a_face_is_an_error_naming_the_file(tmp_path):
+    path = tmp_path / "blank.png"
+    cv2.imwrite(str(path), np.full((240, 320, 3), 128, np.uint8))
+    with pytest.raises(ValueError, match="blank.png"):
+        track(path)
+
+
+def test_with_redetect_frames_without_a_face_are_lost_and_the_face_is_found_again(tmp_path):
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=3, size=256,
+                            seed=5, flow=False)
+    cap = cv2.VideoCapture(str(files["video"]))
+    faces = [cap.read()[1] for _ in range(3)]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate([np.full_like(faces[0], 128)] * 2 + faces):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    tr = track(folder, redetect=True)
+    assert tr.success.tolist() == [False, False, True, True, True]
+    assert np.isnan(tr.heads[:2]).all() and np.isfinite(tr.heads[2:]).all()
+
+
+def test_to_head_frame_removes_translation_rotation_and_scale():
+    head = np.array([10.0, 20.0, 2.0, np.pi / 2])
+    np.testing.assert_allclose(to_head_frame([[10.0, 24.0]], head), [[2.0, 0.0]], atol=1e-12)
+
+
+def test_every_point_names_its_contour():
+    assert len(POINT_CONTOUR) >= MIN_POINTS
