@@ -61,7 +61,8 @@ def run(quick: bool) -> list[Figure]:
 
     from faceanalysis.analysis.pipeline import analyze
     from faceanalysis.io.table import MUSCLES
-    from faceanalysis.resynthesis.pipeline import personalize, resynthesize
+    from faceanalysis.resynthesis.personalize import personalize
+    from faceanalysis.resynthesis.pipeline import resynthesize
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 
@@ -123,7 +124,7 @@ def run(quick: bool) -> list[Figure]:
 
 
 def _round_trip_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.resynthesis.pipeline import round_trip
+    from faceanalysis.evaluation.roundtrip import round_trip
 
     expressions = (("happiness", "surprise") if quick else
                    ("happiness", "sadness", "surprise", "fear", "anger", "disgust"))

@@ -42,7 +42,8 @@ def _analysis_json_for(args: argparse.Namespace) -> Path | None:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.resynthesis.pipeline import MESH_FORMATS, SHADINGS, VIEWS
+    from faceanalysis.resynthesis.export import MESH_FORMATS
+    from faceanalysis.resynthesis.render import SHADINGS, VIEWS
 
     parser.description = (
         "Drive the physics-based face model with a contraction time series (the muscle "

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
 
         personal = _personal_model(csv.parent, FaceModel.default())
         if personal is not None:
-            # the face model warped to the subject in 3-D (faceanalysis.resynthesis.pipeline.personalize)
+            # the face model warped to the subject in 3-D (faceanalysis.resynthesis.personalize.personalize)
             pers = make_templates(personal, **options)
             pers.meta.update(personalised=True, personalisation="model")
         else:

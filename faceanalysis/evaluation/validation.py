@@ -6,7 +6,7 @@ the head frame, on the face grid) is compared frame by frame with the flow of th
 image-plane motion from rest taken onto the same grid (:class:`faceanalysis.flow.templates.
 ModelView`). The resynthesis is personalised, so that features line up with the subject's: by
 default the face model itself is warped to the subject's neutral frame
-(:func:`faceanalysis.resynthesis.pipeline.personalize`, the 3-D landmark warp of Kähler, ch. 8); where
+(:func:`faceanalysis.resynthesis.personalize.personalize`, the 3-D landmark warp of Kähler, ch. 8); where
 that is not possible, the generic resynthesis flow is warped onto the subject's neutral
 fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`).
 
@@ -265,10 +265,10 @@ def _smooth_time(displacement: np.ndarray, sigma: float) -> np.ndarray:
 
 def _personal_model(folder: Path, model):
     """The face model personalised to the analysed subject by
-    :func:`faceanalysis.resynthesis.pipeline.personalize` (3-D landmark warp), or None when that is not
+    :func:`faceanalysis.resynthesis.personalize.personalize` (3-D landmark warp), or None when that is not
     possible (the resynthesis module is missing, the video cannot be found, a bad warp)."""
     try:
-        from faceanalysis.resynthesis.pipeline import personalize as personalize_model
+        from faceanalysis.resynthesis.personalize import personalize as personalize_model
     except ImportError:
         return None
     try:
@@ -300,7 +300,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         Mask, regions and nuisance motions (default: the generic templates).
     personalised : bool or {'model', 'warp'}
         Personalise the resynthesis: ``True``/``'model'``: the face model warped to the
-        subject's neutral frame (:func:`faceanalysis.resynthesis.pipeline.personalize`, 3-D), falling
+        subject's neutral frame (:func:`faceanalysis.resynthesis.personalize.personalize`, 3-D), falling
         back to ``'warp'``: the generic resynthesis flow warped onto the subject's neutral
         fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`). ``False``: the
         generic face as it is.
@@ -355,7 +355,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     personal = _personal_model(folder, model) if personalised == "model" or \
         personalised is True else None
     if personal is not None:
-        # the model itself warped to the subject (faceanalysis.resynthesis.pipeline.personalize)
+        # the model itself warped to the subject (faceanalysis.resynthesis.personalize.personalize)
         view = ModelView(personal, grid=templates.grid)
         tpl = view.templates()
         pred = resynthesis_flow(drive, view=view)

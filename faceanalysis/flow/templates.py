@@ -30,7 +30,7 @@ Personalised templates: :func:`personalize` warps generic templates onto a subje
 by a thin-plate spline of the grid driven by the 11 fiducials (model's at rest -> the
 subject's neutral fiducials, both in head coordinates), the 2-D counterpart of the
 landmark-driven deformation of Kähler (001, ch. 8). A model warped to the subject in 3-D
-(:func:`faceanalysis.resynthesis.pipeline.personalize`) or built for an identity
+(:func:`faceanalysis.resynthesis.personalize.personalize`) or built for an identity
 (``make_templates(FaceModel.build(shape))``) works too.
 """
 

@@ -1,0 +1,172 @@
+"""The face model deformed to the analysed subject's neutral frame (Kähler 001, ch. 8;
+:mod:`synth.personalize`), textured with that frame."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from faceanalysis.io.table import FIDUCIALS
+from faceanalysis.resynthesis.framing import Framing, framing_from_head, head_reference
+from faceanalysis.resynthesis.series import Series, load_series, series_from_table
+
+log = logging.getLogger(__name__)
+
+
+# ----------------------------------------------------------------------------- subject
+@dataclass
+class SubjectInfo:
+    """A personalised model and how it was made.
+
+    Attributes
+    ----------
+    model : FaceModel
+        The warped model.
+    warp : synth.personalize.LandmarkWarp
+    framing : Framing
+        Model-to-image similarity of the subject's neutral frame (input pixels).
+    image : (H, W, 3) uint8 RGB
+        The neutral frame (the texture).
+    fiducials : (11, 2)
+        Neutral fiducials (input px).
+    neutral_frame : int
+    reference : tuple
+        ``(origin_cm, scale_cm)`` of the generic model's head frame.
+    """
+
+    model: object
+    warp: object
+    framing: Framing
+    image: np.ndarray
+    fiducials: np.ndarray
+    neutral_frame: int
+    reference: tuple
+    source: str = ""
+    head: np.ndarray | None = None
+
+    def uv(self) -> tuple[np.ndarray, np.ndarray]:
+        """Texture coordinates of the skin and inner vertices in the neutral frame."""
+        H, W = self.image.shape[:2]
+        mesh = self.model.mesh
+        skin = self.framing.apply(np.asarray(mesh.vertices))
+        inner = self.framing.apply(np.asarray(mesh.inner_vertices)) \
+            if len(mesh.inner_vertices) else np.zeros((0, 2))
+        size = np.array([W, H], float)
+        return (skin + 0.5) / size, (inner + 0.5) / size
+
+
+def _read_frame(path: Path, index: int) -> np.ndarray:
+    """Frame ``index`` of a video (RGB uint8)."""
+    import cv2
+
+    from faceanalysis.io.video import open_video, to_bgr_uint8
+
+    with open_video(path, start=int(index), end=int(index) + 1) as src:
+        for frame in src:
+            if frame.ok:
+                return cv2.cvtColor(to_bgr_uint8(frame.image), cv2.COLOR_BGR2RGB)
+    raise ValueError(f"{path}: frame {index} could not be read")
+
+
+def personalize(subject, *, model=None, kernel: str = "linear") -> SubjectInfo:
+    """Warp ``model`` (the generic face by default) to the subject's neutral frame.
+
+    Parameters
+    ----------
+    subject : Analysis, path of an analysis folder, or path of a video
+        A video is analysed first (its first frame is the neutral one).
+    model : FaceModel, optional
+    kernel : {'linear', 'gaussian'}
+        Radial basis of the warp (:func:`synth.personalize.fit_landmark_warp`).
+
+    Returns
+    -------
+    SubjectInfo
+
+    Raises
+    ------
+    ValueError
+        The subject has no tracked fiducials or head frame, its video cannot be found, or
+        the landmarks fold the warp.
+    """
+    series, video = subject_series(subject)
+    return personalize_series(series, video, model=model, kernel=kernel)
+
+
+def personalize_series(series: Series, video, *, model=None, kernel: str = "linear"
+                        ) -> SubjectInfo:
+    from synth.personalize import head_frame_points, personalize_model
+
+    if series.fiducials is None or series.heads is None:
+        raise ValueError("the subject's table has no fiducials or head frame columns")
+    if model is None:
+        from synth.model import FaceModel
+
+        model = FaceModel.default()
+    k = series.neutral_row
+    fid = series.fiducials[k]
+    if not np.isfinite(fid).all():
+        raise ValueError(f"the subject's neutral frame {series.frames[k]} has no fiducials")
+    if video is None or not Path(video).exists():
+        raise ValueError(f"the subject's video {video} cannot be found (needed for the "
+                         "texture); pass the video itself as the subject")
+    origin_cm, scale_cm = head_reference(model.mesh)
+    framing = framing_from_head(series.heads[k], origin_cm, scale_cm)
+    lm = model.landmark_positions()
+    src = np.array([lm[n] for n in FIDUCIALS], dtype=float)
+    xy = framing.invert(fid)
+    # depth is not observed: the model's, scaled by the subject's overall size in the image
+    # plane (keeping depth unscaled where the face is narrower would tilt short muscles
+    # such as the corrugator into the skull)
+    A, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], xy, rcond=None)
+    depth_scale = float(np.sqrt(abs(np.linalg.det(A[:2]))))
+    o3, n3 = head_frame_points(model.mesh)         # pinned: they define the framing
+    source = np.vstack([src, o3, n3])
+    target = np.vstack([np.c_[xy, depth_scale * src[:, 2]],
+                        [o3[0], o3[1], depth_scale * o3[2]],
+                        [n3[0], n3[1], depth_scale * n3[2]]])
+    # the best 3-D affine map of the landmarks: the fallback when the full warp cannot
+    # make a valid model (a fold, or a muscle left without tissue to pull)
+    B, *_ = np.linalg.lstsq(np.c_[source, np.ones(len(source))], target, rcond=None)
+    affine = np.c_[source, np.ones(len(source))] @ B
+    personal = warp = None
+    for alpha in (1.0, 0.75, 0.5, 0.25, 0.0):
+        try:
+            personal, warp = personalize_model(model, source, affine + alpha * (target - affine),
+                                               kernel=kernel)
+        except ValueError as exc:
+            log.warning("personalisation: the landmark warp at %.0f%% gives no valid model "
+                        "(%s); trying a smoother one", 100 * alpha, exc)
+            continue
+        if alpha < 1.0:
+            log.warning("personalisation: the model follows the subject's landmarks at %.0f%% "
+                        "only (see the landmark error in the report)", 100 * alpha)
+        break
+    if personal is None:
+        raise ValueError("the subject's neutral fiducials cannot be fitted by the face model "
+                         "(every warp, down to an affine one, failed)")
+    image = _read_frame(Path(video), int(series.frames[k]))
+    return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
+                       fiducials=fid, neutral_frame=int(series.frames[k]),
+                       reference=(origin_cm, scale_cm), source=str(video),
+                       head=np.array(series.heads[k], dtype=float))
+
+
+def subject_series(subject) -> tuple[Series, Path | None]:
+    from faceanalysis.analysis.pipeline import Analysis, analyze
+
+    if isinstance(subject, Analysis):
+        s = series_from_table(subject.table, "subject", subject.metadata)
+        return s, s.input_path
+    path = Path(subject)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such subject video or analysis folder")
+    if path.is_dir() and (path / "contractions.csv").is_file():
+        s = load_series(path)
+        return s, s.input_path
+    log.info("analysing the subject's first frame in %s", path)
+    a = analyze(path, end=1)
+    return series_from_table(a.table, str(path), a.metadata), path

@@ -1,0 +1,240 @@
+"""The contraction time series a resynthesis plays: read from a table, an analysis folder or an
+:class:`~faceanalysis.analysis.results.Analysis`, with every cell checked (row and column named).
+
+Lost frames (``success == 0``) hold the last good contractions and head frame.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES
+
+log = logging.getLogger(__name__)
+
+
+_DEFAULT_FPS = 30.0
+
+
+# ----------------------------------------------------------------------------- input
+@dataclass
+class Series:
+    """The drive: per-frame controls, bookkeeping and (optionally) head frames."""
+
+    frames: np.ndarray            # (T,) frame numbers
+    timestamps: np.ndarray        # (T,) seconds (may be NaN)
+    success: np.ndarray           # (T,) bool
+    controls: np.ndarray          # (T, M) muscles in MUSCLES order, lost rows held
+    jaw: np.ndarray               # (T,)
+    heads: np.ndarray | None      # (T, 4), lost rows held; None when absent
+    fiducials: np.ndarray | None  # (T, 11, 2) image px; NaN when lost
+    metadata: dict = field(default_factory=dict)
+    table: pd.DataFrame | None = None
+    folder: Path | None = None
+    missing: tuple[str, ...] = ()
+
+    @property
+    def input_size(self) -> tuple[int, int] | None:
+        size = (self.metadata.get("input") or {}).get("size")
+        if size and len(size) == 2 and all(int(v) > 0 for v in size):
+            return int(size[0]), int(size[1])
+        return None
+
+    @property
+    def input_path(self) -> Path | None:
+        p = (self.metadata.get("input") or {}).get("path")
+        return Path(p) if p else None
+
+    @property
+    def neutral_row(self) -> int:
+        """Row of the neutral frame (analysis.json's, else the first tracked row)."""
+        nf = (self.metadata.get("parameters") or {}).get("neutral_frame")
+        if nf is None:
+            nf = (self.metadata.get("calibration") or {}).get("neutral_frame")
+        if nf is not None:
+            hits = np.flatnonzero(self.frames == int(nf))
+            if hits.size and self.success[hits[0]]:
+                return int(hits[0])
+        if not self.success.any():
+            raise ValueError("no tracked frame (success == 1) in the series")
+        return int(np.argmax(self.success))
+
+    def fps(self, override: float | None = None) -> float:
+        if override is not None:
+            return float(override)
+        f = (self.metadata.get("input") or {}).get("fps")
+        if f and np.isfinite(f) and f > 0:
+            return float(f)
+        ts = self.timestamps
+        if ts.size > 1 and np.isfinite(ts).all():
+            d = np.diff(ts) / np.maximum(np.diff(self.frames), 1)
+            d = d[d > 0]
+            if d.size:
+                return float(1.0 / np.median(d))
+        return _DEFAULT_FPS
+
+
+def _label(frames, row: int) -> str:
+    return f"line {row + 2} (frame {int(frames[row])})"
+
+
+def _numeric_column(df: pd.DataFrame, column: str, where: str, frames) -> np.ndarray:
+    raw = df[column]
+    if pd.api.types.is_numeric_dtype(raw):
+        return raw.to_numpy(dtype=float)
+    converted = pd.to_numeric(raw, errors="coerce")
+    blank = raw.isna() | (raw.astype(str).str.strip() == "")
+    bad = converted.isna() & ~blank
+    if bad.any():
+        r = int(np.flatnonzero(bad.to_numpy())[0])
+        raise ValueError(f"{where}: {_label(frames, r)}, column {column}: "
+                         f"{str(raw.iloc[r])!r} is not a number")
+    return converted.to_numpy(dtype=float)
+
+
+def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
+                       ) -> Series:
+    """Validate a contractions table (complete or partial) into a :class:`Series`."""
+    from synth.model import MAX_JAW_ROTATION
+
+    if not isinstance(df, pd.DataFrame):
+        raise ValueError(f"{where}: expected a table, got {type(df).__name__}")
+    if len(df) == 0:
+        raise ValueError(f"{where}: the table has no rows")
+    df = df.copy()
+    df.columns = [str(c).strip() for c in df.columns]
+    n = len(df)
+    frames = np.arange(n)
+    if "frame" in df.columns:
+        frames = _numeric_column(df, "frame", where, frames)
+        if not np.isfinite(frames).all() or (frames != np.round(frames)).any():
+            r = int(np.flatnonzero(~np.isfinite(frames) | (frames != np.round(frames)))[0])
+            raise ValueError(f"{where}: line {r + 2}, column frame: not an integer frame number")
+        frames = frames.astype(np.int64)
+        if n > 1 and (np.diff(frames) <= 0).any():
+            r = int(np.flatnonzero(np.diff(frames) <= 0)[0]) + 1
+            raise ValueError(f"{where}: {_label(frames, r)}, column frame: frame numbers must "
+                             "increase")
+    success = np.ones(n, bool)
+    if "success" in df.columns:
+        s = _numeric_column(df, "success", where, frames)
+        bad = ~np.isin(s, (0.0, 1.0))
+        if bad.any():
+            r = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{where}: {_label(frames, r)}, column success: {s[r]!r} is not "
+                             "0 or 1")
+        success = s == 1.0
+    timestamps = np.full(n, np.nan)
+    if "timestamp" in df.columns:
+        timestamps = _numeric_column(df, "timestamp", where, frames)
+    present = [m for m in MUSCLES if m in df.columns]
+    if not present and JAW not in df.columns:
+        raise ValueError(f"{where}: no muscle columns (e.g. {MUSCLES[0]}) and no {JAW} column")
+    missing = tuple(m for m in MUSCLES if m not in df.columns)
+    controls = np.zeros((n, len(MUSCLES)))
+    jaw = np.zeros(n)
+    for j, name in enumerate((*MUSCLES, JAW)):
+        if name not in df.columns:
+            continue
+        v = _numeric_column(df, name, where, frames)
+        hi = MAX_JAW_ROTATION if name == JAW else 1.0
+        lost_nan = np.isnan(v) & ~success
+        with np.errstate(invalid="ignore"):
+            bad = ~lost_nan & (~np.isfinite(v) | (v < 0.0) | (v > hi))
+        if bad.any():
+            r = int(np.flatnonzero(bad)[0])
+            problem = ("an empty cell in a tracked frame (success == 1)" if np.isnan(v[r])
+                       else f"{v[r]:g} is outside [0, {hi:g}]")
+            raise ValueError(f"{where}: {_label(frames, r)}, column {name}: {problem}")
+        if name == JAW:
+            jaw = v
+        else:
+            controls[:, j] = v
+    # lost frames hold the last good value (rest before the first good one)
+    controls, jaw = _hold(controls, success), _hold(jaw[:, None], success)[:, 0]
+    heads = None
+    if all(c in df.columns for c in HEAD_COLUMNS):
+        h = np.stack([_numeric_column(df, c, where, frames) for c in HEAD_COLUMNS], axis=1)
+        good = success & np.isfinite(h).all(axis=1) & (h[:, 2] > 0)
+        if good.any():
+            heads = _hold(h, good, first=h[int(np.argmax(good))])
+    fiducials = None
+    cols = [f"fid_{name}_{a}" for name in FIDUCIALS for a in "xy"]
+    if all(c in df.columns for c in cols):
+        fiducials = np.stack([_numeric_column(df, c, where, frames) for c in cols],
+                             axis=1).reshape(n, len(FIDUCIALS), 2)
+        fiducials[~success] = np.nan
+    return Series(frames=frames, timestamps=timestamps, success=success, controls=controls,
+                   jaw=jaw, heads=heads, fiducials=fiducials, metadata=dict(metadata or {}),
+                   table=df, missing=missing)
+
+
+def _hold(values: np.ndarray, good: np.ndarray, first=None) -> np.ndarray:
+    """Rows where ``good`` is false take the last good row (``first``, else 0, before any)."""
+    out = np.array(values, dtype=float)
+    idx = np.where(good, np.arange(len(good)), -1)
+    idx = np.maximum.accumulate(idx)
+    fill = np.zeros(out.shape[1]) if first is None else np.asarray(first, float)
+    held = np.where((idx >= 0)[:, None], out[np.maximum(idx, 0)], fill[None, :])
+    return held
+
+
+def _read_metadata(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        log.warning("ignoring unreadable %s (%s)", path, exc)
+        return {}
+
+
+def load_series(source) -> Series:
+    """An Analysis, analysis folder, contractions CSV or DataFrame -> :class:`Series`."""
+    from faceanalysis.analysis.pipeline import Analysis
+
+    if isinstance(source, Analysis):
+        s = series_from_table(source.table, "analysis", source.metadata)
+        return s
+    if isinstance(source, pd.DataFrame):
+        return series_from_table(source, "table")
+    if not isinstance(source, (str, os.PathLike)):
+        raise ValueError(f"source must be an Analysis, a DataFrame, a contractions.csv or an "
+                         f"analysis folder, got {type(source).__name__}")
+    path = Path(source)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    folder = path if path.is_dir() else path.parent
+    csv = path / "contractions.csv" if path.is_dir() else path
+    if not csv.is_file():
+        raise FileNotFoundError(f"{csv}: no such file (expected an analysis folder or a "
+                                "contractions.csv)")
+    meta = _read_metadata(folder / "analysis.json")
+    try:
+        head = pd.read_csv(csv, nrows=0)
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"{csv}: file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError):
+        raise ValueError(f"{csv}: not a CSV table (expected contractions.csv or an analysis "
+                         "folder)") from None
+    from faceanalysis.io.table import contraction_columns, read_contractions
+
+    if all(c in [str(h).strip() for h in head.columns] for c in contraction_columns()):
+        df = read_contractions(csv)            # full table: validated, names row and column
+    else:
+        try:
+            df = pd.read_csv(csv, keep_default_na=False, na_values=[""], low_memory=False)
+        except pd.errors.EmptyDataError:
+            raise ValueError(f"{csv}: file is empty") from None
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{csv}: not a CSV table ({str(exc).strip()[:80]})") from None
+    s = series_from_table(df, str(csv), meta)
+    s.folder = folder
+    return s

@@ -1,0 +1,25 @@
+"""Fixtures of the resynthesis tests: the generic model and a rendered, analysed subject."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def model():
+    from synth.model import FaceModel
+
+    return FaceModel.default()
+
+
+@pytest.fixture(scope="session")
+def subject(tmp_path_factory):
+    """Identity 101 smiling, rendered and analysed (the analysis folder)."""
+    from faceanalysis.analysis.pipeline import analyze_to_folder
+    from synth.render.sequence import render_sequence
+
+    root = tmp_path_factory.mktemp("subject")
+    files = render_sequence(root / "input", frames=12, size=256, seed=101,
+                            expression="happiness", flow=False)
+    analyze_to_folder(files["video"], root / "analysis")
+    return root, files
