@@ -46,7 +46,15 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis._version import __version__
-from faceanalysis.io.outputs import atomic_path, write_text_atomic
+from faceanalysis.io.outputs import (
+    ANALYSIS_JSON,
+    CONTRACTIONS_CSV,
+    CONTRACTIONS_PNG,
+    OVERLAY_MP4,
+    SUMMARY_CSV,
+    atomic_path,
+    write_text_atomic,
+)
 
 __all__ = [
     "VIDEO_EXTENSIONS",
@@ -69,7 +77,7 @@ VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".m
 #: The finished marker, written last into each video's output folder.
 MARKER = "_finished.json"
 #: The summary table written into the output root.
-SUMMARY = "summary.csv"
+SUMMARY = SUMMARY_CSV
 _MARKER_FORMAT = 1
 _PARTIAL = ".partial-"
 _OLD = ".old-"
@@ -224,14 +232,14 @@ def expected_outputs(options: Mapping | None = None) -> tuple[str, ...]:
     ``overlay.mp4`` may be ``overlay.avi`` where OpenCV has no MP4 encoder (the video
     writer falls back to Motion-JPEG); either counts.
     """
-    files = ("contractions.csv", "analysis.json", "contractions.png")
+    files = (CONTRACTIONS_CSV, ANALYSIS_JSON, CONTRACTIONS_PNG)
     if options and options.get("overlay"):
-        files += ("overlay.mp4",)
+        files += (OVERLAY_MP4,)
     return files
 
 
 # an expected output and the names it may have (codec fallbacks of the video writer)
-_ALTERNATIVES = {"overlay.mp4": ("overlay.mp4", "overlay.avi")}
+_ALTERNATIVES = {OVERLAY_MP4: (OVERLAY_MP4, "overlay.avi")}
 
 
 def _missing_outputs(present, options: Mapping | None) -> list[str]:
@@ -329,6 +337,33 @@ def is_complete(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
 
 # --------------------------------------------------------------------------- one video
 
+def analysis_options(options: Mapping | None) -> dict:
+    """The options of :func:`~faceanalysis.analysis.pipeline.analyze_to_folder` that matter.
+
+    Options left at their defaults (or None) are dropped, so that a result is recognised
+    as finished whether its run spelled a default out or not; paths are made absolute,
+    since workers may not share this process's working folder.
+
+    Examples
+    --------
+    >>> analysis_options({"estimator": "joint", "overlay": True, "neutral": None})
+    {'overlay': True}
+    """
+    import inspect
+
+    from faceanalysis.analysis.pipeline import analyze, analyze_to_folder
+
+    defaults = {name: p.default for f in (analyze, analyze_to_folder)
+                for name, p in inspect.signature(f).parameters.items()
+                if p.default is not inspect.Parameter.empty}
+    out = {}
+    for name, value in (options or {}).items():
+        if value is None or (name in defaults and value == defaults[name]):
+            continue
+        out[name] = str(Path(value).resolve()) if isinstance(value, Path) else value
+    return out
+
+
 def _default_task(path: Path, output: Path, **options):
     """The single-video analysis, imported in the worker when first needed."""
     from faceanalysis.analysis.pipeline import analyze_to_folder
@@ -352,8 +387,8 @@ def _finite_or_nan(value) -> float:
 
 def _summarise(folder: Path) -> dict:
     """Frames, losses, duration and mean contractions of one finished output folder."""
-    table = pd.read_csv(folder / "contractions.csv")
-    metadata = json.loads((folder / "analysis.json").read_text())
+    table = pd.read_csv(folder / CONTRACTIONS_CSV)
+    metadata = json.loads((folder / ANALYSIS_JSON).read_text())
     quality = metadata.get("quality", {}) if isinstance(metadata, dict) else {}
     if "success" in table:
         success = table["success"].astype(str).str.lower().isin(["true", "1", "1.0"]).to_numpy()
@@ -696,7 +731,7 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
                              "cluster is set where it is started")
     if task is not None and not callable(task):
         raise ValueError(f"task must be callable, got {type(task).__name__}")
-    options = dict(options or {})
+    options = analysis_options(options) if task is None else dict(options or {})
     _canonical_options(options)  # fails early on values that cannot be recorded
     root = Path(out)
     if root.exists() and not root.is_dir():

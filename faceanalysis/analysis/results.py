@@ -19,7 +19,13 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import Calibration
 from faceanalysis.estimation.response import FiducialResponse
-from faceanalysis.io.outputs import prepare_output_dir
+from faceanalysis.io.outputs import (
+    ANALYSIS_JSON,
+    CONTRACTIONS_CSV,
+    CONTRACTIONS_PNG,
+    OVERLAY_MP4,
+    prepare_output_dir,
+)
 from faceanalysis.io.report import write_analysis
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, write_contractions
 from faceanalysis.io.video_writer import VideoWriter
@@ -119,10 +125,10 @@ class OutputFolder:
     ['analysis.json', 'contractions.csv', 'contractions.png']
     """
 
-    CONTRACTIONS = "contractions.csv"
-    ANALYSIS = "analysis.json"
-    PLOT = "contractions.png"
-    OVERLAY = "overlay.mp4"
+    CONTRACTIONS = CONTRACTIONS_CSV
+    ANALYSIS = ANALYSIS_JSON
+    PLOT = CONTRACTIONS_PNG
+    OVERLAY = OVERLAY_MP4
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False):
         self.path = prepare_output_dir(path, overwrite=overwrite)

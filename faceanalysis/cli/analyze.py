@@ -8,6 +8,7 @@ from pathlib import Path
 
 from faceanalysis.cli._common import add_output_options, add_quiet_option, non_negative_int
 from faceanalysis.cli._input import add_input_options
+from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
 
@@ -73,5 +74,5 @@ def run(args: argparse.Namespace) -> int:
     q = result.metadata.get("quality", {})
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
           f"({q.get('frames_lost', 0)} lost) -> {args.output}", file=sys.stderr)
-    print(args.output / "contractions.csv")
+    print(args.output / CONTRACTIONS_CSV)
     return 0

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from pathlib import Path
 
 from faceanalysis.cli._common import positive_int
 from faceanalysis.cli._input import add_input_options
@@ -58,29 +57,8 @@ _ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "layout", "o
                      "refine", "backend", "device")
 
 
-def analysis_options(args: argparse.Namespace) -> dict:
-    """The analysis options of ``args`` that differ from the analysis defaults.
-
-    Options left at their defaults are not passed, so that a result is recognised as
-    finished whether its run spelled a default out or not (they are recorded in each
-    finished marker and compared on the next run). Paths are made absolute, since
-    workers may not share this process's working folder.
-    """
-    import inspect
-
-    from faceanalysis.analysis.pipeline import analyze, analyze_to_folder
-
-    defaults = {name: p.default for f in (analyze, analyze_to_folder)
-                for name, p in inspect.signature(f).parameters.items()
-                if p.default is not inspect.Parameter.empty}
-    options = {}
-    for name in _ANALYSIS_OPTIONS:
-        value = getattr(args, name)
-        if name in defaults and value == defaults[name]:
-            continue
-        if value is None:
-            continue
-        options[name] = str(Path(value).resolve()) if isinstance(value, Path) else value
+def _options(args: argparse.Namespace) -> dict:
+    options = {name: getattr(args, name) for name in _ANALYSIS_OPTIONS}
     if getattr(args, "keep_suspect_points", False):
         options["suspect_points"] = "keep"
     return options
@@ -93,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
     verbose = getattr(args, "verbose", 0) > 0
     summary = batch.run_batch(args.inputs, args.output, workers=args.workers,
-                              scheduler=args.scheduler, options=analysis_options(args),
+                              scheduler=args.scheduler, options=_options(args),
                               overwrite=args.overwrite, progress=not args.quiet,
                               silence_logs=False if verbose else logging.ERROR)
     failed = summary[summary["status"] != "ok"]

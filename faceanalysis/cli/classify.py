@@ -8,6 +8,7 @@ from pathlib import Path
 
 from faceanalysis.cli._common import add_quiet_option, non_negative_int, positive_float
 from faceanalysis.cli._input import add_input_options
+from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
 HELP = "name the expression (six primaries or neutral) of a video by flow templates"
 
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{args.video}: no such file or folder")
     table = None
     if args.analysis is not None:
-        csv = args.analysis / "contractions.csv"
+        csv = args.analysis / CONTRACTIONS_CSV
         if not csv.is_file():
             raise FileNotFoundError(f"{csv}: no contractions.csv in the analysis folder")
         table = pd.read_csv(csv)

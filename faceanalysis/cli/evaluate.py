@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from faceanalysis.cli._common import add_quiet_option, positive_int
+from faceanalysis.io.outputs import REPORT_MD
 
 HELP = "compare an analysis with ground truth, or run the standard synthetic suite"
 
@@ -82,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(report["estimators"]))
         else:
-            print((args.output / "report.md").read_text())
+            print((args.output / REPORT_MD).read_text())
             print(f"report: {args.output / 'report.json'}", file=sys.stderr)
         return 0
     if args.truth is None or args.estimate is None:

@@ -23,24 +23,6 @@ def _size(text: str):
             from None
 
 
-def _analysis_json_for(args: argparse.Namespace) -> Path | None:
-    """The analysis.json that records the personalisation: the subject's analysis folder,
-    or the source's analysis when the subject is the video it analysed."""
-    subject = Path(args.subject)
-    if subject.is_dir() and (subject / "analysis.json").is_file():
-        return subject / "analysis.json"
-    src = Path(args.contractions)
-    meta_path = (src if src.is_dir() else src.parent) / "analysis.json"
-    if meta_path.is_file():
-        try:
-            analysed = json.loads(meta_path.read_text()).get("input", {}).get("path")
-        except (OSError, json.JSONDecodeError):
-            return None
-        if analysed and Path(analysed).resolve() == subject.resolve():
-            return meta_path
-    return None
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     from faceanalysis.resynthesis.export import MESH_FORMATS
     from faceanalysis.resynthesis.render import SHADINGS, VIEWS
@@ -95,32 +77,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.io.outputs import write_text_atomic
     from faceanalysis.resynthesis.pipeline import resynthesize
 
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps must be positive, got {args.fps}")
-    if args.output.exists() and not args.overwrite:
-        raise FileExistsError(f"{args.output} exists; pass --overwrite to replace it")
     res = resynthesize(args.contractions, subject=args.subject, size=args.size, view=args.view,
                        shading=args.shading, fps=args.fps, side_by_side=args.side_by_side,
                        output=args.output, export_meshes=args.export_meshes,
                        mesh_format=args.mesh_format, input_video=args.input,
                        overwrite=args.overwrite, progress=not args.quiet)
-    report = {"video": str(res.path), "frames": len(res), "fps": res.fps,
-              "size": list(res.size), "view": args.view, "shading": args.shading,
-              "missing_muscles": list(res.missing), **res.report}
-    sidecar = write_text_atomic(res.path.with_suffix(".json"), json.dumps(report, indent=1)
-                                + "\n")
-    meta_path = _analysis_json_for(args) if "personalisation" in res.report else None
-    if meta_path is not None:
-        from faceanalysis.io.report import write_analysis
-
-        meta = json.loads(meta_path.read_text())
-        meta["resynthesis"] = {"video": str(res.path.resolve()), **res.report["personalisation"]}
-        write_analysis(meta, meta_path)
     if args.json:
-        print(json.dumps(report))
+        print(json.dumps(json.loads(res.report_path.read_text())))
         return 0
     timing = res.report.get("timing", {})
     line = f"{len(res)} frames at {res.fps:g} fps -> {res.path}"
@@ -132,5 +97,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"personalised: landmark error {p['landmark_error_px']['mean']:.3f} px mean, "
               f"neutral frame photometric MAE {p['photometric']['mae_grey']:.2f} grey levels")
     if not args.quiet:
-        print(f"report -> {sidecar}", file=sys.stderr)
+        print(f"report -> {res.report_path}", file=sys.stderr)
     return 0

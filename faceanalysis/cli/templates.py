@@ -12,6 +12,7 @@ from faceanalysis.cli._common import (
     non_negative_int,
     positive_int,
 )
+from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
 
 HELP = "make the face model's optical-flow templates (per muscle, per expression)"
 
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.io.outputs import prepare_output_dir
 
     if args.subject is not None:
-        csv = args.subject / "contractions.csv" if args.subject.is_dir() else args.subject
+        csv = args.subject / CONTRACTIONS_CSV if args.subject.is_dir() else args.subject
         if not csv.is_file():
             raise FileNotFoundError(f"{csv}: no contractions.csv for --subject")
     out = prepare_output_dir(args.output, overwrite=args.overwrite)
@@ -74,12 +75,13 @@ def run(args: argparse.Namespace) -> int:
 
         personal = _personal_model(csv.parent, FaceModel.default())
         if personal is not None:
-            # the face model warped to the subject in 3-D (faceanalysis.resynthesis.personalize.personalize)
+            # the face model warped to the subject in 3-D
+            # (faceanalysis.resynthesis.personalize.personalize)
             pers = make_templates(personal, **options)
             pers.meta.update(personalised=True, personalisation="model")
         else:
             table = pd.read_csv(csv)
-            meta_path = csv.parent / "analysis.json"
+            meta_path = csv.parent / ANALYSIS_JSON
             neutral = None
             if meta_path.is_file():
                 neutral = json.loads(meta_path.read_text()).get("parameters", {}).get(

@@ -39,11 +39,10 @@ from faceanalysis.estimation.response import FiducialResponse
 #: all three are in :data:`faceanalysis.estimation.registry.ESTIMATORS`).
 POINT_ESTIMATORS = ("joint", "tw93")
 
-#: The ``joint`` fit's default sparsity weight (see :func:`estimate_joint`). Chosen on
-#: four identities of the standard suite (0.001-0.03 tried) and checked on the other six:
-#: their median RMSE over the fitted controls went from 0.120 to 0.114, median r from
-#: 0.879 to 0.905 and the jaw error from 0.59 to 0.55 degrees against the ridge
-#: (``regularization=1e-2``) it replaces, which shrank every activation in proportion.
+#: The ``joint`` fit's default sparsity weight (see :func:`estimate_joint`), chosen on
+#: four identities of the standard suite and checked on the other six. A sparsity prior
+#: rests the muscles the points do not call for by a constant, where a ridge would shrink
+#: every activation in proportion.
 SPARSITY = 4e-3
 
 
@@ -57,8 +56,8 @@ def _blas_controller():
 @contextlib.contextmanager
 def _one_blas_thread():
     """BLAS limited to one thread: the products of the joint fit are small (tens of
-    controls), and a multi-threaded BLAS on a machine whose other cores are busy made
-    them four times slower (2.3 s instead of 0.52 s for 1159 frames, 2 cores)."""
+    controls), and a multi-threaded BLAS on a machine whose other cores are busy spends
+    more time synchronising threads than computing them."""
     with _blas_controller().limit(limits=1, user_api="blas"):
         yield
 
@@ -129,10 +128,9 @@ def estimate_tw93(displacements: np.ndarray, response: FiducialResponse) -> np.n
     return out
 
 
-#: Huber threshold of the joint fit, model cm (about half a pixel at 256x256). On 7 unseen
-#: identities x 11 sequences (2310 frames) two reweighting rounds took the median
-#: per-muscle RMSE from 0.121 to 0.115 and the jaw error from 0.57 to 0.50 degrees; on
-#: the demo sequence, whose furrow ends stop short, the jaw error from 3.5 to 2.5.
+#: Huber threshold of the joint fit, model cm (about half a pixel at 256x256): a point
+#: farther than this from the fit pulls less, so that one point the model cannot explain
+#: on a frame (a furrow end that stops short) does not drag every control with it.
 ROBUST = 0.05
 
 

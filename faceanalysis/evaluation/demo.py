@@ -10,7 +10,15 @@ import json
 import os
 from pathlib import Path
 
-from faceanalysis.io.outputs import prepare_output_dir, write_text_atomic
+from faceanalysis.io.outputs import (
+    ANALYSIS_JSON,
+    CONTRACTIONS_CSV,
+    CONTRACTIONS_PNG,
+    EVALUATION_JSON,
+    OVERLAY_MP4,
+    prepare_output_dir,
+    write_text_atomic,
+)
 
 
 def run_demo(output: str | os.PathLike, *, expression: str = "surprise", frames: int = 48,
@@ -39,9 +47,9 @@ def run_demo(output: str | os.PathLike, *, expression: str = "surprise", frames:
     analyze_to_folder(files["video"], analysis_dir, overwrite=overwrite, overlay=True,
                       quiet=not progress)
     report = public(compare(files["truth"], analysis_dir))
-    evaluation = write_text_atomic(out / "evaluation.json", json.dumps(report, indent=1) + "\n")
+    evaluation = write_text_atomic(out / EVALUATION_JSON, json.dumps(report, indent=1) + "\n")
     return {"video": Path(files["video"]), "truth": Path(files["truth"]),
-            "contractions": analysis_dir / "contractions.csv",
-            "plot": analysis_dir / "contractions.png", "overlay": analysis_dir / "overlay.mp4",
-            "analysis": analysis_dir / "analysis.json", "evaluation": evaluation,
+            "contractions": analysis_dir / CONTRACTIONS_CSV,
+            "plot": analysis_dir / CONTRACTIONS_PNG, "overlay": analysis_dir / OVERLAY_MP4,
+            "analysis": analysis_dir / ANALYSIS_JSON, "evaluation": evaluation,
             "_report": report}

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from faceanalysis.io.outputs import CONTRACTIONS_CSV
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
 
 __all__ = ["compare", "evaluate", "format_table", "pool", "public"]
@@ -54,7 +55,7 @@ def compare(truth, estimate, *, controls=None) -> dict:
         aligned arrays under ``_pairs`` (for pooling; not JSON).
     """
     t = _load_table(truth, "truth.csv")
-    e = _load_table(estimate, "contractions.csv")
+    e = _load_table(estimate, CONTRACTIONS_CSV)
     for df, what in ((t, "truth"), (e, "estimate")):
         if "frame" not in df.columns:
             raise ValueError(f"{what} table has no 'frame' column")

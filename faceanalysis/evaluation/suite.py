@@ -21,7 +21,14 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.evaluation.scores import compare, format_table, pool, public
-from faceanalysis.io.outputs import atomic_path, prepare_output_dir, write_text_atomic
+from faceanalysis.io.outputs import (
+    REPORT_JSON,
+    REPORT_MD,
+    REPORT_PNG,
+    atomic_path,
+    prepare_output_dir,
+    write_text_atomic,
+)
 
 log = logging.getLogger(__name__)
 
@@ -145,10 +152,10 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
         "failures": failures,
         "elapsed_s": time.perf_counter() - t0,
     }
-    write_text_atomic(out / "report.json", json.dumps(report, indent=1) + "\n")
-    write_text_atomic(out / "report.md", "# Closed-loop evaluation\n\n"
+    write_text_atomic(out / REPORT_JSON, json.dumps(report, indent=1) + "\n")
+    write_text_atomic(out / REPORT_MD, "# Closed-loop evaluation\n\n"
                       + format_table(pooled) + "\n")
-    plot_report(pooled, out / "report.png")
+    plot_report(pooled, out / REPORT_PNG)
     return report
 
 

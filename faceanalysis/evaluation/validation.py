@@ -6,7 +6,8 @@ the head frame, on the face grid) is compared frame by frame with the flow of th
 image-plane motion from rest taken onto the same grid (:class:`faceanalysis.flow.templates.
 ModelView`). The resynthesis is personalised, so that features line up with the subject's: by
 default the face model itself is warped to the subject's neutral frame
-(:func:`faceanalysis.resynthesis.personalize.personalize`, the 3-D landmark warp of Kähler, ch. 8); where
+(:func:`faceanalysis.resynthesis.personalize.personalize`, the 3-D landmark warp of Kähler,
+ch. 8); where
 that is not possible, the generic resynthesis flow is warped onto the subject's neutral
 fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`).
 
@@ -38,6 +39,7 @@ import pandas as pd
 
 from faceanalysis.flow.recognition import NEUTRAL_THRESHOLD, motion_energy, nuisance_free
 from faceanalysis.flow.templates import REGION_GROUPS, FlowTemplates
+from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV, VALIDATION_CSV, VALIDATION_PNG
 
 log = logging.getLogger(__name__)
 
@@ -265,8 +267,8 @@ def _smooth_time(displacement: np.ndarray, sigma: float) -> np.ndarray:
 
 def _personal_model(folder: Path, model):
     """The face model personalised to the analysed subject by
-    :func:`faceanalysis.resynthesis.personalize.personalize` (3-D landmark warp), or None when that is not
-    possible (the resynthesis module is missing, the video cannot be found, a bad warp)."""
+    :func:`faceanalysis.resynthesis.personalize.personalize` (3-D landmark warp), or None
+    when that is not possible (the resynthesis module is missing, the video cannot be found, a bad warp)."""
     try:
         from faceanalysis.resynthesis.personalize import personalize as personalize_model
     except ImportError:
@@ -300,7 +302,8 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         Mask, regions and nuisance motions (default: the generic templates).
     personalised : bool or {'model', 'warp'}
         Personalise the resynthesis: ``True``/``'model'``: the face model warped to the
-        subject's neutral frame (:func:`faceanalysis.resynthesis.personalize.personalize`, 3-D), falling
+        subject's neutral frame (:func:`faceanalysis.resynthesis.personalize.personalize`,
+        3-D), falling
         back to ``'warp'``: the generic resynthesis flow warped onto the subject's neutral
         fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`). ``False``: the
         generic face as it is.
@@ -324,11 +327,11 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     from faceanalysis.tracking import to_head_frame
 
     folder = Path(analysis)
-    csv = folder / "contractions.csv"
+    csv = folder / CONTRACTIONS_CSV
     if not csv.is_file():
         raise FileNotFoundError(f"{csv}: no contractions.csv in the analysis folder")
     table = read_contractions(csv)
-    meta_path = folder / "analysis.json"
+    meta_path = folder / ANALYSIS_JSON
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
     neutral = meta.get("parameters", {}).get("neutral_frame")
     heads = heads_from_table(table)
@@ -397,10 +400,10 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         from faceanalysis.io.report import write_analysis
 
         result.paths["table"] = write_text_atomic(
-            folder / "validation.csv", agree.to_csv(index=False, float_format="%.6f",
+            folder / VALIDATION_CSV, agree.to_csv(index=False, float_format="%.6f",
                                                     lineterminator="\n"))
-        plot_agreement(agree, folder / "validation.png")
-        result.paths["plot"] = folder / "validation.png"
+        plot_agreement(agree, folder / VALIDATION_PNG)
+        result.paths["plot"] = folder / VALIDATION_PNG
         meta["validation"] = summary
         result.paths["analysis"] = write_analysis(meta, meta_path)
     return result

@@ -8,6 +8,24 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+#: File names of an analysis folder (``faceanalysis analyze VIDEO -o OUT``).
+CONTRACTIONS_CSV = "contractions.csv"
+ANALYSIS_JSON = "analysis.json"
+CONTRACTIONS_PNG = "contractions.png"
+OVERLAY_MP4 = "overlay.mp4"
+#: ``faceanalysis validate`` adds these to the analysis folder.
+VALIDATION_CSV = "validation.csv"
+VALIDATION_PNG = "validation.png"
+#: ``faceanalysis demo``'s score of its analysis.
+EVALUATION_JSON = "evaluation.json"
+#: ``faceanalysis evaluate --suite``'s report.
+REPORT_JSON = "report.json"
+REPORT_MD = "report.md"
+REPORT_PNG = "report.png"
+#: ``faceanalysis batch``'s table of every video.
+SUMMARY_CSV = "summary.csv"
+
+
 
 def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Create ``path`` as an output folder, refusing to reuse a non-empty one.

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from faceanalysis.io.outputs import CONTRACTIONS_CSV
 from faceanalysis.io.table import FIDUCIALS
 from faceanalysis.resynthesis.framing import Framing, framing_from_head, head_reference
 from faceanalysis.resynthesis.series import Series, load_series, series_from_table
@@ -164,7 +165,7 @@ def subject_series(subject) -> tuple[Series, Path | None]:
     path = Path(subject)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such subject video or analysis folder")
-    if path.is_dir() and (path / "contractions.csv").is_file():
+    if path.is_dir() and (path / CONTRACTIONS_CSV).is_file():
         s = load_series(path)
         return s, s.input_path
     log.info("analysing the subject's first frame in %s", path)

@@ -4,12 +4,14 @@ made, :mod:`.series` for the input it accepts and :mod:`.personalize` for the su
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from pathlib import Path
 
 import numpy as np
 
+from faceanalysis.io.outputs import ANALYSIS_JSON
 from faceanalysis.io.table import JAW, MUSCLES
 from faceanalysis.resynthesis.export import MESH_FORMATS, MeshExporter
 from faceanalysis.resynthesis.personalize import SubjectInfo, personalize, personalize_series
@@ -77,7 +79,10 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     -------
     Resynthesis
         Iterable of RGB ``uint8`` frames; ``.path`` is the video when ``output`` was given,
-        ``.report`` holds personalisation figures and timings.
+        ``.report`` holds personalisation figures and timings. With ``output``, the
+        report is also written beside the video (``.report_path``, the video's name with
+        ``.json``), and a personalisation is recorded in the subject's ``analysis.json``
+        (key ``resynthesis``).
 
     Raises
     ------
@@ -140,9 +145,55 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     if output is not None:
         res.write(output, export_meshes=export_meshes, mesh_format=mesh_format,
                   overwrite=overwrite, progress=progress)
+        res.report_path = _write_report(res, view, shading)
+        if "personalisation" in res.report:
+            _record_in_analysis(res, source, subject)
     elif export_meshes is not None:
         exporter = MeshExporter(export_meshes, mesh_format, res.model, overwrite, subj)
         for st in res.states(progress=progress):
             exporter.add(st, res.model)
         res.report["meshes"] = str(exporter.finish(series))
     return res
+
+
+def _write_report(res: Resynthesis, view: str, shading: str) -> Path:
+    """The report beside the video (``resynth.json`` for ``resynth.mp4``)."""
+    from faceanalysis.io.outputs import write_text_atomic
+
+    report = {"video": str(res.path), "frames": len(res), "fps": res.fps,
+              "size": list(res.size), "view": view, "shading": shading,
+              "missing_muscles": list(res.missing), **res.report}
+    return write_text_atomic(res.path.with_suffix(".json"),
+                             json.dumps(report, indent=1) + "\n")
+
+
+def _analysis_json_for(source, subject) -> Path | None:
+    """The analysis.json that records the personalisation: the subject's analysis folder,
+    or the source's analysis when the subject is the video it analysed."""
+    if not isinstance(subject, (str, os.PathLike)) or not isinstance(source, (str, os.PathLike)):
+        return None
+    subject = Path(subject)
+    if subject.is_dir() and (subject / ANALYSIS_JSON).is_file():
+        return subject / ANALYSIS_JSON
+    src = Path(source)
+    meta_path = (src if src.is_dir() else src.parent) / ANALYSIS_JSON
+    if meta_path.is_file():
+        try:
+            analysed = json.loads(meta_path.read_text()).get("input", {}).get("path")
+        except (OSError, json.JSONDecodeError):
+            return None
+        if analysed and Path(analysed).resolve() == subject.resolve():
+            return meta_path
+    return None
+
+
+def _record_in_analysis(res: Resynthesis, source, subject) -> None:
+    """Add the personalisation's figures to the subject's ``analysis.json``."""
+    from faceanalysis.io.report import write_analysis
+
+    meta_path = _analysis_json_for(source, subject)
+    if meta_path is None:
+        return
+    meta = json.loads(meta_path.read_text())
+    meta["resynthesis"] = {"video": str(res.path.resolve()), **res.report["personalisation"]}
+    write_analysis(meta, meta_path)

@@ -81,7 +81,8 @@ class _Wireframe:
                 a, b = p["semi_axes"]
                 ang = math.radians(p.get("angle", 0.0))
                 t = np.linspace(0, 2 * np.pi, 25)
-                e = np.c_[a * np.cos(t), b * np.sin(t)] @ rotation_2d(ang).T + np.asarray(p["centre"])
+                e = (np.c_[a * np.cos(t), b * np.sin(t)] @ rotation_2d(ang).T
+                     + np.asarray(p["centre"]))
                 self.parts.append(("loop", uv_to_surface(mesh, e, values=eye)))
             else:
                 (a1, a2), (i1, i2) = p["attachment"], p["insertion"]
@@ -203,6 +204,7 @@ class Resynthesis:
         self.missing = series.missing
         self.path: Path | None = None
         self.report: dict = {}
+        self.report_path: Path | None = None      # the report written beside the video
         in_size = series.input_size
         if subject is not None:
             in_size = (subject.image.shape[1], subject.image.shape[0])

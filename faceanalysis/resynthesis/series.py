@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES
 
 log = logging.getLogger(__name__)
@@ -212,11 +213,11 @@ def load_series(source) -> Series:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
     folder = path if path.is_dir() else path.parent
-    csv = path / "contractions.csv" if path.is_dir() else path
+    csv = path / CONTRACTIONS_CSV if path.is_dir() else path
     if not csv.is_file():
         raise FileNotFoundError(f"{csv}: no such file (expected an analysis folder or a "
                                 "contractions.csv)")
-    meta = _read_metadata(folder / "analysis.json")
+    meta = _read_metadata(folder / ANALYSIS_JSON)
     try:
         head = pd.read_csv(csv, nrows=0)
     except pd.errors.EmptyDataError:

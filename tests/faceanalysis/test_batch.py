@@ -386,18 +386,19 @@ def test_cli_batch(corpus, tmp_path, monkeypatch, run_cli):
     assert code == 2
 
 
-def test_cli_passes_only_non_default_analysis_options(tmp_path, monkeypatch):
-    from faceanalysis.cli.batch import analysis_options
+def test_only_non_default_analysis_options_are_recorded(tmp_path, monkeypatch):
+    from faceanalysis.batch import analysis_options
+    from faceanalysis.cli.batch import _options
     from faceanalysis.cli.main import build_parser
 
     parser = build_parser()
     args = parser.parse_args(["batch", "x.mp4", "-o", "out"])
-    assert analysis_options(args) == {}
+    assert analysis_options(_options(args)) == {}
     monkeypatch.chdir(tmp_path)
     args = parser.parse_args(["batch", "x.mp4", "-o", "out", "--estimator", "tw93",
                               "--start", "2", "--end", "9", "--fps", "25", "--layout",
                               "lay.json", "--overlay", "--estimator", "joint"])
-    assert analysis_options(args) == {"start": 2, "end": 9, "fps": 25.0, "overlay": True,
+    assert analysis_options(_options(args)) == {"start": 2, "end": 9, "fps": 25.0, "overlay": True,
                                       "layout": str(tmp_path / "lay.json")}
 
 
