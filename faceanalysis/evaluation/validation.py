@@ -268,7 +268,8 @@ def _smooth_time(displacement: np.ndarray, sigma: float) -> np.ndarray:
 def _personal_model(folder: Path, model):
     """The face model personalised to the analysed subject by
     :func:`faceanalysis.resynthesis.personalize.personalize` (3-D landmark warp), or None
-    when that is not possible (the resynthesis module is missing, the video cannot be found, a bad warp)."""
+    when that is not possible (the resynthesis module is missing, the video cannot be
+    found, a bad warp)."""
     try:
         from faceanalysis.resynthesis.personalize import personalize as personalize_model
     except ImportError:
