@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from faceanalysis.resynthesis.personalize import SubjectInfo
-    from faceanalysis.resynthesis.render import FrameState
-    from faceanalysis.resynthesis.series import Series
+from faceanalysis.resynthesis.personalize import SubjectInfo
+from faceanalysis.resynthesis.series import FrameState, Series
 
 log = logging.getLogger(__name__)
 

@@ -35,7 +35,6 @@ import logging
 import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +48,7 @@ from faceanalysis.resynthesis.framing import (
     transfer_head_motion,
 )
 from faceanalysis.resynthesis.personalize import SubjectInfo
-from faceanalysis.resynthesis.series import Series
+from faceanalysis.resynthesis.series import FrameState, Series
 
 log = logging.getLogger(__name__)
 
@@ -154,21 +153,6 @@ class _PlotStrip:
 
 
 # ----------------------------------------------------------------------------- main
-@dataclass
-class FrameState:
-    """One resynthesised frame: the image and the geometry behind it."""
-
-    row: int
-    frame: int
-    image: np.ndarray                 # (H, W, 3) uint8 RGB, the resynthesis
-    output: np.ndarray                # what the video gets (side by side when asked)
-    vertices: np.ndarray              # (N, 3) skin, model cm
-    inner: np.ndarray                 # (P, 3)
-    fiducials: np.ndarray             # (11, 2) projected, output px
-    seconds: float                    # equilibrium + rendering time
-    photometric_mae: float | None = None  # vs the input frame (personalised, side by side)
-
-
 class Resynthesis:
     """A configured resynthesis: iterate for frames (RGB uint8), or :meth:`write` a video.
 

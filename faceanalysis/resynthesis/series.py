@@ -239,3 +239,18 @@ def load_series(source) -> Series:
     s = series_from_table(df, str(csv), meta)
     s.folder = folder
     return s
+
+
+@dataclass
+class FrameState:
+    """One resynthesised frame: the image and the geometry behind it."""
+
+    row: int
+    frame: int
+    image: np.ndarray                 # (H, W, 3) uint8 RGB, the resynthesis
+    output: np.ndarray                # what the video gets (side by side when asked)
+    vertices: np.ndarray              # (N, 3) skin, model cm
+    inner: np.ndarray                 # (P, 3)
+    fiducials: np.ndarray             # (11, 2) projected, output px
+    seconds: float                    # equilibrium + rendering time
+    photometric_mae: float | None = None  # vs the input frame (personalised, side by side)
