@@ -134,11 +134,6 @@ class FaceModel:
         return {n: float(c) for n, c in zip(self.muscle_names, self._contractions)}
 
     @property
-    def contraction_vector(self) -> np.ndarray:
-        """Current contractions as an array in :attr:`muscle_names` order (a copy)."""
-        return self._contractions.copy()
-
-    @property
     def jaw_rotation(self) -> float:
         """Current jaw rotation (radians)."""
         return self._jaw
