@@ -89,11 +89,6 @@ def _spring_kernel(x, springs, rest_length, k_low, k_high, switch, out):  # prag
     return energy
 
 
-@numba.njit(cache=True, nogil=True, inline="always", fastmath=True)
-def _cross(ax, ay, az, bx, by, bz):  # pragma: no cover
-    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-
-
 #: prisms per block of :func:`_volume_kernel` (its arithmetic runs in SIMD loops over a block)
 _VB = 64
 

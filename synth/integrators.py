@@ -411,9 +411,9 @@ class EquilibriumSolver:
         a = a[free][:, free].tocsc()
         a = a + sp.diags(np.full(a.shape[0], 1e-9 * a.diagonal().mean()))
         self.matrix = a.tocsc()
-        self._lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                             options={"SymmetricMode": True})
-        self._factor = _symmetric_factor(self.matrix, self._lu)
+        lu = spla.splu(self.matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+        self._factor = _symmetric_factor(self.matrix, lu)
         # 16-bit node indices for the force kernels where they fit (less memory traffic)
         itype = np.uint16 if lat.n_nodes <= np.iinfo(np.uint16).max + 1 else np.int32
         self._springs = np.ascontiguousarray(lat.springs, dtype=itype)
@@ -428,27 +428,15 @@ class EquilibriumSolver:
         self._rho = np.zeros(m)
         self._state = np.zeros(2, dtype=np.int64)
         self.last_iterations = 0
-        self.last_step = np.inf
-        self.total_iterations = 0
-        self._s_hist: list = []
-        self._y_hist: list = []
-        self._rho_hist: list = []
 
     def reset_history(self) -> None:
         """Forget the L-BFGS curvature pairs (e.g. after a large jump in the load)."""
         self._state[:] = 0
-        self._s_hist.clear()
-        self._y_hist.clear()
-        self._rho_hist.clear()
-
-    def _solve(self, g_flat: np.ndarray) -> np.ndarray:
-        return self._lu.solve(np.ascontiguousarray(g_flat.reshape(-1, 3))).ravel()
 
     def solve(self, x0: np.ndarray, *, tol: float = 3e-4, max_iter: int = 1000) -> np.ndarray:
         """Relax the lattice to equilibrium, starting from ``x0`` (not modified).
 
-        The iteration runs in one compiled (Numba) loop; :meth:`solve_python` is the same
-        algorithm in NumPy/SciPy.
+        The iteration runs in one compiled (Numba) loop.
 
         Parameters
         ----------
@@ -496,102 +484,6 @@ class EquilibriumSolver:
             _check(x + np.nan, None, sysm, where="EquilibriumSolver (line search)")
         sysm.project_skull(x)
         self.last_iterations = int(it)
-        self.total_iterations += int(it)
-        self.last_step = float(step)
-        _check(x, None, sysm, where="EquilibriumSolver")
-        return x
-
-    def solve_python(self, x0: np.ndarray, *, tol: float = 3e-4,
-                     max_iter: int = 1000) -> np.ndarray:
-        """Relax the lattice to equilibrium, starting from ``x0`` (not modified).
-
-        Parameters
-        ----------
-        x0 : (n, 3) array
-            Starting positions (e.g. the previous frame's equilibrium).
-        tol : float
-            Stop when the largest nodal component of the quasi-Newton step is below ``tol`` cm.
-        max_iter : int
-            Iteration cap; reaching it raises :class:`SimulationError`.
-
-        Returns
-        -------
-        x : (n, 3) array
-            Equilibrium positions (fascia projected out of the skull).
-        """
-        if not (np.isfinite(tol) and tol > 0):
-            raise ValueError(f"tol must be finite and > 0, got {tol}")
-        history = self.history
-        sysm = self.system
-        free = sysm.free
-        x = np.array(x0, dtype=np.float64)
-        sysm.apply_boundary(x)
-        sysm.project_skull(x)
-        f, energy = sysm.forces(x, np.empty_like(x))
-        g = -f[free].ravel()
-        # curvature pairs are kept from the previous solve: the Hessian of the lattice depends
-        # on the configuration, which changes little between consecutive frames
-        s_hist, y_hist, rho_hist = self._s_hist, self._y_hist, self._rho_hist
-        it = 0
-        step = np.inf
-        while True:
-            # two-loop recursion with H0 = A^{-1}
-            q = g.copy()
-            alphas = []
-            for s_k, y_k, r_k in zip(reversed(s_hist), reversed(y_hist), reversed(rho_hist)):
-                a_k = r_k * (s_k @ q)
-                alphas.append(a_k)
-                q -= a_k * y_k
-            z = self._solve(q)
-            for (s_k, y_k, r_k), a_k in zip(zip(s_hist, y_hist, rho_hist), reversed(alphas)):
-                b_k = r_k * (y_k @ z)
-                z += (a_k - b_k) * s_k
-            p = -z
-            slope = float(g @ p)
-            if slope >= 0:          # not a descent direction: restart with the preconditioner
-                s_hist.clear()
-                y_hist.clear()
-                rho_hist.clear()
-                p = -self._solve(g)
-                slope = float(g @ p)
-            step = float(np.abs(p).max())
-            if step <= tol:
-                break
-            it += 1
-            if it > max_iter:
-                raise SimulationError(
-                    f"EquilibriumSolver did not converge in max_iter={max_iter} iterations "
-                    f"(last update {step:.3g} cm > tol={tol:.3g} cm; jaw_rotation="
-                    f"{sysm.jaw_rotation:.3g} rad, max |f_ext|={np.abs(sysm.f_ext).max():.3g})")
-            xf = x[free].ravel()
-            alpha = 1.0
-            xn = x.copy()
-            for _ in range(30):
-                xn[free] = (xf + alpha * p).reshape(-1, 3)
-                fn, en = sysm.forces(xn, np.empty_like(x))
-                if np.isfinite(en) and en <= energy + 1e-4 * alpha * slope:
-                    break
-                alpha *= 0.5
-            else:
-                _check(xn + (0.0 if np.isfinite(en) else np.nan), None, sysm,
-                       where="EquilibriumSolver")
-            gn = -fn[free].ravel()
-            s_k = alpha * p
-            y_k = gn - g
-            sy = float(s_k @ y_k)
-            if sy > 1e-12 * float(y_k @ y_k):
-                s_hist.append(s_k)
-                y_hist.append(y_k)
-                rho_hist.append(1.0 / sy)
-                if len(s_hist) > history:
-                    s_hist.pop(0)
-                    y_hist.pop(0)
-                    rho_hist.pop(0)
-            x, g, energy = xn, gn, en
-        sysm.project_skull(x)
-        self.last_iterations = it
-        self.total_iterations += it
-        self.last_step = step
         _check(x, None, sysm, where="EquilibriumSolver")
         return x
 

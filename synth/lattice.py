@@ -520,12 +520,6 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def jaw_rotation_matrix(angle: float) -> np.ndarray:
-    """Rotation about the +x axis by ``angle`` radians (positive opens the mouth)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def rotate_about_jaw(points: np.ndarray, weights: np.ndarray, pivot: np.ndarray,
                      angle: float) -> np.ndarray:
     """Rotate ``points`` about the hinge axis through ``pivot`` (axis +x), each by

@@ -384,12 +384,6 @@ class FaceMesh:
         return _readonly(np.unique(e, axis=0).astype(np.int64))
 
     @functools.cached_property
-    def edge_lengths(self) -> np.ndarray:
-        """(E,) rest lengths of :attr:`edges`."""
-        e = self.edges
-        return _readonly(np.linalg.norm(self.vertices[e[:, 1]] - self.vertices[e[:, 0]], axis=1))
-
-    @functools.cached_property
     def boundary_edges(self) -> np.ndarray:
         """(B, 2) directed edges used by exactly one triangle (outline, eye margins, lips)."""
         t = self.triangles
@@ -397,36 +391,6 @@ class FaceMesh:
         key = np.sort(e, axis=1)
         _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
         return _readonly(e[counts[inv.ravel()] == 1].astype(np.int64))
-
-    @functools.cached_property
-    def triangle_neighbors(self) -> np.ndarray:
-        """(M, 3) index of the triangle across the edge opposite each corner, -1 if none."""
-        t = self.triangles.astype(np.int64)
-        m = len(t)
-        # edge k of triangle i is opposite corner k: (t[i, k+1], t[i, k+2])
-        a = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
-        b = np.concatenate([t[:, 2], t[:, 0], t[:, 1]])
-        tri = np.tile(np.arange(m), 3)
-        corner = np.repeat(np.arange(3), m)
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        key = lo * (len(self.vertices) + 1) + hi
-        order = np.argsort(key, kind="stable")
-        ks = key[order]
-        same = np.flatnonzero(ks[1:] == ks[:-1])
-        out = np.full((m, 3), -1, dtype=np.int64)
-        i0, i1 = order[same], order[same + 1]
-        out[tri[i0], corner[i0]] = tri[i1]
-        out[tri[i1], corner[i1]] = tri[i0]
-        return _readonly(out)
-
-    @functools.cached_property
-    def vertex_triangles(self) -> tuple[np.ndarray, np.ndarray]:
-        """CSR ``(indptr, indices)`` of the triangles around each vertex."""
-        t = self.triangles.ravel()
-        order = np.argsort(t, kind="stable")
-        indptr = np.zeros(len(self.vertices) + 1, dtype=np.int64)
-        np.cumsum(np.bincount(t, minlength=len(self.vertices)), out=indptr[1:])
-        return _readonly(indptr), _readonly(order // 3)
 
     @functools.cached_property
     def face_normals(self) -> np.ndarray:
@@ -464,13 +428,6 @@ class FaceMesh:
         wrong = self.region[out] != self.region
         out[wrong] = idx[wrong, 1]
         return _readonly(out.astype(np.int64))
-
-    @functools.cached_property
-    def seam_mask(self) -> np.ndarray:
-        """(N,) bool: vertices on the mouth seam (both rows)."""
-        mask = np.zeros(len(self.vertices), dtype=bool)
-        mask[np.asarray(self.mouth_seam).ravel()] = True
-        return _readonly(mask)
 
     def landmark_positions(self, vertices=None) -> dict[str, np.ndarray]:
         """Positions of all landmarks, from ``vertices`` (default: the rest vertices)."""
@@ -661,7 +618,6 @@ class _Layout:
     landmarks: dict
     lower: np.ndarray          # (N,) bool: lower-lip copies and vertices below the mouth line
     eye_margin_l: np.ndarray   # vertex indices of the left eye margin, in order
-    eye_margin_r: np.ndarray
 
 
 def _outline_half(h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -935,7 +891,6 @@ def _layout(resolution: float) -> _Layout:
         P=Pf, triangles=T.astype(np.int32), mirror=mirror.astype(np.int64),
         seam=seam_pairs.astype(np.int64), boundary=boundary, landmarks=landmarks,
         lower=lower, eye_margin_l=idx_margin.astype(np.int64),
-        eye_margin_r=mirror[idx_margin].astype(np.int64),
     )
 
 

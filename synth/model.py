@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .facs import JAW
+from .files import write_bytes_atomic
 from .forces import TissueSystem
 from .integrators import (
     DynamicState,
@@ -130,11 +131,6 @@ class FaceModel:
     def contractions(self) -> dict[str, float]:
         """Current contractions ``{muscle: value}`` (a copy)."""
         return {n: float(c) for n, c in zip(self.muscle_names, self._contractions)}
-
-    @property
-    def contraction_vector(self) -> np.ndarray:
-        """Current contractions as an array in :attr:`muscle_names` order (a copy)."""
-        return self._contractions.copy()
 
     @property
     def jaw_rotation(self) -> float:
@@ -532,7 +528,7 @@ class FaceModel:
         lines += [f"vt {a:.6f} {1.0 - b:.6f}" for a, b in uv]
         lines += [f"vn {a:.6f} {b:.6f} {c:.6f}" for a, b, c in n]
         lines += [f"f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}" for a, b, c in t]
-        _write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
+        write_bytes_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
         return path
 
     def to_ply(self, path) -> Path:
@@ -555,16 +551,10 @@ class FaceModel:
         faces = np.empty(len(t), dtype=[("n", "u1"), ("i", "<i4", (3,))])
         faces["n"] = 3
         faces["i"] = t
-        _write_atomic(path, header + vert + faces.tobytes())
+        write_bytes_atomic(path, header + vert + faces.tobytes())
         return path
 
     def __repr__(self) -> str:
         lat = self.lattice
         return (f"FaceModel({lat.n_vertices} skin vertices, {lat.n_elements} elements, "
                 f"{lat.n_springs} springs, {len(self.muscle_names)} muscles)")
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    tmp.replace(path)

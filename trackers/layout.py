@@ -324,17 +324,6 @@ class FaceLayout:
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from None
 
-    def transformed(self, matrix) -> FaceLayout:
-        """A copy with every point mapped by a 2x3 affine matrix (sigmas scaled too)."""
-        M = np.asarray(matrix, float).reshape(2, 3)
-        s = float(np.sqrt(abs(np.linalg.det(M[:, :2]))))
-        out = {}
-        for n, c in self.contours.items():
-            out[n] = LayoutContour(c.points @ M[:, :2].T + M[:, 2], c.closed, c.kind,
-                                   c.sigma * s, c.ends)
-        eyes = None if self.eyes is None else self.eyes @ M[:, :2].T + M[:, 2]
-        return FaceLayout(out, self.image_size, eyes, None, self.source, dict(self.meta))
-
 
 def _eye_similarity(eye_r, eye_l):
     """2x3 matrix taking eye-frame coordinates to image pixels."""

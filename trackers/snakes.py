@@ -664,7 +664,6 @@ class ContourSystem:
         self.anchor = np.zeros((N, 2))
         self.rest = np.zeros(N)
         self.closed = np.array([c.closed for c in contours], bool)
-        self._rest0 = []
         for k, c in enumerate(contours):
             s, e = int(self.starts[k]), int(self.starts[k + 1])
             n = e - s
@@ -698,7 +697,6 @@ class ContourSystem:
             self.b_n[s:e] = b
             self.p_n[s:e] = p
             self.rest[s:e] = self._initial_rest(c, self.X[s:e], name)
-            self._rest0.append(self.rest[s:e].copy())
             if c.fixed_ends:
                 self.kappa[[s, e - 1]] = _ANCHOR
                 self.anchor[[s, e - 1]] = self.X[[s, e - 1]]
@@ -816,10 +814,6 @@ class ContourSystem:
         """Copy of the current rest lengths of contour ``k``."""
         return self.rest[self.contour_slice(k)].copy()
 
-    def initial_rest_lengths(self, k) -> np.ndarray:
-        """Copy of the rest lengths contour ``k`` was built (or last reset) with."""
-        return self._rest0[self._index(k)].copy()
-
     def _index(self, k):
         if isinstance(k, str):
             if k not in self.names:
@@ -851,7 +845,6 @@ class ContourSystem:
         if reset_rest:
             c = self.contours[k]
             self.rest[sl] = self._initial_rest(c, pts, self.names[k])
-            self._rest0[k] = self.rest[sl].copy()
 
     def set_strength(self, k, p) -> None:
         """Change the image-force strength ``p`` of contour ``k`` (scalar or per node).

@@ -1163,7 +1163,6 @@ def make_tracker(layout, *, backend: str = "numpy", device=None, dtype=None,
     ts = TorchContourSystem(tracker.system, device=device, dtype=dtype,
                             num_threads=num_threads)
     tracker.system.relax = _SingleRelay(ts)
-    tracker.torch_system = ts
     return tracker
 
 

@@ -255,14 +255,3 @@ def project_posed(world: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.nda
     xy[:, 0] = cx + f * (world[:, 0] - lx)
     xy[:, 1] = cy - f * (world[:, 1] - ly)
     return xy, depth
-
-
-def view_direction(points_world: np.ndarray, camera: Camera) -> np.ndarray:
-    """Unit vectors (K, 3) from posed points toward the camera (for back-face tests/specular)."""
-    if not camera.perspective:
-        out = np.zeros_like(points_world)
-        out[:, 2] = 1.0
-        return out
-    eye = np.array([camera.look_at[0], camera.look_at[1], camera.look_at[2] + camera.distance])
-    d = eye - points_world
-    return d / np.linalg.norm(d, axis=1, keepdims=True)

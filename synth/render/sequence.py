@@ -42,12 +42,13 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from synth.files import prepare_output_dir, write_bytes_atomic, write_text_atomic
 from synth.render.camera import HeadPose, default_camera
 from synth.render.groundtruth import FIDUCIALS, flow_and_occlusion, head_frame, project_landmarks
 from synth.render.renderer import Renderer
 from synth.render.shading import Light
 from synth.render.texture import paint_skin_texture, texture_params
-from synth.render.video import VideoWriter, atomic_write_bytes, atomic_write_text
+from synth.render.video import VideoWriter
 
 __all__ = ["SyntheticSequence", "synthesize", "write_sequence", "render_sequence",
            "contraction_timeline", "parse_au_string", "head_motion_track",
@@ -483,7 +484,7 @@ def write_npz_deterministic(path, arrays: dict, *, compress: bool = True) -> Pat
             info.compress_type = method
             info.external_attr = 0o644 << 16
             zf.writestr(info, a.getvalue())
-    return atomic_write_bytes(path, buf.getvalue())
+    return write_bytes_atomic(path, buf.getvalue())
 
 
 def write_sequence(seq: SyntheticSequence, out_dir, *, overwrite: bool = False,
@@ -503,12 +504,7 @@ def write_sequence(seq: SyntheticSequence, out_dir, *, overwrite: bool = False,
     """
     if flow_dtype not in ("float32", "float16"):
         raise ValueError(f"flow_dtype={flow_dtype!r} is not one of 'float32', 'float16'")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise FileExistsError(f"{out} is not empty; pass --overwrite to replace its results")
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output_dir(out_dir, overwrite=overwrite)
     T = seq.images.shape[0]
     H, W = seq.images.shape[1:3]
     with VideoWriter(out / video_name, seq.meta.get("fps", 30.0), (W, H)) as vw:
@@ -518,14 +514,14 @@ def write_sequence(seq: SyntheticSequence, out_dir, *, overwrite: bool = False,
     meta["video"] = vw.path.name
     meta["video_note"] = vw.note
     csv = seq.truth.to_csv(index=False, float_format="%.6f", lineterminator="\n")
-    truth_path = atomic_write_text(out / "truth.csv", csv)
+    truth_path = write_text_atomic(out / "truth.csv", csv)
     arrays = {"mask": seq.mask, "skin_mask": seq.skin_mask, "depth": seq.depth}
     if seq.flow is not None:
         arrays.update(flow=seq.flow.astype(flow_dtype), occluded=seq.occluded,
                       disoccluded=seq.disoccluded)
     flow_path = write_npz_deterministic(out / "flow.npz", arrays)
     meta["files"] = {"video": vw.path.name, "truth": "truth.csv", "flow": "flow.npz"}
-    meta_path = atomic_write_text(out / "meta.json",
+    meta_path = write_text_atomic(out / "meta.json",
                                   json.dumps(meta, indent=1, sort_keys=True) + "\n")
     # remove a stale video of the other container from an earlier run
     for other in (".mp4", ".avi"):
@@ -545,12 +541,8 @@ def render_sequence(out_dir, *, overwrite: bool = False, flow_dtype: str = "floa
     dict name -> Path (``video``, ``truth``, ``flow``, ``meta``) plus ``note`` (codec
     fallback message or None).
     """
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise FileExistsError(f"{out} is not empty; pass --overwrite to replace its results")
     if flow_dtype not in ("float32", "float16"):
         raise ValueError(f"flow_dtype={flow_dtype!r} is not one of 'float32', 'float16'")
+    out = prepare_output_dir(out_dir, overwrite=overwrite)   # fail before the long render
     seq = synthesize(**kwargs)
     return write_sequence(seq, out, overwrite=overwrite, flow_dtype=flow_dtype)

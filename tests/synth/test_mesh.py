@@ -394,17 +394,6 @@ def test_cached_topology_helpers(mesh):
     v, t, f = mesh.n_vertices, mesh.n_triangles, len(e)
     # Euler characteristic of a disc with 3 holes (eyes, mouth slit): 2 - 2*0 - 4 = -2
     assert v - f + t == -2
-    nb = mesh.triangle_neighbors
-    assert nb.shape == (t, 3)
-    i, k = np.nonzero(nb >= 0)
-    j = nb[i, k]
-    assert np.all(np.any(nb[j] == i[:, None], axis=1))
-    indptr, idx = mesh.vertex_triangles
-    assert indptr[-1] == 3 * t
-    assert np.all(np.any(mesh.triangles[idx[indptr[5]:indptr[6]]] == 5, axis=1))
-    np.testing.assert_allclose(mesh.edge_lengths,
-                               np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]],
-                                              axis=1))
 
 
 def test_landmark_positions(mesh):

@@ -15,7 +15,6 @@ from synth.render.sequence import (
     synthesize,
     write_sequence,
 )
-from synth.render.video import VideoWriter
 from tests.synth.render._kinematic import KinematicFace
 
 
@@ -179,15 +178,6 @@ def test_head_motion_track_starts_frontal_and_is_smooth():
     assert poses[0] == HeadPose()
     rolls = np.array([p.roll for p in poses])
     assert np.abs(np.diff(rolls)).max() < 1.0 and np.abs(rolls).max() > 0.2
-
-
-def test_video_writer_falls_back_and_says_so(tmp_path):
-    with VideoWriter(tmp_path / "v.mp4", 10, (32, 32),
-                     codecs=((".mp4", "ZZZZ"), (".avi", "MJPG"))) as w:
-        w.write(np.zeros((32, 32, 3), np.uint8))
-    assert w.path.suffix == ".avi" and w.path.exists()
-    assert "ZZZZ" in w.note
-    assert not list(tmp_path.glob(".*partial*"))
 
 
 def test_physics_model_surprise_opens_a_dark_mouth():
