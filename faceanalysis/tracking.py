@@ -404,9 +404,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 contours.append(None if res is None else res.contours)
                 if overlay is not None and frame.ok:
                     if writer is None:
-                        from faceanalysis.io.video_writer import VideoWriter
+                        from synth.render.video import VideoWriter
 
-                        writer = VideoWriter(overlay, source.fps, source.size)
+                        writer = VideoWriter(overlay, source.fps, source.size,
+                                             channel_order="bgr")
                     writer.write(_draw(frame, contours[-1], fids, head if good else None,
                                        not good))
                 if bar is not None:

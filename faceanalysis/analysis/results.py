@@ -28,9 +28,9 @@ from faceanalysis.io.outputs import (
 )
 from faceanalysis.io.report import write_analysis
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, write_contractions
-from faceanalysis.io.video_writer import VideoWriter
 from faceanalysis.tracking import Tracks
 from faceanalysis.viz.plots import plot_contractions
+from synth.render.video import VideoWriter
 
 __all__ = ["Analysis", "OutputFolder"]
 
@@ -150,8 +150,9 @@ class OutputFolder:
         return self.path / self.OVERLAY
 
     def overlay_writer(self, fps: float, size: tuple[int, int]) -> VideoWriter:
-        """An atomic :class:`~faceanalysis.io.video_writer.VideoWriter` for ``overlay.mp4``."""
-        return VideoWriter(self.overlay_mp4, fps, size)
+        """An atomic :class:`~synth.render.video.VideoWriter` of BGR frames for
+        ``overlay.mp4``."""
+        return VideoWriter(self.overlay_mp4, fps, size, channel_order="bgr")
 
     def write(self, table: pd.DataFrame, metadata: Mapping, *, plot: bool = True,
               title: str | None = None) -> dict[str, Path]:

@@ -433,9 +433,8 @@ class Resynthesis:
             ``output`` (or a non-empty ``export_meshes`` folder / file) exists and
             ``overwrite`` is false.
         """
-        import cv2
 
-        from faceanalysis.io.video_writer import VideoWriter
+        from synth.render.video import VideoWriter
 
         output = Path(output)
         if output.exists() and not overwrite:
@@ -451,7 +450,7 @@ class Resynthesis:
                 if writer is None:
                     h, w = st.output.shape[:2]
                     writer = VideoWriter(output, self.fps, (w, h))
-                writer.write(cv2.cvtColor(st.output, cv2.COLOR_RGB2BGR))
+                writer.write(st.output)
                 times.append(st.seconds)
                 if st.photometric_mae is not None:
                     maes.append(st.photometric_mae)

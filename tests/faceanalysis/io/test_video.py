@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 import pytest
 
-from faceanalysis.io import video_writer
 from faceanalysis.io.video import (
     DEFAULT_FPS,
     Frame,
@@ -20,7 +19,6 @@ from faceanalysis.io.video import (
     to_bgr_uint8,
     to_gray_float,
 )
-from faceanalysis.io.video_writer import VideoWriter
 
 W, H = 96, 64
 
@@ -391,7 +389,13 @@ def test_frame_is_a_plain_record():
     assert (f.index, f.ok) == (3, False)
 
 
-# -- writing -------------------------------------------------------------------------------
+# -- writing overlays (BGR frames, synth's atomic writer) ----------------------------------
+
+def VideoWriter(path, fps, size, **kwargs):
+    from synth.render.video import VideoWriter as _VideoWriter
+
+    return _VideoWriter(path, fps, size, channel_order="bgr", **kwargs)
+
 
 def test_writer_round_trip(tmp_path):
     out = tmp_path / "overlay.mp4"
@@ -435,8 +439,9 @@ def test_writer_rejects_wrong_size_and_empty_video(tmp_path):
 
 
 def test_writer_falls_back_to_mjpg_avi(tmp_path, monkeypatch, caplog):
-    monkeypatch.setattr(video_writer, "_FALLBACKS", (("XXXX", ".mp4"), ("MJPG", ".avi")))
-    with caplog.at_level("INFO"), VideoWriter(tmp_path / "o.mp4", 25, (W, H)) as writer:
+    codecs = ((".mp4", "XXXX"), (".avi", "MJPG"))
+    with caplog.at_level("INFO"), VideoWriter(tmp_path / "o.mp4", 25, (W, H),
+                                              codecs=codecs) as writer:
         writer.write(frame_image(1))
     assert writer.path == tmp_path / "o.avi" and writer.path.exists()
     assert "Motion-JPEG" in caplog.text
@@ -450,7 +455,7 @@ def test_writer_falls_back_to_mjpg_avi(tmp_path, monkeypatch, caplog):
 ])
 def test_writer_validates(tmp_path, args, match):
     with pytest.raises(ValueError, match=match):
-        VideoWriter(tmp_path / "o.mp4", **args)
+        VideoWriter(tmp_path / "o.mp4", args["fps"], args["size"])
 
 
 def test_single_image_is_one_frame(tmp_path):
