@@ -79,13 +79,23 @@ BACKENDS = ("numpy", "torch")
 _MISSING = "the torch backend needs the [torch] extra: pip install torch==2.13.0 kornia"
 _KINDS = ("edge", "valley", "dark_below")
 
+#: The doctests that need the [torch] extra (names in this module, fnmatch patterns; a
+#: class's name covers its methods). The repository's ``conftest.py`` skips them where
+#: torch or kornia is not installed; pytest-doctestplus reads the same attribute.
+__doctest_requires__ = {
+    ("require_torch", "potential_batch", "force_field_batch", "sample_bilinear_batch",
+     "TorchContourSystem", "snake_relax_batch", "TorchTracker"): ("torch", "kornia"),
+}
+
 
 def require_torch():
     """Import and return ``(torch, kornia)``, or raise an ImportError naming the extra.
 
     Examples
     --------
-    >>> torch, kornia = require_torch()  # doctest: +SKIP
+    >>> torch, kornia = require_torch()
+    >>> torch.float64.is_floating_point, hasattr(kornia, "filters")
+    (True, True)
     """
     try:
         import kornia

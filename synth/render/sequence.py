@@ -154,22 +154,22 @@ def contraction_timeline(muscle_names, *, expression: str | None = None, au=None
     n = 60 if frames is None else int(frames)
     if expression is None and au is None:
         return pd.DataFrame(0.0, index=range(n), columns=[*muscle_names, "jaw_rotation"])
-    from synth import facs
+    from synth.facs import ACTION_UNITS, EXPRESSIONS, au_timeline, expression_timeline
 
     if expression is not None:
-        names = sorted(facs.EXPRESSIONS)
-        if expression not in facs.EXPRESSIONS:
+        names = sorted(EXPRESSIONS)
+        if expression not in EXPRESSIONS:
             raise ValueError(f"unknown expression {expression!r}; choose from "
                              f"{', '.join(names)}")
-        tl = facs.expression_timeline(expression, n, emphasis=intensity)
+        tl = expression_timeline(expression, n, emphasis=intensity)
     else:
         aus = parse_au_string(au) if isinstance(au, str) else {int(k): float(v)
                                                               for k, v in dict(au).items()}
-        unknown = sorted(set(aus) - set(facs.ACTION_UNITS))
+        unknown = sorted(set(aus) - set(ACTION_UNITS))
         if unknown:
             raise ValueError(f"unknown action unit(s) {unknown}; known: "
-                             f"{sorted(facs.ACTION_UNITS)}")
-        tl = facs.au_timeline(aus, n, emphasis=intensity)
+                             f"{sorted(ACTION_UNITS)}")
+        tl = au_timeline(aus, n, emphasis=intensity)
     df = pd.DataFrame(0.0, index=range(n), columns=[*muscle_names, "jaw_rotation"])
     for c in df.columns:
         if c in tl.columns:
