@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
+import pathlib
 
 import cv2
 import numpy as np
 import pandas as pd
 import pytest
 
-from faceanalysis.io import outputs
 from faceanalysis.io.report import (
     FORMAT,
     analysis_metadata,
@@ -142,12 +142,13 @@ def test_interrupted_write_leaves_previous_file(tmp_path, monkeypatch):
     path = tmp_path / "analysis.json"
     path.write_text('{"old": true}')
 
-    def broken_write_text(self, text, *args, **kwargs):
-        with open(self, "w") as fh:
-            fh.write(text[: len(text) // 2])
+    def broken_write(self, data, *args, **kwargs):
+        with open(self, "wb" if isinstance(data, bytes) else "w") as fh:
+            fh.write(data[: len(data) // 2])
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(outputs.Path, "write_text", broken_write_text)
+    monkeypatch.setattr(pathlib.Path, "write_text", broken_write)
+    monkeypatch.setattr(pathlib.Path, "write_bytes", broken_write)
     with pytest.raises(KeyboardInterrupt):
         write_analysis(analysis_metadata({"path": "x"}, versions=VERSIONS), path)
     monkeypatch.undo()
