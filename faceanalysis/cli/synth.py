@@ -85,36 +85,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from synth.render.sequence import render_sequence
 
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames {args.frames} must be at least 1")
-    if not 0 <= args.intensity <= 2:
-        raise ValueError(f"--intensity {args.intensity} must be in [0, 2]")
-    if args.seed < 0:
-        raise ValueError(f"--seed {args.seed} must be non-negative")
-    progress = bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-
-        bar = tqdm(total=0, unit="frame", desc="synth", leave=False)
-
-        def progress(done, total):
-            bar.total = total
-            bar.update(done - bar.n)
     frames = args.frames if (args.frames is not None or args.contractions) else 60
-    try:
-        out = render_sequence(
-            args.output, overwrite=args.overwrite,
-            flow_dtype="float16" if args.flow_float16 else "float32",
-            expression=args.expression, au=args.au,
-            contractions=args.contractions, frames=frames, fps=args.fps, size=args.size,
-            seed=args.seed, head_motion=args.head_motion,
-            out_of_plane=not args.in_plane_only, illumination=args.illumination,
-            noise=args.noise, blur=args.blur, camera=args.camera,
-            supersample=args.supersample, grey=args.grey, flow=not args.no_flow,
-            intensity=args.intensity, resolution=args.resolution, progress=progress)
-    finally:
-        if bar is not None:
-            bar.close()
+    out = render_sequence(
+        args.output, overwrite=args.overwrite,
+        flow_dtype="float16" if args.flow_float16 else "float32",
+        expression=args.expression, au=args.au,
+        contractions=args.contractions, frames=frames, fps=args.fps, size=args.size,
+        seed=args.seed, head_motion=args.head_motion,
+        out_of_plane=not args.in_plane_only, illumination=args.illumination,
+        noise=args.noise, blur=args.blur, camera=args.camera,
+        supersample=args.supersample, grey=args.grey, flow=not args.no_flow,
+        intensity=args.intensity, resolution=args.resolution, progress=not args.quiet)
     if out.get("note"):
         log.warning("%s", out["note"])
     log.info("wrote %s, %s, %s, %s", out["video"], out["truth"], out["flow"], out["meta"])

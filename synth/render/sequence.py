@@ -34,6 +34,7 @@ import logging
 import math
 import os
 import re
+import sys
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -271,6 +272,13 @@ def _aus_of(df: pd.DataFrame):
                          for c in aus.columns})
 
 
+def _progress_bar(total: int):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="synth", unit="frame", file=sys.stderr, leave=False,
+                dynamic_ncols=True)
+
+
 def synthesize(*, model=None, expression: str | None = None, au=None, contractions=None,
                frames: int | None = 60, fps: float = 30.0, size=256, seed: int = 0,
                head_motion: float = 0.0, out_of_plane: bool = True,
@@ -317,8 +325,9 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     identity_spread : float
         Identity variation of the default model (``FaceShape.random`` spread).
     texture_size : int
-    progress : callable(int, int), optional
-        Called after each frame with (done, total).
+    progress : bool or callable(int, int), optional
+        True: a progress bar on stderr; a callable is called after each frame with
+        (done, total).
 
     Returns
     -------
@@ -338,6 +347,10 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
             raise ValueError(f"{name}={v} must be a non-negative number")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r} must be a non-negative integer")
+    if frames is not None and frames < 1:
+        raise ValueError(f"frames={frames} must be at least 1")
+    if not (math.isfinite(intensity) and 0 <= intensity <= 2):
+        raise ValueError(f"intensity={intensity} must be in [0, 2]")
     shape = None
     if model is None:
         model, shape = _model_for(seed, resolution, identity_spread)
@@ -371,42 +384,49 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     px_per_cm = []
     rest = np.asarray(mesh.vertices)
     prev = None
-    for t in range(T):
-        row = df.iloc[t]
-        values = {m: float(row[m]) for m in muscles}
-        model.set_contractions(values, jaw_rotation=float(row["jaw_rotation"]))
-        skin = np.asarray(model.equilibrate(), dtype=np.float64)
-        inner = np.asarray(model.inner_vertices(), dtype=np.float64)
-        res = renderer.render(skin, inner, pose=poses[t], light=lights[t])
-        img = res.image.astype(np.float32)
-        clean[t] = res.image
-        if blur > 0:
-            img = cv2.GaussianBlur(img, (0, 0), blur)
-        if noise > 0:
-            img = img + rng.normal(0.0, noise, img.shape).astype(np.float32)
-        images[t] = np.clip(img + 0.5, 0, 255).astype(np.uint8) if (blur or noise) \
-            else res.image
-        mask[t] = res.mask
-        skin_mask[t] = res.skin_mask
-        depth[t] = res.depth
-        if flow and prev is not None:
-            flows[t - 1], occ[t - 1], dis[t - 1] = flow_and_occlusion(renderer, prev, res)
-        prev = res
-        lm = _landmark_positions(model, mesh, skin)
-        fids = project_landmarks({k: lm[k] for k in FIDUCIALS if k in lm}, renderer, res)
-        hf = head_frame(mesh, cam, poses[t])
-        px_per_cm.append(hf.pop("px_per_cm"))
-        rec = {"frame": t, "timestamp": t / fps, "success": 1, "confidence": 1.0, **hf}
-        for name in FIDUCIALS:
-            x, y, vis = fids.get(name, (np.nan, np.nan, False))
-            rec[f"fid_{name}_x"] = x
-            rec[f"fid_{name}_y"] = y
-            rec[f"fid_{name}_visible"] = int(vis)
-        rec.update(values)
-        rec["jaw_rotation"] = float(row["jaw_rotation"])
-        rows.append(rec)
-        if progress is not None:
-            progress(t + 1, T)
+    bar = _progress_bar(T) if progress is True else None
+    try:
+        for t in range(T):
+            row = df.iloc[t]
+            values = {m: float(row[m]) for m in muscles}
+            model.set_contractions(values, jaw_rotation=float(row["jaw_rotation"]))
+            skin = np.asarray(model.equilibrate(), dtype=np.float64)
+            inner = np.asarray(model.inner_vertices(), dtype=np.float64)
+            res = renderer.render(skin, inner, pose=poses[t], light=lights[t])
+            img = res.image.astype(np.float32)
+            clean[t] = res.image
+            if blur > 0:
+                img = cv2.GaussianBlur(img, (0, 0), blur)
+            if noise > 0:
+                img = img + rng.normal(0.0, noise, img.shape).astype(np.float32)
+            images[t] = np.clip(img + 0.5, 0, 255).astype(np.uint8) if (blur or noise) \
+                else res.image
+            mask[t] = res.mask
+            skin_mask[t] = res.skin_mask
+            depth[t] = res.depth
+            if flow and prev is not None:
+                flows[t - 1], occ[t - 1], dis[t - 1] = flow_and_occlusion(renderer, prev, res)
+            prev = res
+            lm = _landmark_positions(model, mesh, skin)
+            fids = project_landmarks({k: lm[k] for k in FIDUCIALS if k in lm}, renderer, res)
+            hf = head_frame(mesh, cam, poses[t])
+            px_per_cm.append(hf.pop("px_per_cm"))
+            rec = {"frame": t, "timestamp": t / fps, "success": 1, "confidence": 1.0, **hf}
+            for name in FIDUCIALS:
+                x, y, vis = fids.get(name, (np.nan, np.nan, False))
+                rec[f"fid_{name}_x"] = x
+                rec[f"fid_{name}_y"] = y
+                rec[f"fid_{name}_visible"] = int(vis)
+            rec.update(values)
+            rec["jaw_rotation"] = float(row["jaw_rotation"])
+            rows.append(rec)
+            if bar is not None:
+                bar.update(1)
+            elif progress:
+                progress(t + 1, T)
+    finally:
+        if bar is not None:
+            bar.close()
     truth = pd.DataFrame(rows)
     aus = _aus_of(df)
     if aus is not None and len(aus) == T:
