@@ -73,7 +73,8 @@ def _epe_figures(quick: bool) -> list[Figure]:
 
 
 def _fps_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.flow.dense import FLOW_METHODS, FaceGrid, _FlowStep
+    from faceanalysis.flow.dense import FLOW_METHODS, _FlowStep
+    from faceanalysis.flow.grid import FaceGrid
     from synth.model import FaceModel
     from synth.render import Renderer, default_camera, paint_skin_texture
     from synth.render.camera import HeadPose

@@ -57,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
 
     import pandas as pd
 
-    from faceanalysis.flow.templates import make_templates, personalize_from_table, write_templates
+    from faceanalysis.flow.personalize import personalize_from_table
+    from faceanalysis.flow.templates import make_templates, write_templates
     from faceanalysis.io.outputs import prepare_output_dir
 
     if args.subject is not None:

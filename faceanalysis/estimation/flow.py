@@ -215,7 +215,7 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
     regularization : float
     personalised : bool
         Warp the templates onto the subject's neutral fiducials first
-        (:func:`faceanalysis.flow.templates.personalize`).
+        (:func:`faceanalysis.flow.personalize.personalize`).
     controls : sequence of str or None
         Controls to fit (default :data:`FLOW_CONTROLS`, less those the templates lack);
         None: every control of the templates. A name the templates lack is a
@@ -228,7 +228,7 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         ``jaw_rotation``); NaN for lost frames.
     """
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.flow.templates import personalize_from_table
+    from faceanalysis.flow.personalize import personalize_from_table
     from faceanalysis.io.table import heads_from_table
 
     if templates is None:

@@ -9,7 +9,7 @@ default the face model itself is warped to the subject's neutral frame
 (:func:`faceanalysis.resynthesis.personalize.personalize`, the 3-D landmark warp of Kähler,
 ch. 8); where
 that is not possible, the generic resynthesis flow is warped onto the subject's neutral
-fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`).
+fiducials in 2-D (:class:`faceanalysis.flow.personalize.SubjectWarp`).
 
 The input's flow is smoothed over time (Gaussian, one frame by default: each frame's flow
 is measured on its own, so its noise is independent from frame to frame while faces move
@@ -306,7 +306,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
         subject's neutral frame (:func:`faceanalysis.resynthesis.personalize.personalize`,
         3-D), falling
         back to ``'warp'``: the generic resynthesis flow warped onto the subject's neutral
-        fiducials in 2-D (:class:`faceanalysis.flow.templates.SubjectWarp`). ``False``: the
+        fiducials in 2-D (:class:`faceanalysis.flow.personalize.SubjectWarp`). ``False``: the
         generic face as it is.
     contractions : DataFrame, optional
         Drive the resynthesis with these instead of the analysis's (e.g. :func:`shuffled`).
@@ -323,7 +323,8 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     ValidationResult
     """
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.flow.templates import ModelView, SubjectWarp
+    from faceanalysis.flow.personalize import SubjectWarp
+    from faceanalysis.flow.templates import ModelView
     from faceanalysis.io.table import FIDUCIALS, heads_from_table, read_contractions
     from faceanalysis.tracking import to_head_frame
 
@@ -374,7 +375,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
                 # 2-D landmark warp of the generic resynthesis flow onto the subject
                 q = to_head_frame(fid, heads[k])
                 pred = SubjectWarp(templates.grid, view.fiducials, q).vectors(pred)
-                from faceanalysis.flow.templates import personalize
+                from faceanalysis.flow.personalize import personalize
 
                 tpl = personalize(templates, q)
                 personalisation = "warp"

@@ -40,7 +40,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from faceanalysis.flow.dense import FaceFlow, remove_rigid
+from faceanalysis.flow.dense import FaceFlow
+from faceanalysis.flow.grid import remove_rigid
 from faceanalysis.flow.templates import EXPRESSION_NAMES, FlowTemplates
 
 log = logging.getLogger(__name__)
@@ -337,12 +338,12 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         See :func:`faceanalysis.flow.dense.video_face_flow`.
     personalised : bool
         Warp the templates onto the subject's neutral fiducials
-        (:func:`faceanalysis.flow.templates.personalize_from_table`).
+        (:func:`faceanalysis.flow.personalize.personalize_from_table`).
     **kwargs
         Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
     """
     from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.flow.templates import personalize_from_table
+    from faceanalysis.flow.personalize import personalize_from_table
     from faceanalysis.tracking import track
 
     if templates is None:
@@ -450,7 +451,7 @@ def evaluate_recognition(identities=range(100, 110), *, templates: FlowTemplates
     ``results`` (DataFrame: identity, truth, predicted, peak_energy, scores) and the
     settings.
     """
-    from faceanalysis.flow.templates import personalize_from_table
+    from faceanalysis.flow.personalize import personalize_from_table
     from synth.render import synthesize
 
     if templates is None:

@@ -3,7 +3,7 @@
 Zhang et al. propose that the model's own surface motion, seen as optical flow, serves as
 templates that characterise each expression. :func:`make_templates` renders the face model
 and turns its exact image-plane motion (the renderer's ground-truth flow, or the projected
-node motion) into fields on the canonical :class:`~faceanalysis.flow.dense.FaceGrid`:
+node motion) into fields on the canonical :class:`~faceanalysis.flow.grid.FaceGrid`:
 
 - one **per control** (each muscle and the jaw): the displacement from rest to the
   equilibrium under a contraction of ``level`` (default 1), divided by the level, so that a
@@ -13,7 +13,7 @@ node motion) into fields on the canonical :class:`~faceanalysis.flow.dense.FaceG
   template of its onset, the displacement from rest at ``n_steps`` instants from neutral to
   apex (the timing of :func:`synth.facs.expression_timeline`), and the motion-energy map
   ``sum_t |d_t - d_{t-1}|^2`` of that onset (Essa & Pentland's spatio-temporal motion energy);
-- **nuisance** motions: the four similarity motions of :func:`faceanalysis.flow.dense.rigid_basis`
+- **nuisance** motions: the four similarity motions of :func:`faceanalysis.flow.grid.rigid_basis`
   (tracker jitter of the head frame) and the model's own flow under one degree of yaw and of
   pitch (out-of-plane head rotation, which the 2-D head frame cannot remove).
 
@@ -26,7 +26,7 @@ scale = distance to the nose tip, roll = image angle of the model's x axis; mapp
 trackers' convention by two constants measured on several identities), the landmark frame
 is used (``meta['head_source']`` says which).
 
-Personalised templates: :func:`personalize` warps generic templates onto a subject's face
+Personalised templates: :func:`faceanalysis.flow.personalize.personalize` warps generic templates onto a subject's face
 by a thin-plate spline of the grid driven by the 11 fiducials (model's at rest -> the
 subject's neutral fiducials, both in head coordinates), the 2-D counterpart of the
 landmark-driven deformation of Kähler (001, ch. 8). A model warped to the subject in 3-D
@@ -40,18 +40,17 @@ import hashlib
 import json
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from faceanalysis.flow.dense import FaceGrid, grid_image_points, image_flow_to_grid, rigid_basis
+from faceanalysis.flow.grid import FaceGrid, grid_image_points, image_flow_to_grid, rigid_basis
 from faceanalysis.io.table import FIDUCIALS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FlowTemplates", "ModelView", "SubjectWarp", "make_templates", "personalize",
-           "personalize_from_table", "default_templates", "write_templates",
+__all__ = ["FlowTemplates", "ModelView", "make_templates", "default_templates", "write_templates",
            "preview_templates", "JAW_MAX", "JAW_TEMPLATE", "REGION_GROUPS", "EXPRESSION_NAMES"]
 
 #: Upper bound of the jaw rotation (radians), that of :data:`synth.facs.MAX_JAW_ROTATION`.
@@ -99,7 +98,7 @@ class FlowTemplates:
     energy : ndarray (E, rows, cols)
         Motion energy of each expression's onset.
     fiducials : ndarray (11, 2)
-        The model's rest fiducials in head coordinates (for :func:`personalize`).
+        The model's rest fiducials in head coordinates (for :func:`faceanalysis.flow.personalize.personalize`).
     head : ndarray (4,)
         Head frame of the model's render (px), for reference.
     meta : dict
@@ -243,7 +242,7 @@ def _nodes_to_grid(res0, res1, n_skin, head, grid, mask):
     interp = LinearNDInterpolator(xy0[vis], (xy1 - xy0)[vis])
     pts = grid_image_points(grid, head)
     d = interp(pts.reshape(-1, 2)).reshape(*grid.shape, 2)
-    from faceanalysis.flow.dense import vectors_to_head
+    from faceanalysis.flow.grid import vectors_to_head
 
     out = vectors_to_head(d, head)
     out[~mask] = 0.0
@@ -482,166 +481,6 @@ def make_templates(model=None, *, grid: FaceGrid | None = None, size: int = 256,
                          energy=energy, fiducials=view.fiducials, head=head, meta=meta)
 
 
-# ---------------------------------------------------------------------------- personalisation
-def _tps_warp(src: np.ndarray, dst: np.ndarray):
-    """Thin-plate spline mapping src points -> dst points (2-D), and its affine part."""
-    from scipy.interpolate import RBFInterpolator
-
-    rbf = RBFInterpolator(src, dst, kernel="thin_plate_spline", smoothing=1e-4, degree=1)
-    design = np.c_[src, np.ones(len(src))]
-    coef, *_ = np.linalg.lstsq(design, dst, rcond=None)
-    return rbf, coef[:2].T
-
-
-class SubjectWarp:
-    """2-D landmark-driven warp from the model's face onto a subject's, on the face grid.
-
-    A thin-plate spline maps each grid point of the subject's face to the corresponding
-    point of the model's (driven by the 11 fiducials and five rigid anchors: the head origin
-    and the grid corners); fields are resampled there and vectors mapped by the inverse of
-    the warp's affine part.
-
-    Parameters
-    ----------
-    grid : FaceGrid
-    model_fiducials, subject_fiducials : (11, 2) array_like
-        Head coordinates of the model's rest fiducials and of the subject's neutral ones.
-    """
-
-    def __init__(self, grid: FaceGrid, model_fiducials, subject_fiducials):
-        q = np.asarray(subject_fiducials, dtype=float)
-        p = np.asarray(model_fiducials, dtype=float)
-        if q.shape != p.shape or q.ndim != 2 or q.shape[1] != 2 or not np.isfinite(q).all():
-            raise ValueError(f"subject fiducials must be {p.shape} finite values, "
-                             f"got shape {q.shape}")
-        self.grid = grid
-        anchors = np.array([[0.0, 0.0], [grid.u[0], grid.v[0]], [grid.u[1], grid.v[0]],
-                            [grid.u[0], grid.v[1]], [grid.u[1], grid.v[1]]])
-        rbf, lin = _tps_warp(np.vstack([q, anchors]), np.vstack([p, anchors]))
-        pts = grid.points
-        self.back = rbf(pts.reshape(-1, 2)).reshape(pts.shape)
-        self.jac = np.linalg.inv(lin)
-
-    def scalars(self, stack: np.ndarray) -> np.ndarray:
-        """Warp scalar fields (..., rows, cols)."""
-        stack = np.asarray(stack, dtype=float)
-        lead = stack.shape[:-2]
-        flat = stack.reshape(-1, *self.grid.shape)
-        out = self.grid.sample(np.moveaxis(flat, 0, -1), self.back)
-        return np.moveaxis(out.reshape(*self.grid.shape, -1), -1, 0).reshape(*lead,
-                                                                           *self.grid.shape)
-
-    def vectors(self, stack: np.ndarray) -> np.ndarray:
-        """Warp vector fields (..., rows, cols, 2)."""
-        stack = np.asarray(stack, dtype=float)
-        lead = stack.shape[:-3]
-        flat = stack.reshape(-1, *self.grid.shape, 2)
-        chans = np.moveaxis(flat, 0, 2).reshape(*self.grid.shape, -1)      # (r, c, K*2)
-        out = self.grid.sample(chans, self.back).reshape(*self.grid.shape, len(flat), 2)
-        out = out @ self.jac.T
-        return np.moveaxis(out, 2, 0).reshape(*lead, *self.grid.shape, 2)
-
-    def mask(self, mask: np.ndarray) -> np.ndarray:
-        return self.grid.sample(np.asarray(mask, dtype=np.float32), self.back) > 0.99
-
-
-def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
-    """Warp generic templates onto a subject's face (2-D landmark-driven warp).
-
-    Parameters
-    ----------
-    templates : FlowTemplates
-        Generic (model) templates.
-    fiducials_head : (11, 2) array_like
-        The subject's neutral fiducials in head coordinates (e.g.
-        ``calibration.to_head_frame(fiducials, head)`` of the neutral frame), in the order
-        of DESIGN.md.
-
-    Returns
-    -------
-    FlowTemplates
-        Templates on the same grid, whose features sit where the subject's are.
-    """
-    q = np.asarray(fiducials_head, dtype=float)
-    warp = SubjectWarp(templates.grid, templates.fiducials, q)
-    mask_w = warp.mask(templates.mask)
-    near = warp.scalars(templates.region.astype(float))
-    region = np.where(np.abs(near - np.rint(near)) < 1e-3, np.rint(near), -1).astype(np.int8)
-    region[~mask_w] = -1
-    control = warp.vectors(templates.control)
-    nuis = np.array([*rigid_basis(templates.grid), *warp.vectors(templates.nuisance[4:])])
-    expr = warp.vectors(templates.expression)
-    energy = warp.scalars(templates.energy)
-    for arr in (control, nuis, expr):
-        arr[..., ~mask_w, :] = 0.0
-    energy[:, ~mask_w] = 0.0
-    meta = dict(templates.meta, personalised=True)
-    return replace(templates, control=control, nuisance=nuis, mask=mask_w, region=region,
-                   expression=expr, energy=energy, fiducials=q.copy(), meta=meta)
-
-
-#: Largest distance, in head units, between a subject's neutral fiducial and the
-#: model's after the best similarity: the synthetic suite's identities reach 0.075;
-#: on a real video whose furrow contours had slid onto the mouth line, 0.12-0.16.
-MAX_FIDUCIAL_RESIDUAL = 0.1
-
-
-def implausible_fiducials(templates: FlowTemplates, fiducials_head) -> list[str]:
-    """Names of the fiducials that a similarity (translation, rotation, scale) of the
-    templates' own fiducials leaves more than :data:`MAX_FIDUCIAL_RESIDUAL` head units
-    away: a contour tracked onto the wrong feature, not a face of another shape.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from faceanalysis.io.table import FIDUCIALS
-    >>> t = default_templates()
-    >>> q = 1.1 * t.fiducials + [0.02, -0.03]            # another scale, another place
-    >>> implausible_fiducials(t, q)
-    []
-    >>> q[FIDUCIALS.index("furrow_top_l"), 1] += 0.25    # the furrow's top at the mouth
-    >>> implausible_fiducials(t, q)
-    ['furrow_top_l']
-    """
-    q = np.asarray(fiducials_head, dtype=float)
-    g = np.asarray(templates.fiducials, dtype=float)
-    if q.shape != g.shape:
-        raise ValueError(f"fiducials must have shape {g.shape}, got {q.shape}")
-    zg = (g - g.mean(0)) @ [1, 1j]
-    zq = (q - q.mean(0)) @ [1, 1j]
-    a = (np.conj(zg) @ zq) / (np.conj(zg) @ zg)
-    far = np.abs(zq - a * zg) > MAX_FIDUCIAL_RESIDUAL
-    return [n for n, f in zip(FIDUCIALS, far) if f]
-
-
-def personalize_from_table(templates: FlowTemplates, table, neutral: int) -> FlowTemplates:
-    """Templates warped onto the subject's neutral fiducials of ``table`` (frame ``neutral``);
-    the generic ones when the fiducials are missing or implausible
-    (:func:`implausible_fiducials`: warping the templates onto a mistracked feature
-    would move the expressions' flow onto the wrong part of the face)."""
-    from faceanalysis.io.table import heads_from_table
-    from faceanalysis.tracking import to_head_frame
-
-    cols = [c for n in FIDUCIALS for c in (f"fid_{n}_x", f"fid_{n}_y")]
-    if any(c not in table.columns for c in cols):
-        return templates
-    row = np.flatnonzero(table["frame"].to_numpy(int) == neutral)
-    if row.size == 0:
-        raise ValueError(f"neutral frame {neutral} is not in the table")
-    fid = table[cols].to_numpy(float)[row[0]].reshape(len(FIDUCIALS), 2)
-    head = heads_from_table(table)[row[0]]
-    if not (np.isfinite(fid).all() and np.isfinite(head).all()):
-        return templates
-    q = to_head_frame(fid, head)
-    bad = implausible_fiducials(templates, q)
-    if bad:
-        log.warning("neutral frame %d: %s too far from where the face model puts %s; the "
-                    "templates are not personalised", neutral, ", ".join(bad),
-                    "it" if len(bad) == 1 else "them")
-        return templates
-    return personalize(templates, q)
-
-
 # ---------------------------------------------------------------------------- cache + files
 def _model_key(model, grid: FaceGrid, extra) -> str:
     from faceanalysis._version import __version__
@@ -653,7 +492,8 @@ def _model_key(model, grid: FaceGrid, extra) -> str:
     h.update(repr(getattr(model, "parameters_digest", lambda: "")()).encode())
     h.update(repr((tuple(model.muscle_names), grid.as_dict(), extra)).encode())
     h.update(source_digest(("synth", "trackers"), ("faceanalysis.flow.templates",
-                                                   "faceanalysis.flow.dense")).encode())
+                                                   "faceanalysis.flow.dense",
+                                                   "faceanalysis.flow.grid")).encode())
     return h.hexdigest()[:16]
 
 

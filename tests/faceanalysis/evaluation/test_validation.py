@@ -14,7 +14,7 @@ from faceanalysis.evaluation.validation import (
     summarize,
     validate,
 )
-from faceanalysis.flow.dense import FaceGrid
+from faceanalysis.flow.grid import FaceGrid
 from faceanalysis.flow.templates import ModelView, make_templates
 
 GRID = FaceGrid(rows=40, cols=30)

@@ -8,17 +8,19 @@ import pytest
 
 from faceanalysis.flow.dense import (
     FLOW_METHODS,
-    FaceGrid,
     compute_flow,
     face_flow,
     flow_to_colour,
+    stabilize,
+    tvl1_scales,
+)
+from faceanalysis.flow.grid import (
+    FaceGrid,
     grid_image_points,
     head_array,
     image_flow_to_grid,
     remove_rigid,
     rigid_basis,
-    stabilize,
-    tvl1_scales,
     vectors_to_head,
 )
 

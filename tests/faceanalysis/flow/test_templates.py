@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from faceanalysis.estimation.flow import FLOW_CONTROLS, FlowDesign, estimate_contractions
-from faceanalysis.flow.dense import FaceGrid, rigid_basis
+from faceanalysis.flow.grid import FaceGrid, rigid_basis
+from faceanalysis.flow.personalize import implausible_fiducials, personalize, personalize_from_table
 from faceanalysis.flow.recognition import (
     CLASSES,
     calibrate_threshold,
@@ -16,10 +17,7 @@ from faceanalysis.flow.recognition import (
 from faceanalysis.flow.templates import (
     EXPRESSION_NAMES,
     FlowTemplates,
-    implausible_fiducials,
     make_templates,
-    personalize,
-    personalize_from_table,
     preview_templates,
 )
 
