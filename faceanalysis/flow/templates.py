@@ -26,12 +26,12 @@ scale = distance to the nose tip, roll = image angle of the model's x axis; mapp
 trackers' convention by two constants measured on several identities), the landmark frame
 is used (``meta['head_source']`` says which).
 
-Personalised templates: :func:`faceanalysis.flow.personalize.personalize` warps generic templates onto a subject's face
-by a thin-plate spline of the grid driven by the 11 fiducials (model's at rest -> the
-subject's neutral fiducials, both in head coordinates), the 2-D counterpart of the
-landmark-driven deformation of Kähler (001, ch. 8). A model warped to the subject in 3-D
-(:func:`faceanalysis.resynthesis.personalize.personalize`) or built for an identity
-(``make_templates(FaceModel.build(shape))``) works too.
+Personalised templates: :func:`faceanalysis.flow.personalize.personalize` warps generic
+templates onto a subject's face by a thin-plate spline of the grid driven by the 11
+fiducials (model's at rest -> the subject's neutral fiducials, both in head coordinates),
+the 2-D counterpart of the landmark-driven deformation of Kähler (001, ch. 8). A model
+warped to the subject in 3-D (:func:`faceanalysis.resynthesis.personalize.personalize`) or
+built for an identity (``make_templates(FaceModel.build(shape))``) works too.
 """
 
 from __future__ import annotations
@@ -98,7 +98,8 @@ class FlowTemplates:
     energy : ndarray (E, rows, cols)
         Motion energy of each expression's onset.
     fiducials : ndarray (11, 2)
-        The model's rest fiducials in head coordinates (for :func:`faceanalysis.flow.personalize.personalize`).
+        The model's rest fiducials in head coordinates (for
+        :func:`faceanalysis.flow.personalize.personalize`).
     head : ndarray (4,)
         Head frame of the model's render (px), for reference.
     meta : dict
