@@ -8,8 +8,8 @@ with ``ok=False`` (the caller counts them as lost and goes on); a stream that
 stops decoding before the end announced by its container (a truncated file) ends
 the iteration with a warning and is recorded in :attr:`VideoSource.missing_tail`.
 
-:func:`to_gray_float` and :func:`to_bgr_uint8` normalise any frame (grey, BGR,
-BGRA; 8-bit, 16-bit or float) for the trackers and for drawing.
+:mod:`faceanalysis.io.frames` normalises the frames (grey, BGR, BGRA; 8-bit, 16-bit or
+float) for the trackers and for drawing.
 
 :func:`read_ahead` decodes in a background thread while the caller works on the
 frames already decoded (decoding releases the interpreter lock, so on a machine with
@@ -44,8 +44,6 @@ __all__ = [
     "VideoSource",
     "open_video",
     "read_ahead",
-    "to_bgr_uint8",
-    "to_gray_float",
 ]
 
 log = logging.getLogger(__name__)
@@ -572,106 +570,3 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
     return VideoSource(path, info["kind"], fps=info["fps"], fps_origin=info["fps_origin"],
                        size=(width, height), dtype=first.dtype, channels=channels,
                        start=start, end=end, frame_count=frame_count, files=info["files"])
-
-
-# -- pixel normalisation -------------------------------------------------------------------
-
-def _scale_of(dtype: np.dtype) -> float | None:
-    if dtype == np.bool_:
-        return 1.0
-    if np.issubdtype(dtype, np.unsignedinteger):
-        return float(np.iinfo(dtype).max)
-    if np.issubdtype(dtype, np.signedinteger):
-        return float(np.iinfo(dtype).max)
-    if np.issubdtype(dtype, np.floating):
-        return None
-    raise ValueError(f"unsupported pixel type {dtype}; use integer or float images")
-
-
-def _check_image(image) -> np.ndarray:
-    image = np.asarray(image)
-    if image.ndim == 3 and image.shape[2] in (1, 2, 3, 4):
-        return image
-    if image.ndim == 2:
-        return image
-    raise ValueError(f"image must be (H, W) grey or (H, W, 3|4) BGR(A), got shape {image.shape}")
-
-
-def to_gray_float(image, *, dtype=np.float32) -> np.ndarray:
-    """Convert any frame to a 2-D grey image of floats in [0, 1].
-
-    Parameters
-    ----------
-    image : ndarray
-        ``(H, W)`` grey, ``(H, W, 1)``, ``(H, W, 2)`` grey + alpha, ``(H, W, 3)`` BGR
-        (OpenCV order) or ``(H, W, 4)`` BGRA. Integer images are divided by the
-        largest value of their type (255 for ``uint8``, 65535 for ``uint16``);
-        float images are taken to be in [0, 1] already and are not rescaled.
-        Alpha is dropped. Not modified.
-    dtype : numpy float dtype, keyword-only
-        Output type, ``float32`` by default.
-
-    Returns
-    -------
-    ndarray
-        ``(H, W)`` array; colour is reduced with the Rec. 601 luma weights
-        (0.299 R + 0.587 G + 0.114 B), like :func:`cv2.cvtColor`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> to_gray_float(np.full((2, 2), 65535, np.uint16))
-    array([[1., 1.],
-           [1., 1.]], dtype=float32)
-    >>> bgr = np.zeros((1, 1, 3), np.uint8); bgr[..., 2] = 255   # pure red
-    >>> round(float(to_gray_float(bgr)[0, 0]), 3)
-    0.299
-    """
-    image = _check_image(image)
-    scale = _scale_of(image.dtype)
-    if image.ndim == 3:
-        if image.shape[2] >= 3:
-            b, g, r = (image[..., k].astype(np.float64) for k in range(3))
-            grey = 0.114 * b + 0.587 * g + 0.299 * r
-        else:
-            grey = image[..., 0].astype(np.float64)
-    else:
-        grey = image.astype(np.float64)
-    if scale is not None:
-        grey = grey / scale
-    return grey.astype(dtype, copy=False)
-
-
-def to_bgr_uint8(image) -> np.ndarray:
-    """Convert any frame to an 8-bit BGR image for drawing and video writing.
-
-    Parameters
-    ----------
-    image : ndarray
-        Same layouts and types as :func:`to_gray_float`; 16-bit is scaled by
-        1/257 (full range), floats in [0, 1] by 255 and clipped. Not modified.
-
-    Returns
-    -------
-    ndarray
-        ``(H, W, 3)`` ``uint8``, a new array.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> to_bgr_uint8(np.full((1, 2), 65535, np.uint16)).tolist()
-    [[[255, 255, 255], [255, 255, 255]]]
-    """
-    image = _check_image(image)
-    if image.ndim == 3 and image.shape[2] in (1, 2):
-        image = image[..., 0]
-    if image.ndim == 3:
-        image = image[..., :3]
-    if image.dtype != np.uint8:
-        scale = _scale_of(image.dtype)
-        values = image.astype(np.float64)
-        values = values * (255.0 / scale) if scale is not None else values * 255.0
-        image = np.clip(np.rint(values), 0, 255).astype(np.uint8)
-    if image.ndim == 2:
-        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    return np.ascontiguousarray(image).copy()

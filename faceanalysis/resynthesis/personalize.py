@@ -63,7 +63,8 @@ def _read_frame(path: Path, index: int) -> np.ndarray:
     """Frame ``index`` of a video (RGB uint8)."""
     import cv2
 
-    from faceanalysis.io.video import open_video, to_bgr_uint8
+    from faceanalysis.io.frames import to_bgr_uint8
+    from faceanalysis.io.video import open_video
 
     with open_video(path, start=int(index), end=int(index) + 1) as src:
         for frame in src:

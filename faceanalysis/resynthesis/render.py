@@ -496,7 +496,8 @@ def _input_frames(path: Path, frames: np.ndarray, size):
     """Input frames (RGB, resized to ``size``) in step with the table's frame numbers."""
     import cv2
 
-    from faceanalysis.io.video import open_video, to_bgr_uint8
+    from faceanalysis.io.frames import to_bgr_uint8
+    from faceanalysis.io.video import open_video
 
     w, h = size
     blank = np.full((h, w, 3), 60, np.uint8)

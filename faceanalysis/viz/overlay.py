@@ -13,8 +13,8 @@ from collections.abc import Mapping, Sequence
 import cv2
 import numpy as np
 
+from faceanalysis.io.frames import to_bgr_uint8
 from faceanalysis.io.table import FIDUCIALS
-from faceanalysis.io.video import to_bgr_uint8
 
 __all__ = ["draw_overlay", "fiducials_from_row"]
 
@@ -75,7 +75,7 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     ----------
     image : ndarray
         The frame, any layout and type accepted by
-        :func:`faceanalysis.io.video.to_bgr_uint8` (grey, 16-bit...). Not modified.
+        :func:`faceanalysis.io.frames.to_bgr_uint8` (grey, 16-bit...). Not modified.
     contours : mapping or sequence of (K, 2) arrays, optional
         Snake node positions ``(x, y)`` in pixels, drawn as open polylines
         (repeat the first node to close one). NaN nodes break the line.

@@ -11,13 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
+from faceanalysis.io.frames import to_gray_float
 from faceanalysis.io.video import (
     DEFAULT_FPS,
     Frame,
     open_video,
     read_ahead,
-    to_bgr_uint8,
-    to_gray_float,
 )
 
 W, H = 96, 64
@@ -346,42 +345,12 @@ def test_folder_start_beyond_end(tmp_path):
 
 # -- pixel normalisation -------------------------------------------------------------------
 
-@pytest.mark.parametrize(("image", "expected"), [
-    (np.full((2, 3), 255, np.uint8), 1.0),
-    (np.full((2, 3), 32768, np.uint16), 32768 / 65535),
-    (np.full((2, 3, 1), 51, np.uint8), 0.2),
-    (np.full((2, 3), 0.25, np.float64), 0.25),
-    (np.dstack([np.full((2, 3), 255, np.uint8)] * 3 + [np.zeros((2, 3), np.uint8)]), 1.0),
-])
-def test_to_gray_float_normalises(image, expected):
-    original = image.copy()
-    grey = to_gray_float(image)
-    assert grey.shape == (2, 3) and grey.dtype == np.float32
-    np.testing.assert_allclose(grey, expected, rtol=1e-6)
-    np.testing.assert_array_equal(image, original)
 
 
-def test_to_gray_float_matches_opencv_luma(rng):
-    bgr = rng.integers(0, 256, (8, 9, 3), dtype=np.uint8)
-    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY) / 255.0
-    np.testing.assert_allclose(to_gray_float(bgr, dtype=np.float64), expected, atol=1 / 255)
 
 
-def test_to_gray_float_rejects_bad_shapes():
-    with pytest.raises(ValueError, match="shape"):
-        to_gray_float(np.zeros((2, 3, 5)))
-    with pytest.raises(ValueError, match="pixel type"):
-        to_gray_float(np.zeros((2, 3), dtype=complex))
 
 
-def test_to_bgr_uint8():
-    out = to_bgr_uint8(np.array([[0, 65535]], np.uint16))
-    assert out.shape == (1, 2, 3) and out.dtype == np.uint8
-    assert out[0, 1].tolist() == [255, 255, 255]
-    bgra = np.zeros((2, 2, 4), np.uint8)
-    bgra[..., 0] = 9
-    assert to_bgr_uint8(bgra).shape == (2, 2, 3)
-    assert to_bgr_uint8(np.full((1, 1), 2.0))[0, 0, 0] == 255  # floats are clipped
 
 
 def test_frame_is_a_plain_record():
