@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import glob
-import hashlib
 import json
 import logging
 import math
@@ -38,7 +37,7 @@ import shutil
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -46,293 +45,38 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis._version import __version__
+from faceanalysis.io.corpus import (
+    MARKER,
+    MARKER_FORMAT,
+    canonical_options,
+    completion_problem,
+    discover_inputs,
+    input_signature,
+    missing_outputs,
+    output_names,
+    short_hash,
+)
 from faceanalysis.io.outputs import (
     ANALYSIS_JSON,
     CONTRACTIONS_CSV,
-    CONTRACTIONS_PNG,
-    OVERLAY_MP4,
     SUMMARY_CSV,
     atomic_path,
     write_text_atomic,
 )
 
-__all__ = [
-    "VIDEO_EXTENSIONS",
-    "MARKER",
-    "SUMMARY",
-    "discover_inputs",
-    "output_names",
-    "expected_outputs",
-    "completion_problem",
-    "is_complete",
-    "run_batch",
-    "start_local_cluster",
-]
+__all__ = ["SUMMARY", "analysis_options", "run_batch", "start_local_cluster"]
 
 logger = logging.getLogger(__name__)
 
-#: File name suffixes taken as videos when a folder or a glob pattern is expanded.
-VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv",
-                    ".flv")
-#: The finished marker, written last into each video's output folder.
-MARKER = "_finished.json"
 #: The summary table written into the output root.
 SUMMARY = SUMMARY_CSV
-_MARKER_FORMAT = 1
 _PARTIAL = ".partial-"
 _OLD = ".old-"
-_GLOB_CHARS = set("*?[")
 # Columns of contractions.csv that are not contractions (see DESIGN.md).
 _NOT_CONTRACTION = {"frame", "timestamp", "success", "confidence"}
 _NOT_CONTRACTION_PREFIXES = ("head_", "fid_")
 _SUMMARY_COLUMNS = ["video", "output", "status", "resumed", "frames", "frames_lost",
                     "duration_s", "processing_s", "error"]
-
-
-# --------------------------------------------------------------------------- inputs
-
-def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *,
-                    extensions: Sequence[str] = VIDEO_EXTENSIONS) -> list[Path]:
-    """Expand files, folders and glob patterns into a list of video files.
-
-    Parameters
-    ----------
-    patterns : path-like or iterable of path-like
-        Each item is a file (taken as given, whatever its suffix), a folder (the files
-        directly inside it whose suffix is in ``extensions``; use ``"DIR/**/*.mp4"`` for
-        subfolders) or a glob pattern (``*``, ``?``, ``[...]``; ``**`` spans folders),
-        whose matches are filtered by ``extensions``.
-    extensions : sequence of str, keyword-only
-        Suffixes, with the dot, that count as videos when expanding folders and patterns
-        (compared case-insensitively).
-
-    Returns
-    -------
-    list of Path
-        Absolute paths (symbolic links kept, so that a linked clip keeps its name),
-        without duplicates, in the order of ``patterns`` (sorted within a folder or
-        pattern).
-
-    Raises
-    ------
-    FileNotFoundError
-        If an item names nothing that exists, or a folder or pattern yields no video.
-    ValueError
-        If ``patterns`` is empty.
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> d = pathlib.Path(tempfile.mkdtemp())
-    >>> for name in ("b.mp4", "a.avi", "notes.txt"):
-    ...     _ = (d / name).write_bytes(b"")
-    >>> [p.name for p in discover_inputs([d])]
-    ['a.avi', 'b.mp4']
-    >>> [p.name for p in discover_inputs([str(d / "*.mp4"), d / "notes.txt"])]
-    ['b.mp4', 'notes.txt']
-    """
-    if isinstance(patterns, (str, os.PathLike)):
-        patterns = [patterns]
-    patterns = list(patterns)
-    if not patterns:
-        raise ValueError("no inputs given: name video files, folders or glob patterns")
-    suffixes = tuple(s.lower() for s in extensions)
-
-    def is_video(p: Path) -> bool:
-        return p.is_file() and p.suffix.lower() in suffixes
-
-    found: list[Path] = []
-    seen: set[Path] = set()
-    for item in patterns:
-        text = os.fspath(item)
-        path = Path(text).expanduser()
-        if path.is_file():
-            matches = [path]
-        elif path.is_dir():
-            matches = sorted(p for p in path.iterdir() if is_video(p))
-            if not matches:
-                raise FileNotFoundError(
-                    f"{text}: folder holds no video file ({', '.join(suffixes)}); "
-                    f"use '{Path(text) / '**' / '*.mp4'}' to search its subfolders")
-        elif _GLOB_CHARS & set(text):
-            hits = sorted(Path(p) for p in glob.glob(os.path.expanduser(text), recursive=True))
-            matches = [p for p in hits if is_video(p)]
-            if not matches:
-                what = (f"matches {len(hits)} path(s) but no video file ({', '.join(suffixes)})"
-                        if hits else "matches no file")
-                raise FileNotFoundError(f"pattern {text!r} {what}")
-        else:
-            raise FileNotFoundError(f"{text}: no such file or folder")
-        for p in matches:
-            real = p.resolve()
-            if real not in seen:  # the same file reached twice (or through a link)
-                seen.add(real)
-                # absolute but links kept: a linked clip keeps its own name
-                found.append(Path(os.path.abspath(p)))
-    return found
-
-
-def _short_hash(path: Path) -> str:
-    return hashlib.sha1(os.fsencode(path)).hexdigest()[:8]
-
-
-def output_names(inputs: Sequence[str | os.PathLike]) -> list[str]:
-    """Name of each input's output folder: its stem, made unique where stems clash.
-
-    A stem shared by several inputs (compared case-insensitively, as some filesystems
-    do) gets ``-`` and 8 hex digits of a hash of the absolute input path appended, so
-    that names never collide and stay the same from run to run for the same inputs.
-    The stem ``summary`` and stems starting with ``.`` or ``_`` are reserved for the
-    runner's own files: they are hashed too, with the leading dots and underscores
-    removed, so that no output folder is hidden.
-
-    Parameters
-    ----------
-    inputs : sequence of path-like
-        The videos, e.g. from :func:`discover_inputs`.
-
-    Returns
-    -------
-    list of str
-        One folder name per input, in order.
-
-    Examples
-    --------
-    >>> output_names(["/data/a/clip.mp4", "/data/b/clip.mp4", "/data/b/other.avi"])[2]
-    'other'
-    >>> [n[:5] for n in output_names(["/data/a/clip.mp4", "/data/b/clip.mp4"])]
-    ['clip-', 'clip-']
-    """
-    paths = [Path(os.path.abspath(os.fspath(p))) for p in inputs]
-    counts: dict[str, int] = {}
-    for p in paths:
-        counts[p.stem.lower()] = counts.get(p.stem.lower(), 0) + 1
-    names = []
-    for p in paths:
-        stem = p.stem
-        reserved = stem.startswith((".", "_")) or stem.lower() == Path(SUMMARY).stem
-        if counts[stem.lower()] > 1 or reserved:
-            stem = f"{stem.lstrip('._') or 'video'}-{_short_hash(p)}"
-        names.append(stem)
-    return names
-
-
-# --------------------------------------------------------------------------- markers
-
-def expected_outputs(options: Mapping | None = None) -> tuple[str, ...]:
-    """Files that a finished video's folder must hold, for the given analysis options.
-
-    Examples
-    --------
-    >>> expected_outputs()
-    ('contractions.csv', 'analysis.json', 'contractions.png')
-    >>> expected_outputs({"overlay": True})[-1]
-    'overlay.mp4'
-
-    ``overlay.mp4`` may be ``overlay.avi`` where OpenCV has no MP4 encoder (the video
-    writer falls back to Motion-JPEG); either counts.
-    """
-    files = (CONTRACTIONS_CSV, ANALYSIS_JSON, CONTRACTIONS_PNG)
-    if options and options.get("overlay"):
-        files += (OVERLAY_MP4,)
-    return files
-
-
-# an expected output and the names it may have (codec fallbacks of the video writer)
-_ALTERNATIVES = {OVERLAY_MP4: (OVERLAY_MP4, "overlay.avi")}
-
-
-def _missing_outputs(present, options: Mapping | None) -> list[str]:
-    """Expected outputs of which no acceptable name is in ``present`` (a set of names)."""
-    return [name for name in expected_outputs(options)
-            if not any(alt in present for alt in _ALTERNATIVES.get(name, (name,)))]
-
-
-def _canonical_options(options: Mapping | None) -> dict:
-    """Options as plain JSON values (paths and other objects as strings), keys sorted."""
-    return json.loads(json.dumps(dict(options or {}), sort_keys=True, default=str))
-
-
-def _input_signature(path: Path) -> dict:
-    st = path.stat()
-    return {"size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
-
-
-def completion_problem(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
-                       options: Mapping | None = None) -> str | None:
-    """Why ``out_dir`` is not a finished result for ``input_path``, or None if it is.
-
-    Parameters
-    ----------
-    out_dir : path-like
-        A video's output folder.
-    input_path : path-like
-        The video it should hold the results of.
-    options : mapping, optional, keyword-only
-        The analysis options of the current run; when given they must equal the ones
-        recorded in the marker.
-
-    Returns
-    -------
-    str or None
-        A one-line reason (missing marker, input changed, options differ, an output
-        file missing or of another size), or None when the folder is complete.
-    """
-    out_dir = Path(out_dir)
-    marker_path = out_dir / MARKER
-    if not marker_path.is_file():
-        return f"{marker_path} is missing"
-    try:
-        marker = json.loads(marker_path.read_text())
-        signature = {"size": int(marker["input"]["size"]),
-                     "mtime_ns": int(marker["input"]["mtime_ns"])}
-        recorded_options = marker["options"]
-        outputs = dict(marker["outputs"])
-        record = marker["record"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        return f"{marker_path} is unreadable ({type(exc).__name__}: {exc})"
-    if marker.get("format") != _MARKER_FORMAT:
-        return f"{marker_path} has format {marker.get('format')!r}, not {_MARKER_FORMAT}"
-    if not isinstance(record, dict) or record.get("status") != "ok":
-        return f"{marker_path} does not record a successful analysis"
-    try:
-        current = _input_signature(Path(input_path))
-    except OSError as exc:
-        return f"{input_path}: cannot read ({exc.strerror or exc})"
-    if current != signature:
-        return (f"{input_path} changed since {out_dir} was written "
-                f"(size/modification time differ)")
-    if options is not None and _canonical_options(options) != recorded_options:
-        return f"{out_dir} was made with other options ({json.dumps(recorded_options)})"
-    for name in _missing_outputs(set(outputs), recorded_options):
-        return f"{marker_path} lists no {name}"
-    for name, size in outputs.items():
-        f = out_dir / name
-        if not f.is_file():
-            return f"{f} is missing"
-        if f.stat().st_size != size:
-            return f"{f} has {f.stat().st_size} bytes, the marker says {size}"
-    return None
-
-
-def is_complete(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,
-                options: Mapping | None = None) -> bool:
-    """True when ``out_dir`` holds the finished results of ``input_path``.
-
-    The finished marker must exist, match the input's current size and modification
-    time (and ``options`` when given), and every output file it lists must be present
-    with the recorded size. See :func:`completion_problem` for the reason when not.
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> d = pathlib.Path(tempfile.mkdtemp())
-    >>> video = d / "clip.mp4"
-    >>> _ = video.write_bytes(b"not really a video")
-    >>> is_complete(d / "clip", video)
-    False
-    """
-    return completion_problem(out_dir, input_path, options=options) is None
 
 
 # --------------------------------------------------------------------------- one video
@@ -455,9 +199,9 @@ def _process_video(input_path: str, out_root: str, name: str, options: dict,
     tmp.mkdir(parents=True)
     try:
         try:
-            signature = _input_signature(path)
+            signature = input_signature(path)
             (task or _default_task)(path, tmp, **options)
-            missing = _missing_outputs({f.name for f in tmp.iterdir() if f.is_file()},
+            missing = missing_outputs({f.name for f in tmp.iterdir() if f.is_file()},
                                        options)
             if missing:
                 raise RuntimeError(f"the analysis wrote no {', '.join(missing)}")
@@ -472,9 +216,9 @@ def _process_video(input_path: str, out_root: str, name: str, options: dict,
         row["processing_s"] = time.perf_counter() - started
         outputs = {f.name: f.stat().st_size for f in sorted(tmp.iterdir()) if f.is_file()}
         marker = {
-            "format": _MARKER_FORMAT,
+            "format": MARKER_FORMAT,
             "input": {"path": str(path), **signature},
-            "options": _canonical_options(options),
+            "options": canonical_options(options),
             "outputs": outputs,
             "record": {k: _json_value(v) for k, v in row.items() if k != "resumed"},
             "faceanalysis": __version__,
@@ -666,9 +410,10 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
         Address of a running Dask scheduler (``"tcp://host:8786"``) or a connected
         client; the run then uses that cluster's workers instead of starting one.
     options : mapping, optional, keyword-only
-        Analysis options passed to ``task`` for every video (e.g. ``overlay=True``); they
-        are recorded in each finished marker and a result made with other options is
-        not reused.
+        Analysis options passed to ``task`` for every video (e.g. ``overlay=True``); those
+        left at the analysis defaults or None are dropped (:func:`analysis_options`), the
+        others are recorded in each finished marker and a result made with other options
+        is not reused.
     task : callable, optional, keyword-only
         ``task(path, output_folder, **options)`` analyses one video into an existing,
         empty folder, writing at least ``contractions.csv``, ``analysis.json`` and
@@ -731,8 +476,8 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
                              "cluster is set where it is started")
     if task is not None and not callable(task):
         raise ValueError(f"task must be callable, got {type(task).__name__}")
-    options = analysis_options(options) if task is None else dict(options or {})
-    _canonical_options(options)  # fails early on values that cannot be recorded
+    options = analysis_options(options)
+    canonical_options(options)  # fails early on values that cannot be recorded
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise FileExistsError(f"{root} exists and is not a folder")
@@ -802,7 +547,7 @@ def _finished_elsewhere(root: Path, video: Path, name: str, options: Mapping,
     finished result is still found (when its marker names this very input).
     """
     stem = video.stem
-    other = f"{stem.lstrip('._') or 'video'}-{_short_hash(video)}" if name == stem else stem
+    other = f"{stem.lstrip('._') or 'video'}-{short_hash(video)}" if name == stem else stem
     if other.lower() in taken or not (root / other / MARKER).is_file():
         return None
     return other if _finished_record(root / other, video, options) is not None else None

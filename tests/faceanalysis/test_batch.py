@@ -20,14 +20,13 @@ import pandas as pd
 import pytest
 
 from faceanalysis import FaceAnalysisError, batch
-from faceanalysis.batch import (
+from faceanalysis.batch import SUMMARY, run_batch
+from faceanalysis.io.corpus import (
     MARKER,
-    SUMMARY,
     completion_problem,
     discover_inputs,
     is_complete,
     output_names,
-    run_batch,
 )
 
 # --------------------------------------------------------------------------- stand-in task
