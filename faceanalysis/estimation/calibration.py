@@ -64,10 +64,6 @@ class Calibration:
         q = to_head_frame(fiducials, head)
         return (q - self.neutral) @ np.linalg.inv(self.matrix).T
 
-    def to_head(self, model_points: np.ndarray) -> np.ndarray:
-        """Model points (..., 2) into head-frame coordinates."""
-        return np.asarray(model_points, dtype=float) @ self.matrix.T + self.offset
-
 
 def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
               model_rest: np.ndarray, *, valid: np.ndarray | None = None) -> Calibration:

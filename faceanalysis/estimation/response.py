@@ -151,10 +151,6 @@ class FiducialResponse:
         d = self.displacement.reshape(len(self.muscles), self.n_levels, -1)
         return np.diff(d, axis=1) / step[:, None, None]
 
-    def full_displacement(self, muscle: str) -> np.ndarray:
-        """Displacement (F, 2) of every fiducial at the muscle's full contraction."""
-        return self.displacement[self.index(muscle), -1]
-
     def index(self, muscle: str) -> int:
         try:
             return self.muscles.index(muscle)

@@ -298,7 +298,6 @@ class _FlowStep:
         self.blur = smoothing_sigma(grid, self.crop.px_per_unit)
         self.max_motion = 0.25 * self.crop.px_per_unit
         self.prev = None                              # last crop->image matrix (3x3)
-        self.inliers = np.nan
         # points of the face (an ellipse inside the grid) for the rigid fit
         cx = 0.5 * (grid.u[0] + grid.u[1])
         cy = 0.5 * (grid.v[0] + grid.v[1])
@@ -345,7 +344,6 @@ class _FlowStep:
         fl = self._flow(cur)
         if self.stabilization == "flow":
             S, frac = self._rigid(fl)
-            self.inliers = frac
             if S is None or frac < 0.1:
                 self.prev = None if not have_head else self.prev
                 return np.full((*self.grid.shape, 2), np.nan)
