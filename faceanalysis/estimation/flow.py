@@ -145,7 +145,7 @@ def estimate_contractions(displacement: np.ndarray, templates: FlowTemplates, *,
 
     Examples
     --------
-    >>> from faceanalysis.flow.dense import FaceGrid, rigid_basis
+    >>> from faceanalysis.flow.grid import FaceGrid, rigid_basis
     >>> g = FaceGrid(rows=6, cols=5)
     >>> rng = np.random.default_rng(0)
     >>> ctrl = rng.normal(size=(2, 6, 5, 2))

@@ -129,8 +129,8 @@ def implausible_fiducials(templates: FlowTemplates, fiducials_head) -> list[str]
     Examples
     --------
     >>> import numpy as np
-    >>> from faceanalysis.flow.templates import FlowTemplates
-from faceanalysis.io.table import FIDUCIALS
+    >>> from faceanalysis.flow.templates import default_templates
+    >>> from faceanalysis.io.table import FIDUCIALS
     >>> t = default_templates()
     >>> q = 1.1 * t.fiducials + [0.02, -0.03]            # another scale, another place
     >>> implausible_fiducials(t, q)
