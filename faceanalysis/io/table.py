@@ -299,22 +299,36 @@ def _row_label(df: pd.DataFrame, position: int) -> str:
         return f"line {line}"
 
 
+def numeric_column(df: pd.DataFrame, column: str, where) -> np.ndarray:
+    """The cells of ``df[column]`` as floats (empty cells NaN), or a ``ValueError`` naming
+    ``where``, the line, the frame and the column of the first cell that is not a number.
+
+    Examples
+    --------
+    >>> t = pd.DataFrame({"frame": [0, 1], "jaw_rotation": ["0.1", "wide"]})
+    >>> numeric_column(t, "jaw_rotation", "t.csv")
+    Traceback (most recent call last):
+    ...
+    ValueError: t.csv: line 3 (frame 1), column jaw_rotation: 'wide' is not a number
+    """
+    raw = df[column]
+    if pd.api.types.is_numeric_dtype(raw):
+        return raw.to_numpy(dtype=float)
+    converted = pd.to_numeric(raw, errors="coerce")
+    blank = raw.isna() | (raw.astype(str).str.strip() == "")
+    bad = converted.isna() & ~blank
+    if bad.any():
+        pos = int(np.flatnonzero(bad.to_numpy())[0])
+        raise ValueError(f"{where}: {_row_label(df, pos)}, column {column}: "
+                         f"{str(raw.iloc[pos])!r} is not a number")
+    return converted.to_numpy(dtype=float)
+
+
 def _validate(df: pd.DataFrame, path) -> pd.DataFrame:
     """Convert every known column to numbers, raising on the first bad cell."""
     numeric: dict[str, np.ndarray] = {}
     for column in contraction_columns():
-        raw = df[column]
-        if pd.api.types.is_numeric_dtype(raw):
-            values = raw.to_numpy(dtype=float)
-        else:
-            converted = pd.to_numeric(raw, errors="coerce")
-            blank = raw.isna() | (raw.astype(str).str.strip() == "")
-            bad = converted.isna() & ~blank
-            if bad.any():
-                pos = int(np.flatnonzero(bad.to_numpy())[0])
-                raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
-                                 f"{str(raw.iloc[pos])!r} is not a number")
-            values = converted.to_numpy(dtype=float)
+        values = numeric_column(df, column, path)
         if column in ("frame", "timestamp", "success") and np.isnan(values).any():
             pos = int(np.flatnonzero(np.isnan(values))[0])
             raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
-from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES
+from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES, numeric_column
 
 log = logging.getLogger(__name__)
 
@@ -86,20 +86,6 @@ def _label(frames, row: int) -> str:
     return f"line {row + 2} (frame {int(frames[row])})"
 
 
-def _numeric_column(df: pd.DataFrame, column: str, where: str, frames) -> np.ndarray:
-    raw = df[column]
-    if pd.api.types.is_numeric_dtype(raw):
-        return raw.to_numpy(dtype=float)
-    converted = pd.to_numeric(raw, errors="coerce")
-    blank = raw.isna() | (raw.astype(str).str.strip() == "")
-    bad = converted.isna() & ~blank
-    if bad.any():
-        r = int(np.flatnonzero(bad.to_numpy())[0])
-        raise ValueError(f"{where}: {_label(frames, r)}, column {column}: "
-                         f"{str(raw.iloc[r])!r} is not a number")
-    return converted.to_numpy(dtype=float)
-
-
 def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
                        ) -> Series:
     """Validate a contractions table (complete or partial) into a :class:`Series`."""
@@ -114,7 +100,7 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
     n = len(df)
     frames = np.arange(n)
     if "frame" in df.columns:
-        frames = _numeric_column(df, "frame", where, frames)
+        frames = numeric_column(df, "frame", where)
         if not np.isfinite(frames).all() or (frames != np.round(frames)).any():
             r = int(np.flatnonzero(~np.isfinite(frames) | (frames != np.round(frames)))[0])
             raise ValueError(f"{where}: line {r + 2}, column frame: not an integer frame number")
@@ -125,7 +111,7 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
                              "increase")
     success = np.ones(n, bool)
     if "success" in df.columns:
-        s = _numeric_column(df, "success", where, frames)
+        s = numeric_column(df, "success", where)
         bad = ~np.isin(s, (0.0, 1.0))
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
@@ -134,7 +120,7 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
         success = s == 1.0
     timestamps = np.full(n, np.nan)
     if "timestamp" in df.columns:
-        timestamps = _numeric_column(df, "timestamp", where, frames)
+        timestamps = numeric_column(df, "timestamp", where)
     present = [m for m in MUSCLES if m in df.columns]
     if not present and JAW not in df.columns:
         raise ValueError(f"{where}: no muscle columns (e.g. {MUSCLES[0]}) and no {JAW} column")
@@ -144,7 +130,7 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
     for j, name in enumerate((*MUSCLES, JAW)):
         if name not in df.columns:
             continue
-        v = _numeric_column(df, name, where, frames)
+        v = numeric_column(df, name, where)
         hi = MAX_JAW_ROTATION if name == JAW else 1.0
         lost_nan = np.isnan(v) & ~success
         with np.errstate(invalid="ignore"):
@@ -162,14 +148,14 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
     controls, jaw = _hold(controls, success), _hold(jaw[:, None], success)[:, 0]
     heads = None
     if all(c in df.columns for c in HEAD_COLUMNS):
-        h = np.stack([_numeric_column(df, c, where, frames) for c in HEAD_COLUMNS], axis=1)
+        h = np.stack([numeric_column(df, c, where) for c in HEAD_COLUMNS], axis=1)
         good = success & np.isfinite(h).all(axis=1) & (h[:, 2] > 0)
         if good.any():
             heads = _hold(h, good, first=h[int(np.argmax(good))])
     fiducials = None
     cols = [f"fid_{name}_{a}" for name in FIDUCIALS for a in "xy"]
     if all(c in df.columns for c in cols):
-        fiducials = np.stack([_numeric_column(df, c, where, frames) for c in cols],
+        fiducials = np.stack([numeric_column(df, c, where) for c in cols],
                              axis=1).reshape(n, len(FIDUCIALS), 2)
         fiducials[~success] = np.nan
     return Series(frames=frames, timestamps=timestamps, success=success, controls=controls,
