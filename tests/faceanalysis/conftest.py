@@ -1,4 +1,4 @@
-"""Fixtures of the resynthesis tests: the generic model and a rendered, analysed subject."""
+"""Fixtures shared by the faceanalysis tests: the face model and an analysed subject."""
 
 from __future__ import annotations
 
