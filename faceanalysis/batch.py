@@ -72,7 +72,7 @@ logger = logging.getLogger(__name__)
 SUMMARY = SUMMARY_CSV
 _PARTIAL = ".partial-"
 _OLD = ".old-"
-# Columns of contractions.csv that are not contractions (see DESIGN.md).
+# Columns of contractions.csv that are not contractions (see faceanalysis.io.table).
 _NOT_CONTRACTION = {"frame", "timestamp", "success", "confidence"}
 _NOT_CONTRACTION_PREFIXES = ("head_", "fid_")
 _SUMMARY_COLUMNS = ["video", "output", "status", "resumed", "frames", "frames_lost",

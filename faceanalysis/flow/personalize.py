@@ -89,8 +89,8 @@ def personalize(templates: FlowTemplates, fiducials_head) -> FlowTemplates:
         Generic (model) templates.
     fiducials_head : (11, 2) array_like
         The subject's neutral fiducials in head coordinates (e.g.
-        ``calibration.to_head_frame(fiducials, head)`` of the neutral frame), in the order
-        of DESIGN.md.
+        :func:`faceanalysis.tracking.to_head_frame` of the neutral frame's fiducials and
+        head frame), in :data:`~faceanalysis.io.table.FIDUCIALS` order.
 
     Returns
     -------

@@ -1,6 +1,6 @@
 """The ``contractions.csv`` table: column names, writing, reading and validation.
 
-One row per frame, columns in this fixed order (see DESIGN.md):
+One row per frame, columns in this fixed order (docs/outputs.md describes each):
 
 ``frame, timestamp, success, confidence``
     frame number (0-based, in the input), seconds, 1 if the face was tracked
