@@ -12,7 +12,6 @@ from faceanalysis.cli._common import (
     non_negative_int,
     positive_int,
 )
-from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
 
 HELP = "make the face model's optical-flow templates (per muscle, per expression)"
 
@@ -53,64 +52,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    from faceanalysis.resynthesis.templates import write_template_set
 
-    import pandas as pd
-
-    from faceanalysis.flow.personalize import personalize_from_table
-    from faceanalysis.flow.templates import make_templates, write_templates
-    from faceanalysis.io.outputs import prepare_output_dir
-
-    if args.subject is not None:
-        csv = args.subject / CONTRACTIONS_CSV if args.subject.is_dir() else args.subject
-        if not csv.is_file():
-            raise FileNotFoundError(f"{csv}: no contractions.csv for --subject")
-    out = prepare_output_dir(args.output, overwrite=args.overwrite)
-    from synth.model import FaceModel
-
-    options = {"size": args.size, "n_steps": args.steps, "source": args.source}
-    generic = make_templates(FaceModel.default(), **options)
-    written = write_templates(generic, out, name="generic", previews=not args.no_previews)
-    if args.subject is not None:
-        from faceanalysis.evaluation.validation import _personal_model
-
-        personal = _personal_model(csv.parent, FaceModel.default())
-        if personal is not None:
-            # the face model warped to the subject in 3-D
-            # (faceanalysis.resynthesis.personalize.personalize)
-            pers = make_templates(personal, **options)
-            pers.meta.update(personalised=True, personalisation="model")
-        else:
-            table = pd.read_csv(csv)
-            meta_path = csv.parent / ANALYSIS_JSON
-            neutral = None
-            if meta_path.is_file():
-                neutral = json.loads(meta_path.read_text()).get("parameters", {}).get(
-                    "neutral_frame")
-            if neutral is None:
-                ok = table["success"].to_numpy() == 1 if "success" in table else None
-                if ok is None or not ok.any():
-                    raise ValueError(f"{csv}: no tracked frame to personalise on")
-                neutral = int(table["frame"].to_numpy()[ok.argmax()])
-            pers = personalize_from_table(generic, table, int(neutral))
-            if not pers.meta.get("personalised"):
-                raise ValueError(f"{csv}: the neutral frame's fiducials are missing")
-            pers.meta["personalisation"] = "warp"
-        written.update({f"personalised_{k}": v for k, v in write_templates(
-            pers, out, name="personalised", previews=not args.no_previews).items()})
-    if args.identity is not None:
-        from synth.mesh import FaceShape
-
-        model = FaceModel.build(FaceShape.random(args.identity))
-        tpl = make_templates(model, texture_seed=args.identity, **options)
-        tpl.meta["identity"] = int(args.identity)
-        name = f"identity_{args.identity}"
-        written.update({f"{name}_{k}": v for k, v in write_templates(
-            tpl, out, name=name, previews=not args.no_previews).items()})
+    written = write_template_set(args.output, subject=args.subject, identity=args.identity,
+                                 size=args.size, n_steps=args.steps, source=args.source,
+                                 previews=not args.no_previews, overwrite=args.overwrite)
     if not args.quiet:
-        print(f"{len(generic.controls)} control and {len(generic.expressions)} expression "
-              f"templates on a {generic.grid.rows}x{generic.grid.cols} grid -> {out}",
-              file=sys.stderr)
+        print(f"{len(written)} files -> {args.output}", file=sys.stderr)
     for p in written.values():
         print(p)
     return 0

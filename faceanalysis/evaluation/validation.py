@@ -40,6 +40,7 @@ import pandas as pd
 from faceanalysis.flow.recognition import NEUTRAL_THRESHOLD, motion_energy, nuisance_free
 from faceanalysis.flow.templates import REGION_GROUPS, FlowTemplates
 from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV, VALIDATION_CSV, VALIDATION_PNG
+from faceanalysis.resynthesis.personalize import personal_model
 
 log = logging.getLogger(__name__)
 
@@ -265,23 +266,6 @@ def _smooth_time(displacement: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
-def _personal_model(folder: Path, model):
-    """The face model personalised to the analysed subject by
-    :func:`faceanalysis.resynthesis.personalize.personalize` (3-D landmark warp), or None
-    when that is not possible (the resynthesis module is missing, the video cannot be
-    found, a bad warp)."""
-    try:
-        from faceanalysis.resynthesis.personalize import personalize as personalize_model
-    except ImportError:
-        return None
-    try:
-        return personalize_model(folder, model=model).model
-    except (ValueError, FileNotFoundError) as exc:
-        log.warning("personalised model not available (%s); warping the generic "
-                    "resynthesis in 2-D instead", exc)
-        return None
-
-
 def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
              method: str = "dis", model=None, templates: FlowTemplates | None = None,
              personalised: bool = True, contractions: pd.DataFrame | None = None,
@@ -357,7 +341,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     k = int(np.flatnonzero(frames == int(neutral))[0])
     personalisation = "none"
     tpl = templates
-    personal = _personal_model(folder, model) if personalised == "model" or \
+    personal = personal_model(folder, model) if personalised == "model" or \
         personalised is True else None
     if personal is not None:
         # the model itself warped to the subject (faceanalysis.resynthesis.personalize.personalize)

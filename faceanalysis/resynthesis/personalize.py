@@ -172,3 +172,15 @@ def subject_series(subject) -> tuple[Series, Path | None]:
     log.info("analysing the subject's first frame in %s", path)
     a = analyze(path, end=1)
     return series_from_table(a.table, str(path), a.metadata), path
+
+
+def personal_model(folder: str | Path, model):
+    """The face model personalised to the subject of the analysis in ``folder``
+    (:func:`personalize`, the 3-D landmark warp), or None with a warning when that is not
+    possible (the video cannot be found, a bad warp): callers then warp in 2-D instead."""
+    try:
+        return personalize(folder, model=model).model
+    except (ValueError, FileNotFoundError) as exc:
+        log.warning("personalised model not available (%s); warping the generic "
+                    "resynthesis in 2-D instead", exc)
+        return None
