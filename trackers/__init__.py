@@ -8,7 +8,12 @@
   Euler with one factorisation per contour system;
 - :mod:`trackers.layout`: the nine facial contours, placed from OpenCV's face and eye
   detectors or loaded from JSON;
-- :mod:`trackers.tracking`: frame-to-frame tracking with quality and lost flags;
+- :mod:`trackers.tracking`: frame-to-frame tracking with quality and lost flags, in
+  :class:`Tracker`; its parts: :mod:`trackers.quality` (per-contour quality, the
+  per-frame :class:`TrackResult`), :mod:`trackers.contour_fields` (potentials around
+  the contours, image-force strength), :mod:`trackers.contour_ends` (ends relocated on
+  the features' ends), :mod:`trackers.mouth` (mouth corners) and
+  :mod:`trackers.head_search` (where each frame's head frame comes from);
 - :mod:`trackers.fiducials`: head reference frame and the 11 fiducial points;
 - :mod:`trackers.anchors`: the irises as rigid anchors that keep the head frame
   still under expressions;
@@ -16,6 +21,7 @@
 """
 
 from trackers.anchors import IrisAnchors, find_iris
+from trackers.contour_ends import refine_end
 from trackers.draw import draw_contours, draw_fiducials, draw_head_frame
 from trackers.fiducials import FIDUCIAL_NAMES, HeadFrame, fiducials, head_frame
 from trackers.layout import (
@@ -37,6 +43,7 @@ from trackers.potentials import (
     to_gray,
     valley_potential,
 )
+from trackers.quality import ContourQuality, TrackResult
 from trackers.snakes import (
     Contour,
     ContourSystem,
@@ -46,7 +53,7 @@ from trackers.snakes import (
     paper_equivalent_strength,
     resample_polyline,
 )
-from trackers.tracking import ContourQuality, Tracker, TrackResult, refine_end
+from trackers.tracking import Tracker
 
 __all__ = [
     "CONTOUR_NAMES", "FIDUCIAL_NAMES", "Contour", "ContourQuality", "ContourSystem",
