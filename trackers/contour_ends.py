@@ -14,9 +14,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from trackers.potentials import bilinear_nb as _bil
+from trackers.polyline import _arc_length_nb
 from trackers.quality import _length_nb
-from trackers.snakes import _arc_length_nb
+from trackers.sampling import bilinear_nb as _bil
 
 __all__ = ["refine_end"]
 

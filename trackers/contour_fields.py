@@ -14,8 +14,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from trackers.potentials import bilinear_nb as _bil
-from trackers.potentials import potentials_in_boxes, sample_or_nan, to_gray
+from trackers.potentials import potentials_in_boxes, to_gray
+from trackers.sampling import bilinear_nb as _bil
+from trackers.sampling import sample_or_nan
 from trackers.snakes import paper_equivalent_strength
 
 __all__ = ["ContourFields"]

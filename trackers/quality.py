@@ -47,7 +47,7 @@ class ContourQuality:
 
 
 def _resample_for_shape(points, closed, n=32):
-    from trackers.snakes import resample_polyline as _rs
+    from trackers.polyline import resample_polyline as _rs
 
     try:
         return _rs(points, n, closed=closed)

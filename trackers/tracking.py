@@ -60,14 +60,10 @@ from trackers.head_motion import FeatureAnchors
 from trackers.head_search import HeadFrameSearch, _apply_similarity, _ContourHead
 from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
 from trackers.mouth import mouth_corners
+from trackers.polyline import resample_polyline
 from trackers.quality import ContourQuality, TrackResult, _polyline_length, _shape_change
-from trackers.snakes import (
-    Contour,
-    ContourSystem,
-    SnakeParams,
-    paper_equivalent_strength,
-    resample_polyline,
-)
+from trackers.snake_types import Contour, SnakeParams
+from trackers.snakes import ContourSystem, paper_equivalent_strength
 
 #: Default arc-length fraction (from the inner end) of ``brow_mid_*`` along an eyebrow
 #: contour (see :class:`Tracker`, ``brow_mid``).

@@ -250,7 +250,7 @@ def test_first_frame_goes_on_when_its_settling_carries_nodes_out_of_their_boxes(
     assert np.mean(list(e.values())) < 1.5, e
     # the crept furrow still lies on its line: the image force held it in its new box
     from trackers.layout import TEMPLATE, _eye_similarity
-    from trackers.snakes import resample_polyline
+    from trackers.polyline import resample_polyline
 
     M = _eye_similarity(*EYES)
     line = resample_polyline(TEMPLATE["furrow_l"] @ M[:, :2].T + M[:, 2], spacing=0.25)
