@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         written.update({f"personalised_{k}": v for k, v in write_templates(
             pers, out, name="personalised", previews=not args.no_previews).items()})
     if args.identity is not None:
-        from synth.mesh import FaceShape
+        from synth.face_shape import FaceShape
 
         model = FaceModel.build(FaceShape.random(args.identity))
         tpl = make_templates(model, texture_seed=args.identity, **options)
