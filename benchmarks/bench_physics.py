@@ -94,9 +94,9 @@ def _equilibrium_figures(model, label: str, quick: bool, tol: float = 3e-4) -> l
 
 
 def run(quick: bool = False) -> list[Figure]:
-    from synth.forces import spring_forces, spring_forces_numpy
     from synth.integrators import DynamicState, rk2_step
     from synth.model import FaceModel
+    from synth.springs import spring_forces, spring_forces_numpy
 
     figures: list[Figure] = []
     repeat = 5 if quick else 11

@@ -32,8 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _harness import Figure, median_time, ratio  # noqa: E402
 
-from trackers.potentials import force_field, sample_bilinear  # noqa: E402
-from trackers.snakes import Contour, ContourSystem, SnakeParams  # noqa: E402
+from trackers.sampling import force_field, sample_bilinear  # noqa: E402
+from trackers.snake_types import Contour, SnakeParams  # noqa: E402
+from trackers.snakes import ContourSystem  # noqa: E402
 
 ALPHA, BETA, GAMMA = 0.015, 10.0, 0.001  # the gallery's values
 OUR_GAMMA = 0.01  # see the module docstring

@@ -46,7 +46,7 @@ __all__ = [
 #: Measurement points read off a contour instead of a landmark: name -> (contour, fraction
 #: of its arc length from its first end). The contour names are shared by the trackers
 #: (:data:`trackers.layout.CONTOUR_NAMES`) and the face mesh's feature curves
-#: (:attr:`synth.mesh.FaceMesh.feature_curves`); both run from the furrow's top down.
+#: (:attr:`synth.face_mesh.FaceMesh.feature_curves`); both run from the furrow's top down.
 #: The middle and lower end of each nasolabial furrow follow the cheek where the
 #: zygomaticus, the levators, risorius and the jaw pull it, which is what tells those
 #: controls apart from the mouth corners alone.

@@ -26,6 +26,12 @@ Notes on the mapping (Ekman, Friesen & Hager, *FACS Manual*, 2002):
 - AU 25 (lips part) is a small jaw opening plus some lower-lip depression; AU 26 (jaw drop)
   opens the jaw by 0.15 rad and AU 27 (mouth stretch) by 0.30 rad.
 
+Why one module of a little over 600 lines: the tables and the functions that read them
+forwards (action units to contractions), over time (timelines) and backwards (contractions
+to action units) are one vocabulary, and callers use it as one namespace
+(``from synth import facs``, then ``facs.EXPRESSIONS``, ``facs.expression_timeline``);
+split, each function would stand apart from the tables it reads.
+
 Examples
 --------
 >>> df = expression_timeline("surprise", 40, emphasis=0.8)

@@ -452,8 +452,8 @@ class EquilibriumSolver:
         x : (n, 3) array
             Equilibrium positions.
         """
-        from .forces import _lbfgs_kernel
         from .lattice import PRISM_QUADS
+        from .lbfgs import _lbfgs_kernel
 
         if not (np.isfinite(tol) and tol > 0):
             raise ValueError(f"tol must be finite and > 0, got {tol}")

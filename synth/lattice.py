@@ -1,7 +1,7 @@
 """Layered soft-tissue lattice assembled from an epidermal triangle mesh.
 
 The lattice follows Terzopoulos & Waters (1993, section III-A and III-D) and Lee,
-Terzopoulos & Waters (1993, section 4): every skin vertex of a :class:`~synth.mesh.FaceMesh`
+Terzopoulos & Waters (1993, section 4): every skin vertex of a :class:`~synth.face_mesh.FaceMesh`
 is extruded along its inward rest normal into four node layers,
 
 =====  ==============  ========================================================

@@ -7,7 +7,7 @@
 >>> skin.shape == model.mesh.vertices.shape
 True
 
-A model owns the rest :class:`~synth.mesh.FaceMesh`, the :class:`~synth.lattice.Lattice`
+A model owns the rest :class:`~synth.face_mesh.FaceMesh`, the :class:`~synth.lattice.Lattice`
 assembled under it, the muscle force fields read from a muscle file and the current state
 (node positions, velocities, contractions and jaw rotation).  ``equilibrate`` relaxes the
 lattice to the equilibrium of the current contractions (prefactored implicit solver by
@@ -94,12 +94,12 @@ class FaceModel:
     @classmethod
     def build(cls, shape=None, *, resolution: float = DEFAULT_RESOLUTION, muscles=None,
               **options) -> FaceModel:
-        """A model of the identity ``shape`` (:class:`~synth.mesh.FaceShape`; the default face
+        """A model of the identity ``shape`` (:class:`~synth.face_shape.FaceShape`; the default face
         when omitted) at mesh ``resolution``, with the given muscles (file, set or default).
 
         Examples
         --------
-        >>> from synth.mesh import FaceShape
+        >>> from synth.face_shape import FaceShape
         >>> m = FaceModel.build(FaceShape.random(3), resolution=0.35)
         >>> len(m.muscle_names)
         29

@@ -2,7 +2,7 @@
 
 The muscle file (``synth/data/muscles.toml``; TOML or JSON with the same structure) lists
 every muscle with its geometry in the mesh's **canonical uv coordinates** (identical for every
-:class:`~synth.mesh.FaceShape` at a given resolution, so one file serves every identity):
+:class:`~synth.face_shape.FaceShape` at a given resolution, so one file serves every identity):
 points are located on the rest skin surface by their uv, lifted to 3-D and pushed inward to a
 depth given as a fraction of the local tissue thickness (``1`` = on the bone, the fascia depth
 of the lattice by default).  Geometry is written for the subject's LEFT side; ``sides = ["l",

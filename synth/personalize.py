@@ -15,7 +15,7 @@ surface), the inner parts (eyeballs, mouth cavity, teeth) and the jaw hinge. The
 is a regular :class:`~synth.model.FaceModel` and stays animatable.
 
 :func:`fit_landmark_warp` builds a warp; :func:`warp_mesh` applies it to a
-:class:`~synth.mesh.FaceMesh`; :func:`personalize_model` builds the warped FaceModel.
+:class:`~synth.face_mesh.FaceMesh`; :func:`personalize_model` builds the warped FaceModel.
 
 Coordinates are model space (cm; x = subject's left, y up, z toward the viewer).
 """
@@ -173,7 +173,7 @@ def check_warp(warp: LandmarkWarp, points) -> float:
 
 
 def warp_mesh(mesh, warp: LandmarkWarp, *, lattice=None):
-    """The :class:`~synth.mesh.FaceMesh` deformed by ``warp`` (a new mesh; uv unchanged).
+    """The :class:`~synth.face_mesh.FaceMesh` deformed by ``warp`` (a new mesh; uv unchanged).
 
     Skin vertices, inner parts, eyeball centres and the jaw pivot are warped; the tissue
     thickness becomes the depth, along the warped surface's inward extrusion direction,

@@ -25,7 +25,8 @@ import cv2
 import numba
 import numpy as np
 
-from trackers.potentials import bilinear_nb, to_gray
+from trackers.potentials import to_gray
+from trackers.sampling import bilinear_nb
 
 __all__ = ["IrisAnchors", "find_iris", "similarity_from_pairs"]
 

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from trackers.snakes import _arc_length_nb, _interp_at_nb
+from trackers.polyline import _arc_length_nb, _interp_at_nb
 
 __all__ = ["FIDUCIAL_NAMES", "HeadFrame", "head_frame", "fiducials", "arc_point",
            "centroid", "apex_fraction", "brow_axis_frame"]

@@ -45,8 +45,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from trackers.potentials import potentials_in_boxes, sample_bilinear, to_gray
-from trackers.snakes import resample_polyline
+from trackers.polyline import resample_polyline
+from trackers.potentials import potentials_in_boxes, to_gray
+from trackers.sampling import sample_bilinear
 
 __all__ = [
     "CONTOUR_NAMES",

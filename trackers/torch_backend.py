@@ -11,7 +11,7 @@ videos, or many frames), on any torch device:
     (on a symmetric padding, OpenCV's ``BORDER_REFLECT``) and
     :func:`kornia.filters.spatial_gradient`; borders use the same one-sided differences.
 :func:`force_field_batch`
-    ``P[B, C, H, W] -> F[B, C, 2, H, W]``, ``-grad P`` as :func:`trackers.potentials.force_field`.
+    ``P[B, C, H, W] -> F[B, C, 2, H, W]``, ``-grad P`` as :func:`trackers.sampling.force_field`.
 :func:`sample_bilinear_batch`
     ``field[B, C, H, W]`` at ``points[B, N, 2] -> [B, N, C]`` through
     :func:`torch.nn.functional.grid_sample` (``align_corners=True``; image pixels, x
@@ -49,6 +49,14 @@ beats kornia's convolutions; on a busy two-core machine the torch CPU backend re
 contours 10 (64 videos) to 100 (one video) times slower and tracked at 0.2-0.7 times
 the frame rate. The backend is meant for a GPU, where a step of any batch size costs
 about the same few hundred kernel launches; that case was not measured here.
+
+Why one module of over 1,300 lines: it is one optional backend that mirrors the NumPy one
+function by function (the potentials of :mod:`trackers.potentials`, the relaxation of
+:mod:`trackers.snakes`, the tracker of :mod:`trackers.tracking`), so that a change to the
+arithmetic there has one place to be mirrored in here; its parts share the lazy import of
+torch (:func:`require_torch`), the device and dtype rules and ``__doctest_requires__``, and
+it is tested as one unit against the NumPy backend. Split, it would scatter one mirror over
+several files that only run where the ``[torch]`` extra is installed.
 """
 
 from __future__ import annotations
@@ -59,7 +67,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackers.snakes import Contour, ContourSystem, RelaxResult, SnakeParams
+from trackers.snake_types import Contour, RelaxResult, SnakeParams
+from trackers.snakes import ContourSystem
 
 __all__ = [
     "BACKENDS",
@@ -256,7 +265,7 @@ def force_field_batch(potentials, *, sizes=None):
     sizes : Tensor or array_like [B, C, 2] of int (h, w), optional
         Valid size of each field when smaller fields were zero-padded to (H, W): the
         differences are then one-sided on each field's own last row / column, as
-        :func:`trackers.potentials.force_field` on the unpadded field.
+        :func:`trackers.sampling.force_field` on the unpadded field.
 
     Returns
     -------
@@ -432,7 +441,7 @@ class BatchRelaxResult:
     rms_move: np.ndarray
 
     def element(self, b: int, n_contours: int | None = None) -> RelaxResult:
-        """The :class:`~trackers.snakes.RelaxResult` of batch element ``b``."""
+        """The :class:`~trackers.snake_types.RelaxResult` of batch element ``b``."""
         k = self.outside.shape[1] if n_contours is None else n_contours
         return RelaxResult(int(self.iterations[b]), float(self.max_move[b]),
                            bool(self.converged[b]), self.outside[b, :k].copy(),
@@ -471,7 +480,8 @@ class TorchContourSystem:
     Examples
     --------
     >>> import numpy as np, torch
-    >>> from trackers.potentials import gaussian_potential, force_field
+    >>> from trackers.potentials import gaussian_potential
+    >>> from trackers.sampling import force_field
     >>> from trackers.snakes import paper_equivalent_strength
     >>> yy, xx = np.mgrid[:64, :64]
     >>> img = ((xx - 32) ** 2 + (yy - 32) ** 2 < 15 ** 2).astype(float)
@@ -1010,11 +1020,11 @@ def snake_relax_batch(points, forces, *, closed: bool = False, params: SnakePara
     ----------
     points : Tensor [B, N, 2]
         Initial nodes (x, y) of each element's contour; rest lengths are the initial
-        separations, as :class:`~trackers.snakes.Contour`.
+        separations, as :class:`~trackers.snake_types.Contour`.
     forces : Tensor [B, 2, H, W]
         ``-grad P`` (strength 1) for each element.
     closed, normal_forces : bool
-        As :class:`~trackers.snakes.Contour`.
+        As :class:`~trackers.snake_types.Contour`.
     params : SnakeParams, optional
     origin : Tensor [B, 2], optional
         Image position of each field's pixel [0, 0].

@@ -126,7 +126,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     (1.0, 0.7, True)
     """
     from faceanalysis.estimation.model_response import model_response, tabulate_response
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
     from synth.model import FaceModel
     from synth.render.sequence import contraction_timeline
 

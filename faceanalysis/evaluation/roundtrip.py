@@ -37,7 +37,7 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
     import tempfile
 
     from faceanalysis.analysis.pipeline import analyze
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 

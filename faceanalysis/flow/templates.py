@@ -60,7 +60,7 @@ JAW_MAX = 0.5
 JAW_TEMPLATE = 0.25
 #: Expression classes in a fixed order (the six primaries of :mod:`synth.facs`).
 EXPRESSION_NAMES = ("happiness", "sadness", "surprise", "fear", "anger", "disgust")
-#: Reporting regions of the face grid: name -> synth.mesh.Region codes.
+#: Reporting regions of the face grid: name -> synth.face_mesh.Region codes.
 REGION_GROUPS = {
     "forehead": (0, 1, 2),       # scalp edge, forehead, temples
     "brows": (3,),
@@ -91,7 +91,7 @@ class FlowTemplates:
     mask : ndarray (rows, cols) bool
         Grid cells on the face (skin, eyes, mouth), one cell in from the outline.
     region : ndarray (rows, cols) int8
-        ``synth.mesh.Region`` code of the nearest skin vertex (-1 off the face).
+        ``synth.face_mesh.Region`` code of the nearest skin vertex (-1 off the face).
     expressions : tuple of str
     expression : ndarray (E, S, rows, cols, 2)
         Displacement from rest at S instants from neutral to apex of each expression.

@@ -62,7 +62,7 @@ def write_template_set(output: str | os.PathLike, *, subject=None, identity: int
     dict
         Name -> path of every file written.
     """
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
     from synth.model import FaceModel
 
     csv = None

@@ -43,7 +43,7 @@ import math
 
 import numpy as np
 
-from synth.mesh import FIDUCIALS, locate_uv, resample_polyline_uv
+from synth.face_mesh import FIDUCIALS, locate_uv, resample_polyline_uv
 from synth.render.camera import HeadPose, project
 from synth.render.raster import _flow_kernel
 

@@ -249,7 +249,7 @@ def _model_for(seed: int, resolution: float, identity_spread: float):
         from synth.model import FaceModel
     except ImportError as exc:  # the physics model is a sibling module of synth
         raise ValueError("synth.model.FaceModel is not available; pass model=...") from exc
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
 
     shape = FaceShape.random(int(seed), spread=identity_spread)
     if resolution is None:

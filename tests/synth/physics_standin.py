@@ -3,6 +3,7 @@
 A curved (cylindrical) grid patch, 14 cm wide and 18 cm tall, facing +z, with a mouth seam
 (upper and lower lip rows that coincide but are not joined), a mandible region below the
 mouth, the outline glued to the skull, and a few named landmarks.  Symmetric about x = 0.
+Also ``_perturbed``: a lattice's rest positions with the free nodes moved at random.
 """
 
 from __future__ import annotations
@@ -105,3 +106,9 @@ def make_standin_mesh(nx: int = 15, ny: int = 19) -> StandInMesh:
         landmarks=landmarks, tissue_thickness=thickness, jaw_weight=jaw,
         jaw_pivot=np.array([0.0, mouth_y + 2.0, -9.0]), boundary=boundary, mouth_seam=seam,
     )
+
+
+def _perturbed(lattice, rng, scale=0.1):
+    x = lattice.rest + scale * rng.standard_normal(lattice.rest.shape)
+    x[lattice.fixed] = lattice.rest[lattice.fixed]
+    return x

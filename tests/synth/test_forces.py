@@ -3,32 +3,16 @@ negative gradients of their energies, vanish at rest and do what the papers say.
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
-from synth.forces import (
-    TissueSystem,
-    skull_forces,
-    spring_forces,
-    spring_forces_numpy,
-    volume_forces,
-)
-from synth.lattice import build_lattice, prism_volumes
+from synth.forces import TissueSystem
+from synth.lattice import build_lattice
+from synth.skull import skull_forces
+from synth.springs import spring_forces
+from synth.volume import volume_forces
 
-from .physics_standin import make_standin_mesh
-
-
-@pytest.fixture(scope="module")
-def lattice():
-    return build_lattice(make_standin_mesh(nx=9, ny=11))
-
-
-def _perturbed(lattice, rng, scale=0.1):
-    x = lattice.rest + scale * rng.standard_normal(lattice.rest.shape)
-    x[lattice.fixed] = lattice.rest[lattice.fixed]
-    return x
+from .physics_standin import _perturbed, make_standin_mesh
 
 
 def test_no_force_at_rest(lattice):
@@ -57,50 +41,6 @@ def test_forces_are_negative_energy_gradients(lattice, rng, term):
     eps = 1e-6
     de = (fn(x + eps * v)[1] - fn(x - eps * v)[1]) / (2 * eps)
     assert de == pytest.approx(-np.sum(f * v), rel=1e-5, abs=1e-8)
-
-
-def test_numba_and_numpy_springs_agree(lattice, rng):
-    x = _perturbed(lattice, rng, 0.2)
-    f1, e1 = spring_forces(x, lattice)
-    f2, e2 = spring_forces_numpy(x, lattice)
-    assert np.allclose(f1, f2, atol=1e-10)
-    assert e1 == pytest.approx(e2)
-
-
-def _one_spring(k_low=2.0, k_high=10.0, strain=0.2):
-    lat = SimpleNamespace(springs=np.array([[0, 1]], np.int32), rest_length=np.array([1.0]),
-                          k_low=np.array([k_low]), k_high=np.array([k_high]),
-                          switch=np.array([strain]))
-    return lat
-
-
-@pytest.mark.parametrize("length, expected", [
-    (0.9, 2.0 * -0.1),                     # compression: small-strain stiffness
-    (1.1, 2.0 * 0.1),                      # below the threshold
-    (1.2, 2.0 * 0.2),                      # at the threshold (continuous)
-    (1.5, 2.0 * 0.2 + 10.0 * 0.3),         # beyond: large-strain stiffness
-    (0.7, -2.0 * 0.2 - 10.0 * 0.1),        # strong compression stiffens too
-])
-def test_biphasic_law(length, expected):
-    lat = _one_spring()
-    x = np.array([[0.0, 0.0, 0.0], [length, 0.0, 0.0]])
-    f, _ = spring_forces(x, lat)
-    # force on node 0 pulls it toward node 1 when stretched
-    assert f[0, 0] == pytest.approx(expected)
-    assert f[1, 0] == pytest.approx(-expected)
-
-
-def test_volume_force_restores_volume(lattice):
-    n = lattice.n_vertices
-    x = lattice.rest.copy()
-    # squash the dermis: push the epidermis inward along the extrusion direction
-    x[:n] += 0.3 * lattice.inward * np.asarray(lattice.info["depth"])[:, None] * 0.25
-    x[lattice.fixed] = lattice.rest[lattice.fixed]
-    f, _ = volume_forces(x, lattice)
-    v0 = prism_volumes(x, lattice.prisms).sum()
-    v1 = prism_volumes(x + 1e-4 * f / np.abs(f).max(), lattice.prisms).sum()
-    assert v0 < lattice.rest_volume.sum()
-    assert v1 > v0
 
 
 def test_skull_penalty_pushes_out(lattice):

@@ -5,26 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from synth.mesh import (
+from synth.face_mesh import (
     FEATURE_CURVE_NAMES,
     FIDUCIALS,
     INNER_EYE,
     INNER_MOUTH,
     INNER_TEETH,
     LANDMARK_NAMES,
-    FaceMesh,
-    FaceShape,
     Region,
-    generate_face_mesh,
-    vertex_normals,
 )
+from synth.face_shape import FaceShape
+from synth.mesh import generate_face_mesh
 
 MIRROR = np.array([-1.0, 1.0, 1.0])
-
-
-@pytest.fixture(scope="module")
-def mesh() -> FaceMesh:
-    return generate_face_mesh()
 
 
 def _pos(mesh, name):
@@ -128,13 +121,6 @@ def test_exact_mirror_symmetry(mesh):
             assert mi[mesh.landmarks[name]] == mesh.landmarks[name[:-2] + "_r"]
 
 
-def test_mirror_index_fallback_matches_stored_map(mesh):
-    import dataclasses
-
-    bare = dataclasses.replace(mesh, mirror_map=None)
-    np.testing.assert_array_equal(bare.mirror_index, mesh.mirror_index)
-
-
 def test_normals_point_out_of_the_face(mesh):
     n = mesh.vertex_normals
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
@@ -144,16 +130,6 @@ def test_normals_point_out_of_the_face(mesh):
     # sides face outward sideways too
     left = mesh.vertices[:, 0] > 5.0
     assert np.all(n[left, 0] > 0)
-
-
-def test_vertex_normals_function():
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
-    t = np.array([[0, 1, 2], [1, 3, 2]])
-    np.testing.assert_allclose(vertex_normals(v, t), [[0, 0, 1]] * 4)
-    with pytest.raises(ValueError, match="vertices"):
-        vertex_normals(v[:, :2], t)
-    with pytest.raises(ValueError, match="triangles"):
-        vertex_normals(v, [[0, 1, 7]])
 
 
 # -- mouth seam and eyes -------------------------------------------------------------------
@@ -287,26 +263,6 @@ def test_landmarks_are_in_sensible_places(mesh):
     assert p["mouth_corner_l"][0] - seam_x.max() < 2 * gap + 1e-9
 
 
-def test_curve_positions_are_material_points_of_the_surface(mesh):
-    furrow = mesh.curve_positions("furrow_l")
-    assert furrow.shape[1] == 3 and len(furrow) > 20 and np.isfinite(furrow).all()
-    # the curve starts on the furrow_top landmark (same uv point) and runs down
-    np.testing.assert_allclose(furrow[0], mesh.vertices[mesh.landmarks["furrow_top_l"]],
-                               atol=1e-9)
-    assert furrow[-1, 1] < furrow[0, 1]
-    # it moves with the vertices: an affine map of the surface maps the curve alike
-    a = np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.05], [0.0, 0.0, 1.0]])
-    moved = mesh.curve_positions("furrow_l", mesh.vertices @ a.T + [1.0, -2.0, 0.5])
-    np.testing.assert_allclose(moved, furrow @ a.T + [1.0, -2.0, 0.5], atol=1e-9)
-    # mirror-symmetric mesh, mirror-symmetric curves
-    np.testing.assert_allclose(mesh.curve_positions("furrow_r")[:, 0], -furrow[:, 0],
-                               atol=1e-6)
-    with pytest.raises(ValueError, match="unknown feature curve 'furrow'"):
-        mesh.curve_positions("furrow")
-    with pytest.raises(ValueError, match="vertices must have shape"):
-        mesh.curve_positions("furrow_l", mesh.vertices[:10])
-
-
 def test_feature_curves_match_landmarks(mesh):
     assert set(mesh.feature_curves) == set(FEATURE_CURVE_NAMES)
     for name, curve in mesh.feature_curves.items():
@@ -386,25 +342,6 @@ def test_uv_is_canonical_and_in_unit_square(mesh):
     assert np.corrcoef(mesh.uv[:, 1], -mesh.vertices[:, 1])[0, 1] > 0.99
 
 
-def test_cached_topology_helpers(mesh):
-    e = mesh.edges
-    assert e.shape[1] == 2 and np.all(e[:, 0] < e[:, 1])
-    assert len(np.unique(e, axis=0)) == len(e)
-    assert mesh.edges is mesh.edges  # cached
-    v, t, f = mesh.n_vertices, mesh.n_triangles, len(e)
-    # Euler characteristic of a disc with 3 holes (eyes, mouth slit): 2 - 2*0 - 4 = -2
-    assert v - f + t == -2
-
-
-def test_landmark_positions(mesh):
-    pos = mesh.landmark_positions()
-    np.testing.assert_array_equal(pos["chin"], _pos(mesh, "chin"))
-    moved = mesh.vertices + 1.0
-    assert np.allclose(mesh.landmark_positions(moved)["chin"], _pos(mesh, "chin") + 1.0)
-    with pytest.raises(ValueError, match="shape"):
-        mesh.landmark_positions(np.zeros((3, 3)))
-
-
 # -- resolution and identities -------------------------------------------------------------
 
 
@@ -475,36 +412,7 @@ def test_random_identities_are_valid_meshes(seed):
     np.testing.assert_array_equal(m.vertices[m.mouth_seam[:, 0]], m.vertices[m.mouth_seam[:, 1]])
 
 
-def test_random_shape_determinism_and_spread():
-    assert FaceShape.random(3) == FaceShape.random(3)
-    assert FaceShape.random(3) != FaceShape.random(4)
-    assert FaceShape.random(3, spread=0.0) == FaceShape()
-    wide = [FaceShape.random(s, spread=2.0).as_dict() for s in range(20)]
-    narrow = [FaceShape.random(s, spread=0.5).as_dict() for s in range(20)]
-    dev = lambda rows: np.mean([abs(v - 1) for r in rows for v in r.values()])  # noqa: E731
-    assert dev(wide) > 2 * dev(narrow)
-
-
 # -- validation ----------------------------------------------------------------------------
-
-
-def test_bad_shape_parameters_raise():
-    with pytest.raises(ValueError, match="nose_lenght"):
-        FaceShape(nose_lenght=1.1)
-    with pytest.raises(ValueError, match="face_width"):
-        FaceShape(face_width=-1.0)
-    with pytest.raises(ValueError, match="eye_size"):
-        FaceShape(eye_size=float("nan"))
-    with pytest.raises(ValueError, match="jaw_width"):
-        FaceShape(jaw_width=5.0)
-    with pytest.raises(ValueError, match="mouth"):
-        generate_face_mesh({"mouth": 1.0})
-    with pytest.raises(ValueError, match="shape"):
-        generate_face_mesh("wide")
-    with pytest.raises(ValueError, match="spread"):
-        FaceShape.random(1, spread=-1)
-    with pytest.raises(ValueError, match="seed"):
-        FaceShape.random(1.5)
 
 
 @pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), 1e6, "fine", True])

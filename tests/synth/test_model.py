@@ -284,7 +284,7 @@ def test_surface_accessors_and_export(model, tmp_path):
 
 
 def test_identity_models_build():
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
 
     m = FaceModel.build(FaceShape.random(7), resolution=0.35)
     m.set_contractions({"zygomaticus_major_l": 1.0}, jaw_rotation=0.2)

@@ -2,24 +2,13 @@ import numpy as np
 import pytest
 
 from tests.trackers.conftest import ellipse_distance, render_ellipse
-from trackers.potentials import force_field, gaussian_potential, valley_potential
-from trackers.snakes import (
-    Contour,
-    ContourSystem,
-    SnakeParams,
-    factorization_count,
-    paper_equivalent_strength,
-    resample_polyline,
-)
+from trackers.potentials import gaussian_potential, valley_potential
+from trackers.sampling import force_field
+from trackers.snake_types import Contour, SnakeParams
+from trackers.snakes import ContourSystem, factorization_count, paper_equivalent_strength
 
 SIGMA = 2.0
 PARAMS = SnakeParams(p=paper_equivalent_strength(SIGMA))
-
-
-def test_defaults_are_the_papers():
-    p = SnakeParams()
-    assert p.gamma / p.dt == 0.5 and p.a == 1.0 and p.b == 0.5 and p.nu == 0.2
-    assert p.p == 0.001
 
 
 def test_matrix_is_eq9_and_solve_is_exact(rng):
@@ -256,33 +245,3 @@ def test_bad_contours_and_nodes_outside():
         s.relax(np.zeros((20, 30)))
     with pytest.raises(ValueError, match="user_forces"):
         s.relax(np.zeros((20, 50, 2)), user_forces=np.zeros((3, 2)))
-
-
-def test_resample_polyline():
-    pts = resample_polyline([[0, 0], [10, 0], [10, 10]], spacing=2.0)
-    assert len(pts) == 11
-    np.testing.assert_allclose(np.hypot(*np.diff(pts, axis=0).T), 2.0)
-    closed = resample_polyline([[0, 0], [10, 0], [10, 10], [0, 10]], 8, closed=True)
-    assert len(closed) == 8
-    np.testing.assert_allclose(closed[1], [5, 0])
-
-
-@pytest.mark.parametrize("closed", [False, True])
-def test_resample_polyline_interpolates_at_equal_arc_lengths(rng, closed):
-    # the compiled resampler gives exactly what interpolating the arc length does,
-    # repeated vertices included (a contour end moved onto its neighbour)
-    for _ in range(200):
-        p = np.round(rng.random((int(rng.integers(2, 30)), 2)) * 50, 1)
-        if len(p) > 2:
-            p[1] = p[0]
-        n = int(rng.integers(2, 40))
-        q = np.vstack([p, p[:1]]) if closed else p
-        s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(q, axis=0).T))]
-        if s[-1] == 0:
-            continue
-        t = np.linspace(0, s[-1], n + 1 if closed else n)[:n]
-        before = p.copy()
-        got = resample_polyline(p, n, closed=closed)
-        np.testing.assert_array_equal(got, np.c_[np.interp(t, s, q[:, 0]),
-                                                 np.interp(t, s, q[:, 1])])
-        np.testing.assert_array_equal(p, before)

@@ -11,16 +11,11 @@ pytest.importorskip("kornia")
 
 from tests.trackers.conftest import draw_face, render_ellipse  # noqa: E402
 from trackers import Tracker, layout_from_eyes  # noqa: E402
-from trackers.potentials import (  # noqa: E402
-    force_field,
-    potential_from_gray,
-    sample_bilinear,
-    to_gray,
-)
+from trackers.potentials import potential_from_gray, to_gray  # noqa: E402
+from trackers.sampling import force_field, sample_bilinear  # noqa: E402
+from trackers.snake_types import Contour, SnakeParams  # noqa: E402
 from trackers.snakes import (  # noqa: E402
-    Contour,
     ContourSystem,
-    SnakeParams,
     factorization_count,
     paper_equivalent_strength,
 )

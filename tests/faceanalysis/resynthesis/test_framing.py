@@ -13,7 +13,7 @@ from faceanalysis.resynthesis.pipeline import resynthesize
 @pytest.mark.slow
 def test_framing_follows_the_head_frame(subject, model):
     """Resynthesised with its own identity, the neutral fiducials land on the truth."""
-    from synth.mesh import FaceShape
+    from synth.face_shape import FaceShape
     from synth.model import FaceModel
 
     root, files = subject

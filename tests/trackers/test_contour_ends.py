@@ -1,0 +1,30 @@
+"""Contour ends relocated on the features' ends (:mod:`trackers.contour_ends`)."""
+
+import cv2
+import numpy as np
+import pytest
+
+
+def test_line_end_found_on_the_grey_step_where_the_ravine_runs_on():
+    # a furrow-like line whose prolongation is shaded: the potential's ravine runs on
+    # past the line's end, the grey level steps up where the line stops
+    from trackers.contour_ends import refine_end
+    from trackers.potentials import valley_potential
+
+    img = np.full((40, 100), 200, np.uint8)
+    img[18:23, 60:95] = 140
+    cv2.line(img, (10, 20), (58, 20), 40, 3)
+    pts = np.c_[np.linspace(20, 70, 20), np.full(20, 20.0)]   # overshoots into the shade
+    P = valley_potential(img, 1.5)
+    assert refine_end(pts, P, 1.5, end=-1, inset=False) is None
+    q = refine_end(pts, P, 1.5, end=-1, inset=False, step=True, gray=img)
+    assert abs(q[0] - 58.0) < 1.0 and abs(q[1] - 20.0) < 0.2
+    # a line that only fades (to 110, the skin being 200) has no end where it fades
+    faint = img.copy()
+    faint[18:23, 45:60] = np.maximum(faint[18:23, 45:60], 110)
+    short = np.c_[np.linspace(20, 58, 20), np.full(20, 20.0)]
+    q = refine_end(short, valley_potential(faint, 1.5), 1.5, end=-1, inset=False,
+                   step=True, gray=faint)
+    assert q is None or q[0] > 55.0
+    with pytest.raises(ValueError, match="step=True needs gray"):
+        refine_end(pts, P, 1.5, end=-1, step=True)
