@@ -2,9 +2,9 @@
 the table's columns are the face model's muscles and jaw."""
 
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
+from synth.face_mesh import FIDUCIALS as MESH_FIDUCIALS
 from synth.facs import JAW as SYNTH_JAW
 from synth.facs import MUSCLE_NAMES
-from synth.mesh import FIDUCIALS as MESH_FIDUCIALS
 from synth.model import FaceModel
 from trackers.fiducials import FIDUCIAL_NAMES
 
