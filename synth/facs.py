@@ -14,7 +14,7 @@ Combination rule (:func:`aus_to_contractions`): contributions of several action 
 same muscle add up and the sum is clipped to [0, 1]; jaw contributions add up and are clipped
 to [0, :data:`MAX_JAW_ROTATION`].
 
-Muscle names follow DESIGN.md: paired muscles end in ``_l`` (subject's left) / ``_r``.
+Muscle names: paired muscles end in ``_l`` (subject's left) / ``_r``.
 
 Notes on the mapping (Ekman, Friesen & Hager, *FACS Manual*, 2002):
 
@@ -72,7 +72,7 @@ __all__ = [
     "au_column",
 ]
 
-#: Muscles that come in left/right pairs (DESIGN.md).
+#: Muscles that come in left/right pairs.
 PAIRED_MUSCLES = (
     "frontalis_inner", "frontalis_major", "frontalis_outer", "corrugator",
     "zygomaticus_major", "zygomaticus_minor", "levator_labii_nasi", "levator_labii",
