@@ -192,7 +192,7 @@ def test_au_intensities_recover_the_model_action_units(tmp_path):
     for row, aus in enumerate(truth):
         for name, value in facs.aus_to_contractions(aus).items():
             t.loc[row, name] = value
-    t.loc[3, "corrugator_l"] = np.nan  # a lost frame
+    t.loc[3, [*MUSCLES, JAW]] = np.nan  # a lost frame
     original = t.copy()
     out = with_au_columns(t)
     pd.testing.assert_frame_equal(t, original)
@@ -203,6 +203,30 @@ def test_au_intensities_recover_the_model_action_units(tmp_path):
     values = out.loc[:2, list(AU_COLUMNS)].to_numpy()
     assert values.min() >= 0 and values.max() <= 5
     write_contractions(out.assign(timestamp=0.0), tmp_path / "c.csv")  # a valid table
+
+
+def test_an_empty_muscle_empties_only_the_action_units_that_depend_on_it():
+    facs = pytest.importorskip("synth.facs")
+    t = empty_table(3)
+    t[list(MUSCLES)] = 0.0
+    t[JAW] = 0.0
+    for row in range(3):
+        for name, value in facs.aus_to_contractions({12: 0.6, 1: 0.4, 2: 0.2, 4: 0.3,
+                                                     26: 1.0}).items():
+            t.loc[row, name] = value
+    t.loc[1, "frontalis_outer_l"] = np.nan        # a brow lost: AU 2, and AU 1 fitted with it
+    t.loc[2, ["corrugator_r", JAW]] = np.nan      # AU 4 and the jaw's action units
+    out = au_intensities(t)
+    full = out.loc[0]
+    assert out.loc[1, ["AU01_r", "AU02_r"]].isna().all()
+    assert out.loc[2, ["AU04_r", "AU25_r", "AU26_r", "AU27_r"]].isna().all()
+    # every other action unit keeps the value it has with every muscle present
+    for row, gone in ((1, {"AU01_r", "AU02_r"}), (2, {"AU04_r", "AU25_r", "AU26_r", "AU27_r"})):
+        kept = [c for c in AU_COLUMNS if c not in gone]
+        np.testing.assert_allclose(out.loc[row, kept].to_numpy(float),
+                                   full[kept].to_numpy(float), atol=1e-9)
+    assert out.loc[1, "AU12_r"] == pytest.approx(3.0, abs=1e-3)
+    assert out.loc[2, "AU01_r"] == pytest.approx(2.0, abs=1e-3)
 
 
 def test_au_intensities_reject_infinite_values():
