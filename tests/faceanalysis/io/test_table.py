@@ -235,3 +235,32 @@ def test_au_intensities_reject_infinite_values():
     t.loc[1, "risorius_r"] = np.inf
     with pytest.raises(ValueError, match="infinite"):
         au_intensities(t)
+
+
+def test_written_tables_with_lost_frames_are_read_back_by_every_reader(tmp_path):
+    hypothesis = pytest.importorskip("hypothesis")
+    st = pytest.importorskip("hypothesis.strategies")
+    from faceanalysis.resynthesis.series import series_from_table
+
+    @hypothesis.settings(max_examples=25, deadline=None, derandomize=True)
+    @hypothesis.given(n=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
+    def check(n, seed):
+        rng = np.random.default_rng(seed)
+        t = empty_table(n, timestamps=np.arange(n) / 25)
+        success = rng.random(n) < 0.7
+        t["success"] = success.astype(np.int64)
+        t["confidence"] = np.where(success, rng.random(n), 0.0)
+        t[list(HEAD_COLUMNS)] = rng.uniform(1, 200, (n, 4))
+        t[[*MUSCLES]] = rng.random((n, len(MUSCLES)))
+        t[JAW] = rng.uniform(0, 0.2, n)
+        # lost frames: any pattern of empty cells, from none to all
+        lost_cells = (rng.random((n, len(MUSCLES) + 1)) < rng.random()) & ~success[:, None]
+        values = t[[*MUSCLES, JAW]].to_numpy()
+        t[[*MUSCLES, JAW]] = np.where(lost_cells, np.nan, values)
+        path = write_contractions(with_au_columns(t), tmp_path / "c.csv")
+        back = read_contractions(path)
+        series = series_from_table(back, str(path))
+        assert back["success"].tolist() == success.astype(int).tolist()
+        assert np.isfinite(series.controls).all() and np.isfinite(series.jaw).all()
+
+    check()
