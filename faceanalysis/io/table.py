@@ -47,6 +47,7 @@ __all__ = [
     "JAW",
     "MUSCLES",
     "MUSCLE_BASES",
+    "au_dependencies",
     "au_intensities",
     "contraction_columns",
     "empty_table",
@@ -184,8 +185,9 @@ def au_intensities(contractions: pd.DataFrame) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        The :data:`AU_COLUMNS`, same index as ``contractions``; NaN for frames with
-        a NaN muscle or jaw value (lost frames).
+        The :data:`AU_COLUMNS`, same index as ``contractions``; an action unit is NaN
+        on a frame where a control it depends on (:func:`au_dependencies`) is NaN
+        (all of them on a lost frame): a frame without its brows still has ``AU12_r``.
 
     Raises
     ------
@@ -206,13 +208,52 @@ def au_intensities(contractions: pd.DataFrame) -> pd.DataFrame:
     values = contractions[columns].apply(pd.to_numeric, errors="coerce").astype(float)
     if np.isinf(values.to_numpy()).any():
         raise ValueError("contractions hold infinite values; cannot derive action units")
-    valid = values.notna().all(axis=1).to_numpy()
+    empty = values.isna().to_numpy()                                     # (T, C)
+    some = ~empty.all(axis=1) if columns else np.ones(len(values), bool)
     out = pd.DataFrame(np.nan, index=contractions.index, columns=list(AU_COLUMNS))
-    if valid.any():
-        est = muscles_to_aus(values.loc[valid], aus=AU_NUMBERS)
+    if some.any():
+        # An empty control enters the fit as 0: the fit is separable over the groups of
+        # action units that share muscles, so this moves only the action units that
+        # depend on it, which are then emptied.
+        est = muscles_to_aus(values.loc[some].fillna(0.0), aus=AU_NUMBERS)
+        deps = au_dependencies()
         for n in AU_NUMBERS:
-            out.loc[valid, f"AU{n:02d}_r"] = 5.0 * est[f"AU{n:02d}"].to_numpy() + 0.0
+            needs = [j for j, c in enumerate(columns) if c in deps[n]]
+            lost = empty[some][:, needs].any(axis=1)
+            v = 5.0 * est[f"AU{n:02d}"].to_numpy() + 0.0
+            out.loc[some, f"AU{n:02d}_r"] = np.where(lost, np.nan, v)
     return out
+
+
+def au_dependencies() -> dict[int, frozenset[str]]:
+    """The controls each action unit of :data:`AU_NUMBERS` is derived from.
+
+    Jaw action units (25, 26, 27) come from ``jaw_rotation`` alone; the others from
+    the muscles of :data:`synth.facs.ACTION_UNITS`, together with those of every action
+    unit that shares a muscle with them (e.g. AU 1 and AU 2 share the frontalis major),
+    since :func:`synth.facs.muscles_to_aus` fits such action units jointly.
+
+    Examples
+    --------
+    >>> deps = au_dependencies()
+    >>> sorted(deps[12]), sorted(deps[26])
+    (['zygomaticus_major_l', 'zygomaticus_major_r'], ['jaw_rotation'])
+    >>> "frontalis_outer_l" in deps[1]
+    True
+    """
+    from synth.facs import ACTION_UNITS
+
+    jaw_aus = {25, 26, 27}
+    own = {n: frozenset(ACTION_UNITS[n]) - {JAW} for n in AU_NUMBERS if n not in jaw_aus}
+    deps = {n: frozenset({JAW}) for n in AU_NUMBERS if n in jaw_aus}
+    for n, muscles in own.items():
+        group, grown = set(muscles), True
+        while grown:
+            linked = set().union(*(m for m in own.values() if m & group))
+            grown = not linked <= group
+            group |= linked
+        deps[n] = frozenset(group)
+    return deps
 
 
 def with_au_columns(table: pd.DataFrame) -> pd.DataFrame:

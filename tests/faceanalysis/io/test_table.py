@@ -192,7 +192,7 @@ def test_au_intensities_recover_the_model_action_units(tmp_path):
     for row, aus in enumerate(truth):
         for name, value in facs.aus_to_contractions(aus).items():
             t.loc[row, name] = value
-    t.loc[3, "corrugator_l"] = np.nan  # a lost frame
+    t.loc[3, [*MUSCLES, JAW]] = np.nan  # a lost frame
     original = t.copy()
     out = with_au_columns(t)
     pd.testing.assert_frame_equal(t, original)
@@ -205,9 +205,62 @@ def test_au_intensities_recover_the_model_action_units(tmp_path):
     write_contractions(out.assign(timestamp=0.0), tmp_path / "c.csv")  # a valid table
 
 
+def test_an_empty_muscle_empties_only_the_action_units_that_depend_on_it():
+    facs = pytest.importorskip("synth.facs")
+    t = empty_table(3)
+    t[list(MUSCLES)] = 0.0
+    t[JAW] = 0.0
+    for row in range(3):
+        for name, value in facs.aus_to_contractions({12: 0.6, 1: 0.4, 2: 0.2, 4: 0.3,
+                                                     26: 1.0}).items():
+            t.loc[row, name] = value
+    t.loc[1, "frontalis_outer_l"] = np.nan        # a brow lost: AU 2, and AU 1 fitted with it
+    t.loc[2, ["corrugator_r", JAW]] = np.nan      # AU 4 and the jaw's action units
+    out = au_intensities(t)
+    full = out.loc[0]
+    assert out.loc[1, ["AU01_r", "AU02_r"]].isna().all()
+    assert out.loc[2, ["AU04_r", "AU25_r", "AU26_r", "AU27_r"]].isna().all()
+    # every other action unit keeps the value it has with every muscle present
+    for row, gone in ((1, {"AU01_r", "AU02_r"}), (2, {"AU04_r", "AU25_r", "AU26_r", "AU27_r"})):
+        kept = [c for c in AU_COLUMNS if c not in gone]
+        np.testing.assert_allclose(out.loc[row, kept].to_numpy(float),
+                                   full[kept].to_numpy(float), atol=1e-9)
+    assert out.loc[1, "AU12_r"] == pytest.approx(3.0, abs=1e-3)
+    assert out.loc[2, "AU01_r"] == pytest.approx(2.0, abs=1e-3)
+
+
 def test_au_intensities_reject_infinite_values():
     t = empty_table(2)
     t[list(MUSCLES)] = 0.0
     t.loc[1, "risorius_r"] = np.inf
     with pytest.raises(ValueError, match="infinite"):
         au_intensities(t)
+
+
+def test_written_tables_with_lost_frames_are_read_back_by_every_reader(tmp_path):
+    hypothesis = pytest.importorskip("hypothesis")
+    st = pytest.importorskip("hypothesis.strategies")
+    from faceanalysis.resynthesis.series import series_from_table
+
+    @hypothesis.settings(max_examples=25, deadline=None, derandomize=True)
+    @hypothesis.given(n=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
+    def check(n, seed):
+        rng = np.random.default_rng(seed)
+        t = empty_table(n, timestamps=np.arange(n) / 25)
+        success = rng.random(n) < 0.7
+        t["success"] = success.astype(np.int64)
+        t["confidence"] = np.where(success, rng.random(n), 0.0)
+        t[list(HEAD_COLUMNS)] = rng.uniform(1, 200, (n, 4))
+        t[[*MUSCLES]] = rng.random((n, len(MUSCLES)))
+        t[JAW] = rng.uniform(0, 0.2, n)
+        # lost frames: any pattern of empty cells, from none to all
+        lost_cells = (rng.random((n, len(MUSCLES) + 1)) < rng.random()) & ~success[:, None]
+        values = t[[*MUSCLES, JAW]].to_numpy()
+        t[[*MUSCLES, JAW]] = np.where(lost_cells, np.nan, values)
+        path = write_contractions(with_au_columns(t), tmp_path / "c.csv")
+        back = read_contractions(path)
+        series = series_from_table(back, str(path))
+        assert back["success"].tolist() == success.astype(int).tolist()
+        assert np.isfinite(series.controls).all() and np.isfinite(series.jaw).all()
+
+    check()
