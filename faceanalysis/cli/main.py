@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
         sp = sub.add_parser(name, help=module.HELP,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         module.configure(sp)
-        sp.set_defaults(_run=module.run)
+        sp.set_defaults(_run=module.run, _parser=sp)
     return parser
 
 
@@ -58,11 +58,18 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_run", None) is None:
         parser.print_help(sys.stderr)
         return 2
-    from faceanalysis.cli._common import configure_logging
+    from faceanalysis.cli._common import UsageError, configure_logging
 
+    try:
+        for check in getattr(args, "_usage_checks", ()):
+            check(args)
+    except UsageError as exc:
+        args._parser.error(str(exc))  # usage line and message on stderr, exit 2
     configure_logging(args.verbose, getattr(args, "quiet", False))
     try:
         return int(args._run(args) or 0)
+    except UsageError as exc:
+        args._parser.error(str(exc))
     except (FaceAnalysisError, ValueError, FileNotFoundError, FileExistsError,
             NotADirectoryError, IsADirectoryError, PermissionError) as exc:
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
