@@ -63,3 +63,13 @@ def test_numeric_options_are_checked_before_any_work(run_cli, tmp_path):
         assert code == 2, argv
         assert "Traceback" not in err
     assert not any(tmp_path.iterdir())
+
+
+def test_classify_with_a_text_file_as_templates_says_so(run_cli, tmp_path):
+    (tmp_path / "notes.txt").write_text("my notes\n")
+    (tmp_path / "v.png").write_bytes(b"")
+    code, out, err = run_cli("classify", tmp_path / "v.png", "--templates",
+                             tmp_path / "notes.txt")
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and "pickle" not in err, err
+    assert "notes.txt: not a flow-templates file" in err, err
