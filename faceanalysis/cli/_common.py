@@ -8,6 +8,14 @@ import math
 from pathlib import Path
 
 
+class UsageError(ValueError):
+    """Arguments that are each valid but do not go together (e.g. ``--end`` before ``--start``).
+
+    :func:`faceanalysis.cli.main.main` reports it as argparse does: the command's usage
+    line, the message, exit status 2.
+    """
+
+
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0 (frame rates, thresholds)."""
     try:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from faceanalysis.cli._common import non_negative_int, positive_float
+from faceanalysis.cli._common import UsageError, non_negative_int, positive_float
 from faceanalysis.io.video import MIN_FACE_SIZE, VideoSource, open_video
 
 
@@ -27,6 +27,21 @@ def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = Tru
                        help="first frame to analyse, 0-based (default 0)")
     group.add_argument("--end", type=non_negative_int, metavar="FRAME",
                        help="stop before this frame (exclusive; default: the last frame)")
+    parser.set_defaults(_usage_checks=(check_input_options,))
+
+
+def check_input_options(args: argparse.Namespace) -> None:
+    """Refuse options of :func:`add_input_options` that do not go together.
+
+    Raises
+    ------
+    UsageError
+        If ``--end`` is not after ``--start``.
+    """
+    start, end = getattr(args, "start", 0) or 0, getattr(args, "end", None)
+    if end is not None and end <= start:
+        raise UsageError(f"--end {end} must be after --start {start} (the range "
+                         "[start, end) would hold no frame)")
 
 
 def open_input(args: argparse.Namespace, *, path: Path | None = None,

@@ -35,6 +35,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="folder of a synthetic sequence (truth.csv)")
     parser.add_argument("--estimate", type=Path, metavar="DIR",
                         help="analysis folder (contractions.csv)")
+    parser.add_argument("--allow-partial", action="store_true",
+                        help="score the frames truth and estimate share even when they hold "
+                             "different frames (an analysis of a subrange) or their folders "
+                             "name different inputs (refused by default)")
     parser.add_argument("--suite", choices=["standard", "ceiling"],
                         help="run a whole suite: 'standard' renders and analyses it; "
                              "'ceiling' estimates from its exact measurement points")
@@ -59,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.suite and (args.truth or args.estimate):
         raise ValueError("--suite runs its own sequences; do not combine it with "
                          "--truth/--estimate")
+    if args.suite and args.allow_partial:
+        raise ValueError("--allow-partial goes with --truth/--estimate")
     if args.suite == "ceiling":
         from faceanalysis.evaluation.ceiling import measurement_ceiling
 
@@ -88,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.truth is None or args.estimate is None:
         raise ValueError("give --truth DIR and --estimate DIR, or --suite standard -o OUT")
-    report = scores.evaluate(args.truth, args.estimate)
+    report = scores.evaluate(args.truth, args.estimate, allow_partial=args.allow_partial)
     if not args.json:
         print(scores.format_table({"estimate": report}))
     print(json.dumps(report))

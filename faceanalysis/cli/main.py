@@ -9,9 +9,11 @@ message, no traceback), 2 usage error (argparse).
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
+from pathlib import Path
 
 from faceanalysis._version import __version__
 from faceanalysis.errors import FaceAnalysisError
@@ -48,8 +50,21 @@ def build_parser() -> argparse.ArgumentParser:
         sp = sub.add_parser(name, help=module.HELP,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         module.configure(sp)
-        sp.set_defaults(_run=module.run)
+        sp.set_defaults(_run=module.run, _parser=sp)
     return parser
+
+
+def _message(exc: BaseException) -> str:
+    """One line for an error; OSErrors name their path instead of ``[Errno N]``."""
+    if isinstance(exc, OSError) and exc.errno is not None and exc.filename is not None:
+        path = Path(exc.filename)
+        if exc.errno == errno.ENOTDIR:
+            blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+            if blocking is not None:
+                return f"{path}: {blocking} is a file, not a folder"
+            return f"{path}: a part of this path is a file, not a folder"
+        return f"{path}: {exc.strerror or type(exc).__name__}"
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,14 +73,21 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_run", None) is None:
         parser.print_help(sys.stderr)
         return 2
-    from faceanalysis.cli._common import configure_logging
+    from faceanalysis.cli._common import UsageError, configure_logging
 
+    try:
+        for check in getattr(args, "_usage_checks", ()):
+            check(args)
+    except UsageError as exc:
+        args._parser.error(str(exc))  # usage line and message on stderr, exit 2
     configure_logging(args.verbose, getattr(args, "quiet", False))
     try:
         return int(args._run(args) or 0)
+    except UsageError as exc:
+        args._parser.error(str(exc))
     except (FaceAnalysisError, ValueError, FileNotFoundError, FileExistsError,
             NotADirectoryError, IsADirectoryError, PermissionError) as exc:
-        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        message = _message(exc)
         print(f"faceanalysis: error: {message}", file=sys.stderr)
         logging.getLogger(__name__).debug("details", exc_info=True)
         return 1

@@ -24,6 +24,32 @@ def _size(text: str):
     return w if not m.group(2) else (w, h)
 
 
+def _au_script(text: str) -> str:
+    """argparse type: an AU script of known action units with intensities in [0, 1]."""
+    from synth.facs import ACTION_UNITS
+    from synth.render.sequence import parse_au_string
+
+    try:
+        aus = parse_au_string(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    unknown = sorted(set(aus) - set(ACTION_UNITS))
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown action unit(s) {unknown}; known: "
+                                         f"{sorted(ACTION_UNITS)}")
+    return text
+
+
+def _expression(text: str) -> str:
+    """argparse type: one of the primary expressions."""
+    from synth.facs import EXPRESSIONS
+
+    if text not in EXPRESSIONS:
+        raise argparse.ArgumentTypeError(f"unknown expression {text!r}; choose from "
+                                         f"{', '.join(sorted(EXPRESSIONS))}")
+    return text
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Drive the physics-based face model with known contractions, render the frames "
@@ -38,10 +64,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                      "  faceanalysis synth --au 12:0.8,6:0.5 --head-motion --noise -o out/smile\n"
                      "  faceanalysis synth --contractions contractions.csv -o out/resynth")
     src = parser.add_mutually_exclusive_group()
-    src.add_argument("--expression", metavar="NAME",
+    src.add_argument("--expression", type=_expression, metavar="NAME",
                      help="primary expression (happiness, sadness, surprise, fear, anger, "
                           "disgust) with onset-apex-offset timing")
-    src.add_argument("--au", metavar="SCRIPT",
+    src.add_argument("--au", type=_au_script, metavar="SCRIPT",
                      help="action units and intensities in [0, 1], e.g. '12:0.8,6:0.5'")
     src.add_argument("--contractions", metavar="CSV",
                      help="a contractions.csv (muscle columns, jaw_rotation); one frame per row")

@@ -13,12 +13,14 @@ Scores (pooled over all tracked frames of all sequences):
 
 from __future__ import annotations
 
+import filecmp
+import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from faceanalysis.io.outputs import CONTRACTIONS_CSV
+from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
 
 __all__ = ["compare", "evaluate", "format_table", "pool", "public"]
@@ -35,7 +37,73 @@ def _load_table(source, name: str) -> pd.DataFrame:
     return pd.read_csv(path)
 
 
-def compare(truth, estimate, *, controls=None) -> dict:
+def _frames_text(frames: np.ndarray) -> str:
+    n = len(frames)
+    if not n:
+        return "0 frames"
+    return f"{n} frame{'s' if n != 1 else ''} ({int(frames.min())}-{int(frames.max())})"
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _folder(source) -> Path | None:
+    """The folder of a table given as a path (None for a DataFrame)."""
+    if isinstance(source, pd.DataFrame):
+        return None
+    path = Path(source)
+    return path if path.is_dir() else path.parent
+
+
+def _sequence_mismatch(truth, estimate) -> str | None:
+    """Why ``truth`` and ``estimate`` describe different sequences, or None.
+
+    Uses what both folders say about their input: the synthetic sequence's ``meta.json``
+    (video, size, frames) and the analysis's ``analysis.json`` (input path, size, frame
+    count). Nothing is concluded where either is absent.
+    """
+    t_dir, e_dir = _folder(truth), _folder(estimate)
+    if t_dir is None or e_dir is None:
+        return None
+    meta = _read_json(t_dir / "meta.json")
+    analysis = _read_json(e_dir / ANALYSIS_JSON)
+    if meta is None or analysis is None or not isinstance(analysis.get("input"), dict):
+        return None
+    source = analysis["input"]
+    for key_t, key_e, what in (("size", "size", "size"), ("frames", "frame_count", "frames")):
+        a, b = meta.get(key_t), source.get(key_e)
+        if a is not None and b is not None and a != b:
+            return (f"the truth's video ({t_dir / 'meta.json'}) has {what} {a}, the analysed "
+                    f"input ({source.get('path')}) {b}")
+    video = (meta.get("files") or {}).get("video") or meta.get("video")
+    analysed = source.get("path")
+    if video and analysed:
+        t_video, e_video = (t_dir / video).resolve(), Path(analysed).resolve()
+        if (t_video != e_video and t_video.is_file() and e_video.is_file()
+                and not filecmp.cmp(t_video, e_video, shallow=False)):
+            return f"the analysis read {e_video}, not the truth's video {t_video}"
+    return None
+
+
+def _check_same_sequence(t: pd.DataFrame, e: pd.DataFrame, truth, estimate) -> None:
+    tf = np.unique(t["frame"].to_numpy())
+    ef = np.unique(e["frame"].to_numpy())
+    hint = "; pass allow_partial=True (--allow-partial) to score only the frames they share"
+    if len(t) != len(e) or not np.array_equal(tf, ef):
+        raise ValueError(f"truth has {_frames_text(tf)} but the estimate has "
+                         f"{_frames_text(ef)}: not the same sequence or range{hint}")
+    why = _sequence_mismatch(truth, estimate)
+    if why is not None:
+        raise ValueError(f"truth and estimate ({len(tf)} frames each) are not the same "
+                         f"sequence: {why}{hint}")
+
+
+def compare(truth, estimate, *, controls=None, allow_partial: bool = False) -> dict:
     """Score an estimated contractions table against ground truth.
 
     Parameters
@@ -46,6 +114,10 @@ def compare(truth, estimate, *, controls=None) -> dict:
         ``contractions.csv`` of its analysis (or the analysis folder).
     controls : sequence of str, optional
         Controls to score (default: every muscle and the jaw present in both).
+    allow_partial : bool
+        Score the frames the two tables share even when their frames differ (an analysis
+        of a subrange) or their folders describe different inputs. By default both are
+        refused.
 
     Returns
     -------
@@ -53,12 +125,21 @@ def compare(truth, estimate, *, controls=None) -> dict:
         ``frames``, ``frames_compared``, ``controls`` (name -> rmse, r, truth_max),
         ``jaw_rmse_deg``, ``fiducial_error_px`` (mean), ``fiducial_error_by_point``, and the
         aligned arrays under ``_pairs`` (for pooling; not JSON).
+
+    Raises
+    ------
+    ValueError
+        Unless ``allow_partial``: if the tables hold different frames (the message names
+        both counts and ranges), or if the truth's ``meta.json`` and the analysis's
+        ``analysis.json`` name different inputs.
     """
     t = _load_table(truth, "truth.csv")
     e = _load_table(estimate, CONTRACTIONS_CSV)
     for df, what in ((t, "truth"), (e, "estimate")):
         if "frame" not in df.columns:
             raise ValueError(f"{what} table has no 'frame' column")
+    if not allow_partial:
+        _check_same_sequence(t, e, truth, estimate)
     merged = t.merge(e, on="frame", suffixes=("_t", "_e"))
     if merged.empty:
         raise ValueError("truth and estimate share no frame numbers")
@@ -170,7 +251,7 @@ def _fmt(v) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
-def evaluate(truth, estimate, *, controls=None) -> dict:
+def evaluate(truth, estimate, *, controls=None, allow_partial: bool = False) -> dict:
     """Score an analysis against the ground truth of a synthetic sequence.
 
     Parameters
@@ -181,6 +262,9 @@ def evaluate(truth, estimate, *, controls=None) -> dict:
         ``contractions.csv`` of its analysis, or the analysis folder.
     controls : sequence of str, optional
         Controls to score (default: every muscle and the jaw present in both).
+    allow_partial : bool
+        Score the shared frames of tables of different frames or inputs (see
+        :func:`compare`); refused by default.
 
     Returns
     -------
@@ -188,5 +272,10 @@ def evaluate(truth, estimate, *, controls=None) -> dict:
         Plain JSON types: ``frames``, ``frames_compared``, ``controls`` (name -> rmse,
         r, truth_max), ``jaw_rmse_deg``, ``fiducial_error_px`` and
         ``fiducial_error_by_point``.
+
+    Raises
+    ------
+    ValueError
+        If truth and estimate hold different frames or inputs, unless ``allow_partial``.
     """
-    return public(compare(truth, estimate, controls=controls))
+    return public(compare(truth, estimate, controls=controls, allow_partial=allow_partial))

@@ -155,8 +155,22 @@ class FlowTemplates:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such templates file")
+        what = "not a flow-templates file (the .npz that 'faceanalysis templates' writes)"
         try:
-            with np.load(path, allow_pickle=False) as z:
+            z = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError):
+            # NumPy says "pickled data" for any file that is neither .npz nor .npy
+            raise ValueError(f"{path}: {what}: it is not an .npz archive") from None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError(f"{path}: {what}: it holds a single .npy array") from None
+        needed = ("grid", "controls", "upper", "control", "nuisance_names", "nuisance", "mask",
+                  "region", "expressions", "expression", "energy", "fiducials", "head", "meta")
+        missing = [k for k in needed if k not in z.files]
+        if missing:
+            z.close()
+            raise ValueError(f"{path}: {what}: it has no {', '.join(missing)} array")
+        try:
+            with z:
                 return cls(grid=FaceGrid.from_dict(json.loads(str(z["grid"]))),
                            controls=tuple(str(s) for s in z["controls"]),
                            upper=z["upper"].astype(float),
@@ -168,8 +182,8 @@ class FlowTemplates:
                            energy=z["energy"].astype(np.float64),
                            fiducials=z["fiducials"], head=z["head"],
                            meta=json.loads(str(z["meta"])))
-        except (KeyError, ValueError, OSError) as exc:
-            raise ValueError(f"{path}: not a flow-templates file ({exc})") from None
+        except (KeyError, ValueError, OSError, EOFError) as exc:
+            raise ValueError(f"{path}: {what}: {exc}") from None
 
 
 # ---------------------------------------------------------------------------- model head frame

@@ -151,12 +151,15 @@ def input_metadata(source) -> dict:
 
     A mapping is copied as is (it must be JSON-compatible); a ``VideoSource``
     gives ``path`` (absolute), ``kind``, ``size`` ``[width, height]``, ``fps``,
-    ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``
-    None = to the end), ``dtype``, ``channels``, ``frames_undecodable`` and
-    ``missing_tail``.
+    ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``: the
+    real end when the frame count is known, else None = to the end), ``dtype``,
+    ``channels``, ``frames_undecodable`` and ``missing_tail``.
     """
     if isinstance(source, Mapping):
         return dict(source)
+    end = getattr(source, "end", None)
+    if end is None and getattr(source, "frame_count", None) is not None:
+        end = max(int(source.frame_count), int(getattr(source, "start", 0) or 0))
     required = ("path", "kind", "size", "fps", "fps_origin", "frame_count", "start", "end")
     missing = [name for name in required if not hasattr(source, name)]
     if missing:
@@ -168,7 +171,7 @@ def input_metadata(source) -> dict:
         "fps": source.fps,
         "fps_origin": source.fps_origin,
         "frame_count": source.frame_count,
-        "frame_range": [source.start, source.end],
+        "frame_range": [source.start, end],
         "dtype": str(getattr(source, "dtype", "")) or None,
         "channels": getattr(source, "channels", None),
         "frames_undecodable": getattr(source, "n_failed", 0),

@@ -38,3 +38,16 @@ def test_tiny_input_refused_by_default(parser, tmp_path):
 def test_bad_values_are_usage_errors(parser, argv):
     with pytest.raises(argparse.ArgumentError):
         parser.parse_args(argv)
+
+
+@pytest.mark.parametrize("command", ["analyze", "probe", "classify"])
+@pytest.mark.parametrize("start, end", [("10", "5"), ("3", "3")])
+def test_end_not_after_start_is_a_usage_error(run_cli, tmp_path, command, start, end):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((80, 80), np.uint8))
+    extra = ["-o", tmp_path / "out"] if command == "analyze" else []
+    code, out, err = run_cli(command, tmp_path / "f.png", "--start", start, "--end", end,
+                             *extra)
+    assert code == 2, err
+    assert err.startswith(f"usage: faceanalysis {command}"), err
+    assert f"--end {end} must be after --start {start}" in err
+    assert not (tmp_path / "out").exists()

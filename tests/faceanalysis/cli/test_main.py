@@ -63,3 +63,22 @@ def test_numeric_options_are_checked_before_any_work(run_cli, tmp_path):
         assert code == 2, argv
         assert "Traceback" not in err
     assert not any(tmp_path.iterdir())
+
+
+def test_classify_with_a_text_file_as_templates_says_so(run_cli, tmp_path):
+    (tmp_path / "notes.txt").write_text("my notes\n")
+    (tmp_path / "v.png").write_bytes(b"")
+    code, out, err = run_cli("classify", tmp_path / "v.png", "--templates",
+                             tmp_path / "notes.txt")
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and "pickle" not in err, err
+    assert "notes.txt: not a flow-templates file" in err, err
+
+
+def test_output_under_a_file_says_which_part_is_a_file(run_cli, tmp_path):
+    (tmp_path / "somefile.txt").write_text("x")
+    code, out, err = run_cli("evaluate", "--suite", "standard", "--identities", "1",
+                             "--frames", "3", "-o", tmp_path / "somefile.txt" / "out", "-q")
+    assert code == 1
+    assert "Errno" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{tmp_path / 'somefile.txt'} is a file, not a folder" in err, err

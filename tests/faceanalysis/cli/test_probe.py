@@ -52,9 +52,21 @@ def test_bad_inputs_are_one_line_errors(run_cli, tmp_path):
     assert "no images" in one_line_error(run_cli, "probe", empty)
     clip = make_clip(tmp_path / "clip.avi")
     assert "start (12)" in one_line_error(run_cli, "probe", clip, "--start", "12")
-    assert "end (3)" in one_line_error(run_cli, "probe", clip, "--start", "5", "--end", "3")
+    # an empty range is a usage error (issue 28, item 9): exit 2 with the usage line
+    code, out, err = run_cli("probe", clip, "--start", "5", "--end", "3")
+    assert code == 2 and out == "" and "--end 3 must be after --start 5" in err, err
 
 
 def test_bad_option_is_a_usage_error(run_cli, tmp_path):
     code, _, err = run_cli("probe", tmp_path, "--fps", "-3")
     assert code == 2 and "positive" in err
+
+
+def test_probe_prints_the_real_end_of_the_range(run_cli, tmp_path):
+    clip = make_clip(tmp_path / "clip.avi")
+    code, out, err = run_cli("probe", clip, "--json", "--start", "2")
+    assert code == 0, err
+    assert json.loads(out)["frame_range"] == [2, 12]
+    code, out, err = run_cli("probe", clip)
+    assert code == 0 and "None" not in out, out
+    assert "[0, 12]" in out, out

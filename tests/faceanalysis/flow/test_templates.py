@@ -228,3 +228,19 @@ def test_motion_energy_segments_and_threshold(templates, rng):
         2 * np.percentile([0.001, 0.01], 95))
     with pytest.raises(ValueError):
         find_segments(e, 0.1, min_length=0)
+
+
+@pytest.mark.parametrize("content", [b"my notes\n", b"not a zip"])
+def test_a_file_that_is_not_templates_is_named_as_such(tmp_path, content):
+    (tmp_path / "notes.txt").write_bytes(content)
+    with pytest.raises(ValueError) as info:
+        FlowTemplates.load(tmp_path / "notes.txt")
+    message = str(info.value)
+    assert "notes.txt: not a flow-templates file" in message and ".npz" in message
+    assert "pickle" not in message and "\n" not in message
+
+
+def test_an_npz_without_the_templates_arrays_is_named_as_such(tmp_path):
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match=r"other.npz: not a flow-templates file.*has no grid"):
+        FlowTemplates.load(tmp_path / "other.npz")
