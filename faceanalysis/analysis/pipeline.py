@@ -133,11 +133,16 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         from faceanalysis.estimation.model_response import model_response
 
         response = model_response()
+    if neutral is not None:
+        _check_neutral_in_range(video, neutral, fps=fps, start=start, end=end)
     tracks = track(video, points=response.fiducials, fps=fps, start=start, end=end,
                    layout=layout, tracker_options=tracker_options, backend=backend,
                    device=device, overlay=overlay, progress=progress)
     if not tracks.success.any():
         raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
+    if len(tracks) == 1:
+        log.warning("%s: one frame has no expression to measure: its contractions are 0 "
+                    "by definition (the neutral frame is the frame itself)", video)
     k = _neutral_row(tracks, neutral)
     meas, cal, calib = _calibrate(tracks, k, response, suspect_points, video)
 
@@ -155,6 +160,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),
+        "single_frame": len(tracks) == 1,
     }
     table = _tracking_table(tracks)
     table, residual, fit = _contractions(table, values, disp, response, tracks.confidence,
@@ -174,6 +180,18 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)
+
+
+def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | None) -> None:
+    """Refuse a neutral frame outside the analysed range before any frame is tracked."""
+    from faceanalysis.io.video import MIN_FACE_SIZE, open_video
+
+    with open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE) as src:
+        n = src.n_frames
+    last = None if n is None else start + n - 1
+    if neutral < start or (last is not None and neutral > last):
+        raise ValueError(f"{video}: neutral frame {neutral} is outside the analysed range "
+                         f"{start}..{'end' if last is None else last}")
 
 
 def _neutral_row(tracks: Tracks, neutral: int | None) -> int:

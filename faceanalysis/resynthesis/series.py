@@ -86,6 +86,21 @@ def _label(frames, row: int) -> str:
     return f"line {row + 2} (frame {int(frames[row])})"
 
 
+def _refuse_misspelt_controls(columns, where: str) -> None:
+    """A column that is no control but reads like one (``zygomaticus_majr_l``) is a typo that
+    would leave its muscle at rest without a word: name it, and the control it resembles."""
+    import difflib
+
+    known = {*MUSCLES, JAW}
+    for column in columns:
+        if column in known:
+            continue
+        close = difflib.get_close_matches(column, known, n=1, cutoff=0.85)
+        if close:
+            raise ValueError(f"{where}: unknown column {column!r} (did you mean "
+                             f"{close[0]!r}?)")
+
+
 def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
                        ) -> Series:
     """Validate a contractions table (complete or partial) into a :class:`Series`."""
@@ -121,6 +136,7 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
     timestamps = np.full(n, np.nan)
     if "timestamp" in df.columns:
         timestamps = numeric_column(df, "timestamp", where)
+    _refuse_misspelt_controls(df.columns, where)
     present = [m for m in MUSCLES if m in df.columns]
     if not present and JAW not in df.columns:
         raise ValueError(f"{where}: no muscle columns (e.g. {MUSCLES[0]}) and no {JAW} column")

@@ -374,3 +374,35 @@ def test_real_frames_with_a_lost_contour_are_complete_and_resynthesisable(real_v
     assert a.metadata["parameters"]["controls_held"]
     series = series_from_table(t, "cap13_edit2.mp4")
     assert np.isfinite(series.controls[series.success]).all()
+
+
+def test_a_neutral_frame_beyond_the_range_is_refused_before_tracking(tmp_path, monkeypatch):
+    import faceanalysis.analysis.pipeline as pipeline
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=4, size=96,
+                            seed=3, flow=False)
+
+    def no_tracking(*args, **kwargs):
+        raise AssertionError("tracked before the neutral frame was checked")
+
+    monkeypatch.setattr(pipeline, "track", no_tracking)
+    with pytest.raises(ValueError, match=r"neutral frame 9 is outside the analysed range 0\.\.3"):
+        pipeline.analyze(files["video"], neutral=9)
+
+
+def test_one_image_is_analysed_and_said_to_have_no_expression(tmp_path, caplog):
+    import cv2
+
+    from faceanalysis.analysis.pipeline import analyze
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=1, size=256,
+                            seed=5, flow=False)
+    ok, frame = cv2.VideoCapture(str(files["video"])).read()
+    image = tmp_path / "face.png"
+    cv2.imwrite(str(image), frame)
+    with caplog.at_level("WARNING"):
+        a = analyze(image)
+    assert "one frame has no expression to measure" in caplog.text
+    assert a.metadata["parameters"]["single_frame"] is True and len(a.table) == 1

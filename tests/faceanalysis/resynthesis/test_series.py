@@ -54,3 +54,12 @@ def test_lost_frames_hold_the_last_good_value(model):
     np.testing.assert_allclose(states[3].vertices, states[1].vertices)
     assert np.abs(states[4].vertices - states[1].vertices).max() > 1e-3
     assert np.abs(states[1].vertices - states[0].vertices).max() > 1e-3
+
+
+def test_a_misspelt_muscle_column_is_named_unknown(tmp_path):
+    from faceanalysis.resynthesis.series import series_from_table
+
+    df = _drive().rename(columns={SMILE[0]: "zygomaticus_majr_l"})
+    with pytest.raises(ValueError, match="unknown column 'zygomaticus_majr_l' "
+                                         r"\(did you mean 'zygomaticus_major_l'\?\)"):
+        series_from_table(df, "drive.csv")
