@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis._version import __version__
+from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.corpus import (
     MARKER,
     MARKER_FORMAT,
@@ -64,12 +65,15 @@ from faceanalysis.io.outputs import (
     write_text_atomic,
 )
 
-__all__ = ["SUMMARY", "analysis_options", "run_batch", "start_local_cluster"]
+__all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
+           "start_local_cluster"]
 
 logger = logging.getLogger(__name__)
 
 #: The summary table written into the output root.
 SUMMARY = SUMMARY_CSV
+#: Seconds to wait for the scheduler given by address (dask's default is 30).
+SCHEDULER_TIMEOUT_S = 10
 _PARTIAL = ".partial-"
 _OLD = ".old-"
 # Columns of contractions.csv that are not contractions (see faceanalysis.io.table).
@@ -374,7 +378,7 @@ def _start_client(workers: int | None, scheduler, silence_logs):
     if scheduler is not None:
         if isinstance(scheduler, Client):
             return scheduler, None, False
-        return Client(scheduler, set_as_default=False), None, True
+        return _connect(scheduler), None, True
     cluster = start_local_cluster(workers, silence_logs=silence_logs)
     try:
         client = Client(cluster, set_as_default=False)
@@ -382,6 +386,28 @@ def _start_client(workers: int | None, scheduler, silence_logs):
         cluster.close()
         raise
     return client, cluster, True
+
+
+def _connect(address: str):
+    """A client of the scheduler at ``address``; FaceAnalysisError (one line) if there is
+    none within :data:`SCHEDULER_TIMEOUT_S` or the address is malformed."""
+    from distributed import Client
+    from distributed.comm import resolve_address
+
+    try:
+        # a malformed or unknown address is refused here, before a client exists: a
+        # half-made client hangs for 20 s when it is collected
+        resolve_address(address)
+        return Client(address, set_as_default=False, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, ValueError) as exc:         # TimeoutError is an OSError
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    raise FaceAnalysisError(f"cannot connect to the Dask scheduler at {address}: {reason}")
+
+
+def _close(client) -> None:
+    if client is not None:
+        with contextlib.suppress(Exception):
+            client.close()
 
 
 def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
@@ -408,7 +434,9 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
         available core. Cannot be combined with ``scheduler``.
     scheduler : str or distributed.Client, optional, keyword-only
         Address of a running Dask scheduler (``"tcp://host:8786"``) or a connected
-        client; the run then uses that cluster's workers instead of starting one.
+        client; the run then uses that cluster's workers instead of starting one. An
+        address that does not answer within :data:`SCHEDULER_TIMEOUT_S` seconds fails
+        the run (:class:`~faceanalysis.errors.FaceAnalysisError` naming it).
     options : mapping, optional, keyword-only
         Analysis options passed to ``task`` for every video (e.g. ``overlay=True``); those
         left at the analysis defaults or None are dropped (:func:`analysis_options`), the
@@ -449,6 +477,8 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
         are given, or no input is left to analyse.
     FileExistsError
         If ``out`` exists and is not a folder.
+    FaceAnalysisError
+        If the ``scheduler`` address is malformed or does not answer; nothing is written.
 
     Notes
     -----
@@ -491,8 +521,6 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
     if not videos:
         raise ValueError(f"no input left to analyse: every input lies inside {root}")
     names = output_names(videos)
-    root.mkdir(parents=True, exist_ok=True)
-    _remove_partials(root, names)
 
     rows: list[dict | None] = [None] * len(videos)
     todo: list[int] = []
@@ -521,11 +549,20 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
                 skipped, len(todo), f", {blocked} blocked by an unfinished folder (see "
                 f"{SUMMARY})" if blocked else "")
 
+    # an unreachable scheduler fails the run before anything is written
+    connected = _connect(scheduler) if todo and isinstance(scheduler, str) else None
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except BaseException:
+        _close(connected)
+        raise
+    _remove_partials(root, names)
     try:
         if todo:
             _run_on_cluster(videos, names, todo, rows, root, options, task, overwrite,
-                            workers, scheduler, progress, silence_logs)
+                            workers, connected or scheduler, progress, silence_logs)
     finally:
+        _close(connected)
         final_rows = [r if r is not None else {**_failed_row(videos[i], names[i],
                                                               "interrupted before it finished"),
                                                "status": "pending"}

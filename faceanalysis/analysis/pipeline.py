@@ -415,9 +415,13 @@ def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,
     ``overwrite=True``); each file is written atomically. Writes
     ``contractions.csv``, ``analysis.json``, ``contractions.png`` and, with
     ``overlay=True``, ``overlay.mp4``. Other keyword arguments go to :func:`analyze`.
+    A folder created for the run is removed again if the run fails before writing
+    anything; after a run with ``overwrite``, the toolkit's files of an earlier run that
+    it did not write again (an overlay, ``validation.*``) are removed
+    (see :class:`~faceanalysis.analysis.results.OutputFolder`).
     """
-    folder = OutputFolder(output, overwrite=overwrite)
-    result = analyze(video, overlay=folder.overlay_mp4 if overlay else None,
-                     progress=not quiet, **options)
-    folder.write(result.table, result.metadata, title=Path(video).name)
+    with OutputFolder(output, overwrite=overwrite) as folder:
+        result = analyze(video, overlay=folder.overlay_mp4 if overlay else None,
+                         progress=not quiet, **options)
+        folder.write(result.table, result.metadata, title=Path(video).name)
     return result

@@ -4,12 +4,16 @@
 :class:`OutputFolder` checks the folder when it is created (so that a run fails
 before any work if ``OUT`` holds results and ``overwrite`` is false), then writes
 each result atomically: ``contractions.csv``, ``analysis.json``,
-``contractions.png`` and, on request, ``overlay.mp4``.
+``contractions.png`` and, on request, ``overlay.mp4``. Used as a context manager
+around a run, it removes the folder again if the run fails before writing into it,
+and after a run with ``overwrite`` the earlier run's files that were not written again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,10 +25,13 @@ from faceanalysis.estimation.calibration import Calibration
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.outputs import (
     ANALYSIS_JSON,
+    ANALYSIS_OUTPUTS,
     CONTRACTIONS_CSV,
     CONTRACTIONS_PNG,
     OVERLAY_MP4,
+    first_missing_folder,
     prepare_output_dir,
+    remove_new_folders,
 )
 from faceanalysis.io.report import write_analysis
 from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, write_contractions
@@ -95,9 +102,9 @@ class Analysis:
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
         """Write ``contractions.csv``, ``analysis.json`` and ``contractions.png`` to ``output``."""
-        folder = OutputFolder(output, overwrite=overwrite)
-        return folder.write(self.table, self.metadata, title=self.metadata.get("input", {})
-                            .get("name"))
+        with OutputFolder(output, overwrite=overwrite) as folder:
+            return folder.write(self.table, self.metadata,
+                                title=self.metadata.get("input", {}).get("name"))
 
 
 class OutputFolder:
@@ -115,6 +122,17 @@ class OutputFolder:
     FileExistsError
         If ``path`` holds files and ``overwrite`` is false, or is a file.
 
+    Notes
+    -----
+    Used as a context manager (``with OutputFolder(out) as folder: ...``) around the
+    run that fills it: if the block raises, the folders created for it are removed
+    again while they hold nothing (see :func:`~synth.files.remove_new_folders`); if it
+    succeeds, the toolkit's files of an earlier run (:data:`ANALYSIS_OUTPUTS`:
+    an overlay, a validation of the earlier results...) that the block did not write
+    again are removed (:meth:`remove_stale`), so that the folder describes one run.
+    Other files are never touched. Temporary files of an interrupted earlier run are
+    removed when the folder is opened (:func:`~synth.files.prepare_output_dir`).
+
     Examples
     --------
     >>> import tempfile, pathlib
@@ -131,7 +149,38 @@ class OutputFolder:
     OVERLAY = OVERLAY_MP4
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False):
+        self._created = first_missing_folder(path)
         self.path = prepare_output_dir(path, overwrite=overwrite)
+        # the toolkit's files already there: those still identical after the run are stale
+        self._before = {name: ident for name in ANALYSIS_OUTPUTS
+                        if (ident := _identity(self.path / name)) is not None}
+
+    def __enter__(self) -> OutputFolder:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.remove_stale()
+        else:
+            remove_new_folders(self.path, self._created)
+
+    def remove_stale(self) -> list[Path]:
+        """Remove the toolkit's files that were here before and were not written again.
+
+        Returns
+        -------
+        list of Path
+            The files removed (an earlier run's ``overlay.mp4``, ``validation.*``...).
+        """
+        removed = []
+        for name, before in self._before.items():
+            path = self.path / name
+            if _identity(path) == before:
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+                    removed.append(path)
+        self._before = {}
+        return removed
 
     @property
     def contractions_csv(self) -> Path:
@@ -168,3 +217,14 @@ class OutputFolder:
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)
         return paths
+
+
+def _identity(path: Path) -> tuple | None:
+    """What tells a regular file from the one written in its place (None: no such file)."""
+    try:
+        st = path.lstat()
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    if not stat.S_ISREG(st.st_mode):
+        return None                  # a link or a folder of the user's: never removed
+    return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size

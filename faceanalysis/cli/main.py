@@ -3,16 +3,22 @@
 Each subcommand is a module of this package exposing ``HELP`` (one line),
 ``configure(parser)`` and ``run(args) -> int``. Commands stay thin: they translate
 arguments and call the library. Exit codes: 0 success, 1 failure (a one-line
-message, no traceback), 2 usage error (argparse).
+message, no traceback), 2 usage error (argparse), 130 interrupted (Ctrl-C), 143
+terminated (SIGTERM: ``timeout``, a job scheduler). SIGTERM is turned into an exception
+like Ctrl-C, so that the same clean-up runs: temporary files are removed and a folder
+created for a run that wrote nothing is removed again.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from faceanalysis._version import __version__
@@ -32,6 +38,38 @@ SUBCOMMANDS: dict[str, str] = {
     "classify": "classify",
     "resynth": "resynth",
 }
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that ``finally`` blocks and context managers
+    clean up as they do for Ctrl-C (a ``KeyboardInterrupt``)."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """Raise :class:`Terminated` on SIGTERM for the duration of the block.
+
+    Only the first SIGTERM raises; later ones are ignored until the block ends, so that
+    the clean-up it started can finish (``kill -9`` still stops the process at once).
+    Nothing is changed outside the main thread, or where SIGTERM is ignored already.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is signal.SIG_IGN:
+        yield
+        return
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated(signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,9 +120,13 @@ def main(argv: list[str] | None = None) -> int:
         args._parser.error(str(exc))  # usage line and message on stderr, exit 2
     configure_logging(args.verbose, getattr(args, "quiet", False))
     try:
-        return int(args._run(args) or 0)
+        with _sigterm_raises():
+            return int(args._run(args) or 0)
     except UsageError as exc:
         args._parser.error(str(exc))
+    except Terminated:
+        print("faceanalysis: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + int(signal.SIGTERM)
     except (FaceAnalysisError, ValueError, FileNotFoundError, FileExistsError,
             NotADirectoryError, IsADirectoryError, PermissionError) as exc:
         message = _message(exc)

@@ -134,3 +134,56 @@ def test_prepare_creates_nested_folder_and_rejects_a_file(tmp_path):
     f.write_text("x")
     with pytest.raises(FileExistsError, match="not a folder"):
         prepare_output_dir(f, overwrite=True)
+
+
+def test_prepare_takes_a_folder_of_partial_leftovers_as_empty_and_removes_them(tmp_path):
+    leftovers = [tmp_path / ".overlay.ab_12xyz.partial.mp4", tmp_path / ".table.k3k3k3k3.partial"]
+    for p in leftovers:
+        p.write_bytes(b"half")
+    assert files.partial_files(tmp_path) == sorted(leftovers)
+    assert prepare_output_dir(tmp_path) == tmp_path
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_prepare_refusal_names_the_contents_and_touches_nothing(tmp_path):
+    names = [".hidden", "a.csv", "b.png", "c", "d", "e", "f"]
+    for name in names:
+        (tmp_path / name).write_text("x")
+    (tmp_path / ".a.abcdefgh.partial.csv").write_text("half")
+    with pytest.raises(FileExistsError) as info:
+        prepare_output_dir(tmp_path)
+    assert str(info.value) == (f"{tmp_path} is not empty (it holds .hidden, a.csv, b.png, c, d "
+                               f"and 2 more); pass --overwrite to replace its results")
+    assert len(list(tmp_path.iterdir())) == 8
+    prepare_output_dir(tmp_path, overwrite=True)            # results kept, leftover gone
+    assert sorted(p.name for p in tmp_path.iterdir()) == names
+
+
+def test_partial_names_are_those_of_atomic_path_only(tmp_path):
+    with atomic_path(tmp_path / "overlay.mp4") as tmp:
+        assert files.is_partial(tmp)
+    for name in ("overlay.mp4", ".partial", "notes.partial.txt", ".my.partial.mp4",
+                 ".a.partial-0123456789ab"):
+        assert not files.is_partial(name), name
+
+
+def test_output_dir_removes_the_folders_it_created_when_the_run_fails(tmp_path):
+    with pytest.raises(KeyboardInterrupt), files.output_dir(tmp_path / "a" / "b") as out, \
+            atomic_path(out / "half.csv") as tmp:
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RuntimeError), files.output_dir(tmp_path / "a" / "b") as out:
+        write_text_atomic(out / "done.csv", "a result")
+        raise RuntimeError("later step failed")
+    assert (tmp_path / "a" / "b" / "done.csv").is_file()            # kept with its result
+    (tmp_path / "c").mkdir()
+    with pytest.raises(RuntimeError), files.output_dir(tmp_path / "c"):
+        raise RuntimeError("failed")
+    assert (tmp_path / "c").is_dir()                                # existed before
+
+
+def test_atomic_path_removes_the_parents_it_created_on_failure(tmp_path):
+    with pytest.raises(RuntimeError), atomic_path(tmp_path / "x" / "y" / "v.mp4"):
+        raise RuntimeError("no frame")
+    assert list(tmp_path.iterdir()) == []

@@ -48,3 +48,25 @@ def test_bad_table_writes_nothing(tmp_path):
     with pytest.raises(ValueError, match=r"frame 3\), column risorius_l"):
         out.write(bad, {"format": "x"})
     assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_context_removes_earlier_toolkit_files_after_success_only(tmp_path):
+    for name in ("overlay.mp4", "validation.csv", "validation.png", "contractions.png"):
+        (tmp_path / name).write_text("earlier run")
+    (tmp_path / "mine.txt").write_text("the user's")
+    with pytest.raises(RuntimeError), OutputFolder(tmp_path, overwrite=True) as out:
+        out.write(table(), {"format": "x"}, plot=False)
+        raise RuntimeError("failed")
+    assert (tmp_path / "overlay.mp4").is_file()            # a failed run removes nothing
+    with OutputFolder(tmp_path, overwrite=True) as out:
+        out.write(table(), {"format": "x"}, plot=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "analysis.json", "contractions.csv", "mine.txt"]
+
+
+def test_context_removes_the_folder_it_created_when_nothing_was_written(tmp_path):
+    with pytest.raises(ValueError), OutputFolder(tmp_path / "new" / "out") as out, \
+            out.overlay_writer(25, (64, 48)) as writer:
+        writer.write(np.zeros((48, 64), np.uint8))
+        raise ValueError("no face")
+    assert list(tmp_path.iterdir()) == []
