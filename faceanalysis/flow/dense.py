@@ -471,7 +471,8 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
             raise ValueError(f"neutral frame {neutral} is not a tracked frame of {video}")
         ref_pos = int(hits[0])
     ref_frame = int(frames[ref_pos])
-    with open_video(video, fps=fps, start=ref_frame, end=ref_frame + 1) as src:
+    with open_video(video, fps=fps, start=ref_frame, end=ref_frame + 1,
+                    eight_bit=True) as src:
         ref_img = next((f.image for f in src if f.ok), None)
     if ref_img is None:
         raise ValueError(f"{video}: reference frame {ref_frame} cannot be decoded")
@@ -482,7 +483,8 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
                      stabilization="head")
     pos = {int(f): i for i, f in enumerate(frames)}
     disp = np.full((len(frames), *grid.shape, 2), np.nan)
-    with open_video(video, fps=fps, start=int(frames.min()), end=int(frames.max()) + 1) as src:
+    with open_video(video, fps=fps, start=int(frames.min()), end=int(frames.max()) + 1,
+                    eight_bit=True) as src:
         for f in src:
             i = pos.get(f.index)
             if i is None or not f.ok:
