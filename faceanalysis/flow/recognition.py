@@ -39,8 +39,9 @@ explained, frame by frame, by the face model's per-muscle flow templates (least 
 the coefficients are each frame's contractions *relative to the first frame*, so the
 frame with the smallest total is the least contracted face of the clip, the rest frame
 (muscles only contract: a face at rest has the smallest total). The first frame is kept
-unless another is at least :data:`REST_MARGIN` less contracted, so that a neutral clip
-keeps its first frame rather than one picked by noise. The reference used is reported
+unless another is less contracted by at least :data:`REST_MARGIN` and by
+:data:`REST_NOISE` times the clip's own frame-to-frame noise, so that a neutral or noisily
+tracked clip keeps its first frame rather than one picked by noise. The reference used is reported
 (:attr:`Recognition.reference`, :attr:`Recognition.reference_source`).
 
 Memory: the displacement is kept on the face mask only, in ``float32``, and read a chunk
@@ -64,7 +65,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "REST_MARGIN", "Segment",
            "Recognition", "nuisance_free", "motion_energy", "find_segments", "score_segment",
-           "classify_flow", "classify_video", "rest_frame", "relative_contraction",
+           "classify_flow", "classify_video", "rest_frame", "relative_contraction", "REST_NOISE",
            "calibrate_threshold"]
 
 #: Classes named by the recogniser: the six primary expressions and neutral.
@@ -82,6 +83,9 @@ WEIGHTS = (0.8, 0.2)
 #: (sum over the model's controls, each as a fraction of its range; see
 #: :func:`relative_contraction`) is at least this much smaller.
 REST_MARGIN = 0.25
+#: ... and by at least this many times the clip's frame-to-frame noise of that total (a
+#: robust SD), so that noisy tracking on a real video does not pick a random frame.
+REST_NOISE = 4.0
 #: Frames processed at a time when the displacement is cleaned (bounds the temporaries).
 _CHUNK = 64
 
@@ -405,8 +409,9 @@ def rest_frame(flow: FaceFlow, templates: FlowTemplates, *, margin: float = REST
     templates : FlowTemplates
         Their per-control flow (:func:`relative_contraction`).
     margin : float
-        The flow's reference is kept unless another frame's total contraction is at
-        least this much smaller (default :data:`REST_MARGIN`).
+        The flow's reference is kept unless another frame's total contraction (a 5-frame
+        running median) is smaller by at least this much (default :data:`REST_MARGIN`)
+        and by :data:`REST_NOISE` times the clip's frame-to-frame noise of the total.
 
     Returns
     -------
@@ -416,16 +421,23 @@ def rest_frame(flow: FaceFlow, templates: FlowTemplates, *, margin: float = REST
     total : ndarray (T,)
         Total contraction of each frame relative to the reference (NaN where unknown).
     """
+    from scipy.ndimage import median_filter
+
     total = relative_contraction(flow, templates).sum(axis=1)
     frames = np.asarray(flow.frames)
-    if not np.isfinite(total).any():
+    ok = np.isfinite(total)
+    if ok.sum() < 3:
         return int(flow.reference), total
-    best = int(np.nanargmin(total))
+    # a 5-frame running median: a single mistracked frame is not a rest frame
+    smooth = np.full_like(total, np.nan)
+    smooth[ok] = median_filter(total[ok], size=5, mode="nearest")
+    # the clip's own frame-to-frame noise (robust SD): a frame must be less contracted
+    # than the reference by more than noise can explain
+    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok])))) / np.sqrt(2.0)
+    best = int(np.nanargmin(smooth))
     at_ref = np.flatnonzero(frames == flow.reference)
-    ref_total = float(total[at_ref[0]]) if at_ref.size else 0.0
-    if not np.isfinite(ref_total):
-        ref_total = 0.0
-    if ref_total - float(total[best]) < margin:
+    ref_total = float(smooth[at_ref[0]]) if at_ref.size and ok[at_ref[0]] else 0.0
+    if ref_total - float(smooth[best]) < max(margin, REST_NOISE * noise):
         return int(flow.reference), total
     return int(frames[best]), total
 
