@@ -353,7 +353,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         raise ValueError(f"unknown measurement points {unknown}; choose from "
                          f"{', '.join(POINT_CONTOUR)}")
     check_backend(backend, device)
-    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE)
+    # frames are read at 8 bits: the same picture at any bit depth gives the same tracks
+    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE,
+                        eight_bit=True)
     n_fid = len(FIDUCIALS)
     fid_of_point = [points.index(n) if n in points else None for n in FIDUCIALS]
     point_contours = [POINT_CONTOUR[p] for p in points]   # once, not per frame

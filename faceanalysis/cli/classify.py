@@ -32,7 +32,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="reuse the head frames and fiducials of an analysis folder "
                              "instead of tracking again")
     parser.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
-                        help="neutral reference frame (default: the first tracked frame)")
+                        help="neutral reference frame (default: the detected rest frame, "
+                             "the least contracted face of the range; the command says "
+                             "which frame it used)")
     parser.add_argument("--method", choices=FLOW_METHODS, default="dis",
                         help="optical flow (default dis)")
     parser.add_argument("--threshold", type=positive_float, metavar="E",
@@ -74,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rec.as_dict()))
         return 0
     print(rec.label)
+    how = {"given": "given by --neutral", "detected": "detected rest frame",
+           "first": "first tracked frame; no frame is clearly more at rest"}
+    print(f"  neutral reference: frame {rec.reference} "
+          f"({how.get(rec.reference_source, rec.reference_source)})")
     print("  " + "  ".join(f"{c} {rec.scores.get(c, 0.0):.3f}" for c in CLASSES))
     for s in rec.segments:
         print(f"  frames {s.start}-{s.end} (apex {s.apex}): {s.label} "

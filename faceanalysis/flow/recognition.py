@@ -29,6 +29,23 @@ templates of :mod:`faceanalysis.flow.templates`:
 Scores per class are reported for the six expressions and for ``neutral`` (0 for a
 sequence with an expression; for a neutral one ``1 -`` the best expression score of its
 strongest unmatched segment, or ``1 - 0.5 peak / threshold`` without any).
+
+**The neutral reference.** Everything above measures motion *from* a reference frame, so
+that frame must show the face at rest: a clip that starts in the middle of a laugh, taken
+from its first frame, shows the laugh fading, which matches no expression (neutral).
+:func:`classify_video` therefore takes the reference from ``neutral=`` when given, else
+detects the **rest frame** (:func:`rest_frame`): the flow from the first tracked frame is
+explained, frame by frame, by the face model's per-muscle flow templates (least squares);
+the coefficients are each frame's contractions *relative to the first frame*, so the
+frame with the smallest total is the least contracted face of the clip, the rest frame
+(muscles only contract: a face at rest has the smallest total). The first frame is kept
+unless another is less contracted by at least :data:`REST_MARGIN` and by
+:data:`REST_NOISE` times the clip's own frame-to-frame noise, so that a neutral or noisily
+tracked clip keeps its first frame rather than one picked by noise. The reference used is reported
+(:attr:`Recognition.reference`, :attr:`Recognition.reference_source`).
+
+Memory: the displacement is kept on the face mask only, in ``float32``, and read a chunk
+of frames at a time, so a long video costs about 16 kB a frame beyond the tracking.
 """
 
 from __future__ import annotations
@@ -46,9 +63,10 @@ from faceanalysis.flow.templates import EXPRESSION_NAMES, FlowTemplates
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "Segment", "Recognition",
-           "nuisance_free", "motion_energy", "find_segments", "score_segment",
-           "classify_flow", "classify_video", "calibrate_threshold"]
+__all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "REST_MARGIN", "Segment",
+           "Recognition", "nuisance_free", "motion_energy", "find_segments", "score_segment",
+           "classify_flow", "classify_video", "rest_frame", "relative_contraction", "REST_NOISE",
+           "calibrate_threshold"]
 
 #: Classes named by the recogniser: the six primary expressions and neutral.
 CLASSES = (*EXPRESSION_NAMES, "neutral")
@@ -61,6 +79,15 @@ MIN_SCORE = 0.2
 #: Weights of the spatio-temporal displacement correlation and of the motion-energy map
 #: correlation in a class score.
 WEIGHTS = (0.8, 0.2)
+#: A frame replaces the first one as the neutral reference when its total contraction
+#: (sum over the model's controls, each as a fraction of its range; see
+#: :func:`relative_contraction`) is at least this much smaller.
+REST_MARGIN = 0.25
+#: ... and by at least this many times the clip's frame-to-frame noise of that total (a
+#: robust SD), so that noisy tracking on a real video does not pick a random frame.
+REST_NOISE = 4.0
+#: Frames processed at a time when the displacement is cleaned (bounds the temporaries).
+_CHUNK = 64
 
 
 @dataclass
@@ -94,7 +121,13 @@ class Segment:
 
 @dataclass
 class Recognition:
-    """Result of :func:`classify_flow`: segments, the sequence's label, per-frame energy."""
+    """Result of :func:`classify_flow`: segments, the sequence's label, per-frame energy.
+
+    ``reference`` is the frame number of the neutral reference the motion was measured
+    from, and ``reference_source`` how it was chosen: ``'given'`` (``neutral=``),
+    ``'detected'`` (:func:`rest_frame` found a less contracted frame than the first) or
+    ``'first'`` (the first tracked frame, no frame being clearly more at rest).
+    """
 
     label: str
     scores: dict
@@ -102,6 +135,8 @@ class Recognition:
     energy: np.ndarray
     frames: np.ndarray
     threshold: float
+    reference: int | None = None
+    reference_source: str | None = None
 
     def table(self) -> pd.DataFrame:
         """One row per segment (``start, apex, end, label, peak_energy, score_<class>``)."""
@@ -111,6 +146,8 @@ class Recognition:
     def as_dict(self) -> dict:
         return {"label": self.label, "scores": {k: float(v) for k, v in self.scores.items()},
                 "threshold": float(self.threshold),
+                "reference": None if self.reference is None else int(self.reference),
+                "reference_source": self.reference_source,
                 "segments": [s.as_dict() for s in self.segments]}
 
 
@@ -121,6 +158,21 @@ def nuisance_free(displacement: np.ndarray, templates: FlowTemplates) -> np.ndar
     d = np.array(d, copy=True)
     d[..., ~templates.mask, :] = 0.0
     return d
+
+
+def _masked_clean(displacement: np.ndarray, templates: FlowTemplates
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Nuisance-free displacement on the mask, ``(T, n, 2)`` ``float32``, and its motion
+    energy ``(T,)``, computed a chunk of frames at a time (NaN frames stay NaN)."""
+    m = templates.mask
+    disp = displacement
+    out = np.empty((len(disp), int(m.sum()), 2), np.float32)
+    energy = np.empty(len(disp))
+    for a in range(0, len(disp), _CHUNK):
+        chunk = remove_rigid(disp[a:a + _CHUNK], m, templates.nuisance)[:, m, :]
+        out[a:a + _CHUNK] = chunk
+        energy[a:a + _CHUNK] = np.sqrt(np.mean(np.sum(chunk ** 2, axis=-1), axis=1))
+    return out, energy
 
 
 def motion_energy(displacement: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -207,8 +259,9 @@ def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex:
 
     Parameters
     ----------
-    clean : (T, rows, cols, 2)
-        Nuisance-free displacement from neutral (:func:`nuisance_free`).
+    clean : (T, rows, cols, 2) or (T, n, 2)
+        Nuisance-free displacement from neutral (:func:`nuisance_free`), on the grid or
+        already restricted to the ``n`` cells of the templates' mask.
     templates : FlowTemplates
     start, apex, end : int
         Positions in ``clean`` (``end`` inclusive; default ``apex``).
@@ -221,10 +274,14 @@ def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex:
     lo = np.floor(idx).astype(int)
     hi = np.minimum(lo + 1, apex)
     w = (idx - lo)[:, None, None]
-    obs = np.nan_to_num(clean[:, m, :])
+    # only the segment's frames (and the one before), not the whole sequence
+    part = clean[s0:end + 1]
+    part = part[:, m, :] if part.ndim == 4 else part
+    obs = np.nan_to_num(np.asarray(part, dtype=np.float64))
+    lo, hi, start, end = lo - s0, hi - s0, start - s0, end - s0
     onset = (1 - w) * obs[lo] + w * obs[hi]                          # (S, n, 2)
     onset_flat = onset.reshape(p.steps, -1)
-    prev = np.concatenate([obs[s0][None], onset[:-1]], axis=0)
+    prev = np.concatenate([obs[0][None], onset[:-1]], axis=0)
     energy = np.sum((onset - prev) ** 2, axis=(0, -1))
     wd, we = WEIGHTS
     onset_score = np.array([wd * _cos(onset_flat, p.expr[e]) + we * _cos(energy, p.energy[e])
@@ -285,8 +342,7 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     thr = NEUTRAL_THRESHOLD if threshold is None else float(threshold)
     if not thr > 0:
         raise ValueError(f"threshold={thr} must be positive")
-    clean = nuisance_free(disp, templates)
-    energy = motion_energy(clean, templates.mask)
+    clean, energy = _masked_clean(disp, templates)                # (T, n, 2) float32
     segments = []
     dropped = []                       # (peak energy, scores) of segments matching nothing
     for a, b in find_segments(energy, thr, min_length=min_length, min_gap=min_gap):
@@ -316,6 +372,76 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
                        frames=np.asarray(fr), threshold=thr)
 
 
+def relative_contraction(flow: FaceFlow | np.ndarray, templates: FlowTemplates
+                         ) -> np.ndarray:
+    """Each frame's contractions relative to the flow's reference frame, ``(T, M)``.
+
+    The nuisance-free displacement of every frame is explained by the templates'
+    per-control flow (:attr:`FlowTemplates.control`, nuisance removed, on the mask) by
+    least squares (a light ridge keeps correlated controls apart). Coefficients are in
+    fractions of each control's range (:attr:`FlowTemplates.upper`): ``+0.5`` on a muscle
+    is half its full contraction more than on the reference frame. NaN rows for frames
+    without flow.
+    """
+    disp = flow.displacement if isinstance(flow, FaceFlow) else np.asarray(flow, float)
+    m = templates.mask
+    basis = remove_rigid(templates.control, m, templates.nuisance)[:, m, :]
+    A = (basis.reshape(len(basis), -1) * np.asarray(templates.upper, float)[:, None]).T
+    G = A.T @ A
+    G = G + 1e-3 * np.trace(G) / len(G) * np.eye(len(G))
+    clean, _ = _masked_clean(disp, templates)
+    out = np.full((len(clean), len(basis)), np.nan)
+    ok = np.isfinite(clean).all(axis=(1, 2))
+    if ok.any():
+        rhs = A.T @ clean[ok].reshape(int(ok.sum()), -1).astype(np.float64).T
+        out[ok] = np.linalg.solve(G, rhs).T
+    return out
+
+
+def rest_frame(flow: FaceFlow, templates: FlowTemplates, *, margin: float = REST_MARGIN
+               ) -> tuple[int, np.ndarray]:
+    """The frame of a clip whose face is most at rest.
+
+    Parameters
+    ----------
+    flow : FaceFlow
+        Flow from any reference frame (e.g. the first tracked one).
+    templates : FlowTemplates
+        Their per-control flow (:func:`relative_contraction`).
+    margin : float
+        The flow's reference is kept unless another frame's total contraction (a 5-frame
+        running median) is smaller by at least this much (default :data:`REST_MARGIN`)
+        and by :data:`REST_NOISE` times the clip's frame-to-frame noise of the total.
+
+    Returns
+    -------
+    frame : int
+        Frame number of the least contracted frame (muscles only contract, so the face at
+        rest has the smallest total contraction), or the reference itself.
+    total : ndarray (T,)
+        Total contraction of each frame relative to the reference (NaN where unknown).
+    """
+    from scipy.ndimage import median_filter
+
+    total = relative_contraction(flow, templates).sum(axis=1)
+    frames = np.asarray(flow.frames)
+    ok = np.isfinite(total)
+    if ok.sum() < 3:
+        return int(flow.reference), total
+    # a 5-frame running median: a single mistracked frame is not a rest frame
+    smooth = np.full_like(total, np.nan)
+    smooth[ok] = median_filter(total[ok], size=5, mode="nearest")
+    # the clip's own frame-to-frame noise (robust SD): a frame must be less contracted
+    # than the reference by more than noise can explain
+    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok])))) / np.sqrt(2.0)
+    best = int(np.nanargmin(smooth))
+    at_ref = np.flatnonzero(frames == flow.reference)
+    ref_total = float(smooth[at_ref[0]]) if at_ref.size and ok[at_ref[0]] else 0.0
+    if ref_total - float(smooth[best]) < max(margin, REST_NOISE * noise):
+        return int(flow.reference), total
+    return int(frames[best]), total
+
+
 def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None = None,
                    table: pd.DataFrame | None = None, neutral: int | None = None,
                    method: str = "dis", fps: float | None = None, start: int = 0,
@@ -332,8 +458,11 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     table : DataFrame, optional
         Head frames (e.g. an analysis's ``contractions.csv``); default: tracked.
     neutral : int, optional
-        Neutral frame number (default: the first tracked frame); it may precede ``start``
-        (the frames between are tracked, not classified).
+        Neutral frame number; it may precede ``start`` (the frames between are tracked,
+        not classified). Default: the detected rest frame of the range
+        (:func:`rest_frame`: the least contracted frame by the templates' per-muscle
+        flow; the first tracked frame unless another is clearly more at rest). The
+        frame used is ``Recognition.reference``.
     method, fps, start, end
         See :func:`faceanalysis.flow.dense.video_face_flow`.
     personalised : bool
@@ -341,6 +470,11 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         (:func:`faceanalysis.flow.personalize.personalize_from_table`).
     **kwargs
         Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
+
+    Returns
+    -------
+    Recognition
+        With ``reference`` and ``reference_source`` set.
     """
     from faceanalysis.flow.dense import video_face_flow
     from faceanalysis.flow.personalize import personalize_from_table
@@ -357,15 +491,27 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         raise ValueError(f"neutral frame {neutral} lies after the range end {end}")
     if table is None:
         table = track(video, fps=fps, start=first, end=end, redetect=True).table
-    ff = video_face_flow(video, table=table, neutral=neutral, method=method,
-                         grid=templates.grid, fps=fps, start=first, end=end)
+    options = dict(table=table, method=method, grid=templates.grid, fps=fps, start=first,
+                   end=end, dtype=np.float32)
+    ff = video_face_flow(video, neutral=neutral, **options)
+    source = "given"
+    if neutral is None:
+        rest, _ = rest_frame(ff, templates)
+        source = "first"
+        if rest != ff.reference:
+            log.info("%s: frame %d is more at rest than the first tracked frame %d; it is "
+                     "the neutral reference", video, rest, ff.reference)
+            del ff                                   # one flow in memory at a time
+            ff = video_face_flow(video, neutral=rest, **options)
+            source = "detected"
     if personalised:
         templates = personalize_from_table(templates, table, ff.reference)
     if first < start:                      # the neutral frame precedes the range: drop it
         keep = ff.frames >= start
         ff = replace(ff, displacement=ff.displacement[keep], valid=ff.valid[keep],
                      frames=ff.frames[keep])
-    return classify_flow(ff, templates, **kwargs)
+    rec = classify_flow(ff, templates, **kwargs)
+    return replace(rec, reference=int(ff.reference), reference_source=source)
 
 
 def calibrate_threshold(neutral_energies, expression_energies) -> float:

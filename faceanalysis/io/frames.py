@@ -1,12 +1,14 @@
 """Pixel normalisation: any frame a video or image folder gives (grey, BGR, BGRA; 8-bit,
-16-bit or float in [0, 1]) as grey float for measuring, or as 8-bit BGR for drawing."""
+16-bit or float in [0, 1]) as grey float for measuring, as 8-bit BGR for drawing, or as
+8-bit in its own layout for the analysis (:func:`to_uint8`: the analysis reads every
+frame at 8 bits, so the same picture stored at another bit depth gives the same result)."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-__all__ = ["to_bgr_uint8", "to_gray_float"]
+__all__ = ["to_bgr_uint8", "to_gray_float", "to_uint8"]
 
 
 def _scale_of(dtype: np.dtype) -> float | None:
@@ -108,3 +110,44 @@ def to_bgr_uint8(image) -> np.ndarray:
     if image.ndim == 2:
         return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     return np.ascontiguousarray(image).copy()
+
+
+def to_uint8(image) -> np.ndarray:
+    """Convert any frame to ``uint8``, keeping its layout (grey, BGR, BGRA).
+
+    The analysis works on 8-bit frames: a frame stored at 16 bits is brought to 8 bits
+    once, where it is read, so that the same picture gives the same tracks and
+    contractions whatever its bit depth (a ``uint16`` frame ``257 * x`` gives exactly
+    the ``uint8`` frame ``x``).
+
+    Parameters
+    ----------
+    image : ndarray
+        Same layouts and types as :func:`to_gray_float`. ``uint8`` is returned as is;
+        ``uint16`` is divided by 257 and rounded; other integers are scaled by their
+        largest value; floats in [0, 1] and booleans are multiplied by 255; the result
+        is rounded and clipped to [0, 255]. Not modified.
+
+    Returns
+    -------
+    ndarray
+        ``uint8`` array of the same shape (``image`` itself when it is already ``uint8``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> to_uint8(np.array([[0, 257, 128, 65535]], np.uint16)).tolist()
+    [[0, 1, 0, 255]]
+    >>> to_uint8(np.array([[0.0, 0.5, 1.0]])).tolist()
+    [[0, 128, 255]]
+    """
+    image = _check_image(image)
+    if image.dtype == np.uint8:
+        return image
+    if image.dtype == np.uint16:
+        # round(v / 257) in integers: 257 is odd, so there are no ties
+        return ((image.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    scale = _scale_of(image.dtype)
+    values = image.astype(np.float64)
+    values = values * (255.0 / scale) if scale is not None else values * 255.0
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)

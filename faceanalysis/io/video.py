@@ -9,7 +9,10 @@ stops decoding before the end announced by its container (a truncated file) ends
 the iteration with a warning and is recorded in :attr:`VideoSource.missing_tail`.
 
 :mod:`faceanalysis.io.frames` normalises the frames (grey, BGR, BGRA; 8-bit, 16-bit or
-float) for the trackers and for drawing.
+float) for the trackers and for drawing. The analysis opens its input with
+``eight_bit=True``: every frame is brought to 8 bits where it is read
+(:func:`~faceanalysis.io.frames.to_uint8`), so that the same picture stored at 8 or 16
+bits gives the same analysis.
 
 :func:`read_ahead` decodes in a background thread while the caller works on the
 frames already decoded (decoding releases the interpreter lock, so on a machine with
@@ -35,6 +38,8 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+
+from faceanalysis.io.frames import to_uint8  # noqa: E402
 
 __all__ = [
     "DEFAULT_FPS",
@@ -82,8 +87,8 @@ class Frame:
         when it is sane, else ``index / fps``.
     image : ndarray or None
         The pixels as decoded, ``(H, W)`` grey or ``(H, W, 3|4)`` BGR(A), dtype
-        ``uint8`` or ``uint16`` (image folders keep their bit depth). ``None``
-        when ``ok`` is false.
+        ``uint8`` or ``uint16`` (image folders keep their bit depth unless the source
+        was opened with ``eight_bit=True``). ``None`` when ``ok`` is false.
     ok : bool
         False when the frame could not be decoded; such a frame is lost, not fatal.
     """
@@ -142,7 +147,10 @@ class VideoSource:
     size : tuple of int
         ``(width, height)`` in pixels of the first frame.
     dtype : numpy dtype
-        Pixel type of the first frame (``uint8`` for videos, ``uint8`` or ``uint16`` for images).
+        Pixel type of the first frame as stored (``uint8`` for videos, ``uint8`` or
+        ``uint16`` for images), also when ``eight_bit`` converts the frames.
+    eight_bit : bool
+        Frames are delivered as ``uint8`` (:func:`faceanalysis.io.frames.to_uint8`).
     channels : int
         1 (grey), 3 (BGR) or 4 (BGRA) for the first frame.
     start, end : int, int or None
@@ -159,8 +167,10 @@ class VideoSource:
 
     def __init__(self, path: Path, kind: str, *, fps: float, fps_origin: str, size: tuple,
                  dtype: np.dtype, channels: int, start: int, end: int | None,
-                 frame_count: int | None, files: list[Path] | None = None):
+                 frame_count: int | None, files: list[Path] | None = None,
+                 eight_bit: bool = False):
         self.path = path
+        self.eight_bit = bool(eight_bit)
         self.kind = kind
         self.fps = fps
         self.fps_origin = fps_origin
@@ -236,7 +246,7 @@ class VideoSource:
                 self.n_failed += 1
                 yield Frame(index, timestamp, None, False)
             else:
-                yield Frame(index, timestamp, image, True)
+                yield Frame(index, timestamp, to_uint8(image) if self.eight_bit else image, True)
 
     def _max_failed_run(self) -> int:
         # Damage can take out a whole group of pictures (up to ~10 s in common encodings).
@@ -292,7 +302,8 @@ class VideoSource:
                     continue
                 timestamp = self._timestamp(capture, index, previous, use_container_time)
                 n_yielded += 1
-                yield Frame(index, timestamp, image, True)
+                yield Frame(index, timestamp, to_uint8(image) if self.eight_bit else image,
+                            True)
                 previous = timestamp
                 index += 1
         finally:
@@ -483,7 +494,8 @@ def _read_ahead(frames: Iterable, depth: int) -> Iterator:
 
 
 def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int = 0,
-               end: int | None = None, min_size: int | None = None) -> VideoSource:
+               end: int | None = None, min_size: int | None = None,
+               eight_bit: bool = False) -> VideoSource:
     """Open a video file or an image folder for streaming.
 
     Parameters
@@ -503,6 +515,11 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
     min_size : int, optional
         Refuse frames whose width or height is smaller than this many pixels
         (the analysis passes :data:`MIN_FACE_SIZE`).
+    eight_bit : bool, keyword-only
+        Deliver every frame as ``uint8`` in its own layout (16-bit divided by 257 and
+        rounded, see :func:`faceanalysis.io.frames.to_uint8`). The analysis reads its
+        input this way, so that the same picture at any bit depth gives the same result.
+        False (default): images keep their bit depth.
 
     Returns
     -------
@@ -569,4 +586,5 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
             raise ValueError(f"end ({end}) is beyond the {frame_count} frames of {path}")
     return VideoSource(path, info["kind"], fps=info["fps"], fps_origin=info["fps_origin"],
                        size=(width, height), dtype=first.dtype, channels=channels,
-                       start=start, end=end, frame_count=frame_count, files=info["files"])
+                       start=start, end=end, frame_count=frame_count, files=info["files"],
+                       eight_bit=eight_bit)

@@ -383,6 +383,10 @@ class Resynthesis:
         lm_idx = [m.mesh.landmarks[n] for n in FIDUCIALS]
         compare = (self.subject is not None and self.shading == "textured"
                    and self._framings is not None)
+        # the tracked fiducials in the output's pixel frame (input px scaled like the framing)
+        tracked = None
+        if self._framings is not None and s.fiducials is not None:
+            tracked = s.fiducials * (self.size[0] / self.input_size[0])
         try:
             for i in range(len(s.frames)):
                 t0 = time.perf_counter()
@@ -405,11 +409,18 @@ class Resynthesis:
                                           strip.frame(i)], axis=0)
                     if compare and s.success[i]:
                         mae = _masked_mae(frame_in, image, mask)
+                fids = xy[lm_idx]
+                fid_err = None
+                if tracked is not None and s.success[i]:
+                    d = np.hypot(*(fids - tracked[i]).T)
+                    if np.isfinite(d).any():
+                        fid_err = float(np.nanmean(d))
                 if bar is not None:
                     bar.update(1)
                 yield FrameState(row=i, frame=int(s.frames[i]), image=image, output=out,
-                                 vertices=skin, inner=inner, fiducials=xy[lm_idx],
-                                 seconds=seconds, photometric_mae=mae)
+                                 vertices=skin, inner=inner, fiducials=fids,
+                                 seconds=seconds, photometric_mae=mae,
+                                 fiducial_error_px=fid_err)
         finally:
             if bar is not None:
                 bar.close()
@@ -444,6 +455,7 @@ class Resynthesis:
         t0 = time.perf_counter()
         times = []
         maes = []
+        fid_errors = []
         writer = None
         try:
             for st in self.states(progress=progress):
@@ -454,6 +466,8 @@ class Resynthesis:
                 times.append(st.seconds)
                 if st.photometric_mae is not None:
                     maes.append(st.photometric_mae)
+                if st.fiducial_error_px is not None:
+                    fid_errors.append((st.frame, st.fiducial_error_px))
                 if exporter is not None:
                     exporter.add(st, self.model)
             self.path = writer.close()
@@ -471,6 +485,8 @@ class Resynthesis:
                         "personalised resynthesis on the face mask, tracked frames",
                 "frames": len(maes), "mean_mae_grey": float(np.mean(maes)),
                 "max_mae_grey": float(np.max(maes))}
+        if fid_errors:
+            self.report["fiducial_agreement"] = fiducial_agreement(fid_errors)
         self.report["timing"] = {"frames": len(times), "total_s": time.perf_counter() - t0,
                                  "median_frame_s": float(np.median(times)) if times else None,
                                  "frames_per_second": float(1.0 / np.median(times))
@@ -512,3 +528,36 @@ def _input_frames(path: Path, frames: np.ndarray, size):
                 yield cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
             else:
                 yield blank
+
+
+def fiducial_agreement(errors) -> dict:
+    """Summary of the resynthesis's fiducials against the tracked ones, for the report.
+
+    Parameters
+    ----------
+    errors : iterable of (frame, error_px)
+        Per tracked frame, the mean distance of the 11 resynthesised fiducials from the
+        tracked ones (output pixels; :attr:`FrameState.fiducial_error_px`).
+
+    Returns
+    -------
+    dict
+        ``what``, ``frames``, ``mean_px``, ``median_px``, ``max_px``, ``worst_frame`` and
+        ``per_frame`` (a list of ``[frame, error_px]``).
+
+    Examples
+    --------
+    >>> fiducial_agreement([(0, 1.0), (1, 3.0), (2, 2.0)])["median_px"]
+    2.0
+    """
+    frames = [int(f) for f, _ in errors]
+    e = np.array([float(v) for _, v in errors], float)
+    if e.size == 0:
+        raise ValueError("no frame has both tracked and resynthesised fiducials")
+    worst = int(np.argmax(e))
+    return {"what": "mean distance of the 11 resynthesised fiducials from the analysis's "
+                    "tracked fiducials, output pixels, tracked frames",
+            "frames": int(e.size), "mean_px": float(e.mean()),
+            "median_px": float(np.median(e)), "max_px": float(e[worst]),
+            "worst_frame": frames[worst],
+            "per_frame": [[f, round(float(v), 4)] for f, v in zip(frames, e)]}

@@ -256,3 +256,7 @@ class FrameState:
     fiducials: np.ndarray             # (11, 2) projected, output px
     seconds: float                    # equilibrium + rendering time
     photometric_mae: float | None = None  # vs the input frame (personalised, side by side)
+    #: mean distance (output px) of the 11 resynthesised fiducials from the tracked ones of
+    #: the series on this frame; None where the series has no tracked fiducials (lost
+    #: frame, no fiducial columns, or a view other than the input's framing)
+    fiducial_error_px: float | None = None

@@ -480,3 +480,13 @@ def test_damaged_first_frame_is_lost_not_fatal(tmp_path):
     frames = list(src)
     assert [f.ok for f in frames] == [False] + [True] * 9
     assert src.n_failed == 1
+
+
+def test_eight_bit_brings_sixteen_bit_frames_to_their_eight_bit_originals(tmp_path):
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "f.png"), frame.astype(np.uint16) * 257)
+    src = open_video(tmp_path / "f.png", eight_bit=True)
+    image = next(iter(src)).image
+    assert src.dtype == np.uint16                 # the input as stored
+    assert image.dtype == np.uint8 and np.array_equal(image, frame)
