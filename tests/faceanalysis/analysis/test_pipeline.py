@@ -151,8 +151,11 @@ def test_cli_evaluate_prints_scores(run_cli, surprise, tmp_path):
     out = tmp_path / "res"
     code, stdout, _ = run_cli("analyze", surprise["video"], "-o", out, "--end", "8", "-q")
     assert code == 0
+    # the first 8 frames of a longer sequence: refused unless scoring a part is asked for
+    code, _, err = run_cli("evaluate", "--truth", surprise["video"].parent, "--estimate", out)
+    assert code == 1 and "8 frames" in err
     code, stdout, _ = run_cli("evaluate", "--truth", surprise["video"].parent,
-                              "--estimate", out, "--json")
+                              "--estimate", out, "--json", "--allow-partial")
     assert code == 0
     report = json.loads(stdout.strip().splitlines()[-1])
     assert report["frames"] == 8 and "jaw_rotation" in report["controls"]

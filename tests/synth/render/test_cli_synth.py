@@ -63,10 +63,13 @@ def test_synth_contractions_csv_and_errors(tmp_path, kinematic, capsys):
 
     with np.load(tmp_path / "o1" / "flow.npz") as z:
         assert z["flow"].dtype == np.float16 and z["flow"].shape == (2, 48, 48, 2)
-    rc = main(["synth", "--expression", "boredom", "-q", "-o", str(tmp_path / "o2")])
-    assert rc == 1 and "boredom" in capsys.readouterr().err
-    rc = main(["synth", "--au", "12=1", "-q", "-o", str(tmp_path / "o3")])
-    assert rc == 1
+    # usage errors: argparse's usage line, exit 2
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--expression", "boredom", "-q", "-o", str(tmp_path / "o2")])
+    assert exc.value.code == 2 and "boredom" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--au", "12=1", "-q", "-o", str(tmp_path / "o3")])
+    assert exc.value.code == 2
     with pytest.raises(SystemExit):
         main(["synth", "--size", "ten", "-o", str(tmp_path / "o4")])
     with pytest.raises(SystemExit):
