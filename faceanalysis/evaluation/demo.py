@@ -16,7 +16,7 @@ from faceanalysis.io.outputs import (
     CONTRACTIONS_PNG,
     EVALUATION_JSON,
     OVERLAY_MP4,
-    prepare_output_dir,
+    output_dir,
     write_text_atomic,
 )
 
@@ -39,17 +39,17 @@ def run_demo(output: str | os.PathLike, *, expression: str = "surprise", frames:
     from faceanalysis.evaluation.scores import compare, public
     from synth.render.sequence import render_sequence
 
-    out = prepare_output_dir(output, overwrite=overwrite)
-    files = render_sequence(out / "input", overwrite=overwrite, expression=expression,
-                            frames=frames, size=size, seed=seed, head_motion=0.2, noise=1.0,
-                            flow=False)
-    analysis_dir = out / "analysis"
-    analyze_to_folder(files["video"], analysis_dir, overwrite=overwrite, overlay=True,
-                      quiet=not progress)
-    report = public(compare(files["truth"], analysis_dir))
-    evaluation = write_text_atomic(out / EVALUATION_JSON, json.dumps(report, indent=1) + "\n")
-    return {"video": Path(files["video"]), "truth": Path(files["truth"]),
-            "contractions": analysis_dir / CONTRACTIONS_CSV,
-            "plot": analysis_dir / CONTRACTIONS_PNG, "overlay": analysis_dir / OVERLAY_MP4,
-            "analysis": analysis_dir / ANALYSIS_JSON, "evaluation": evaluation,
-            "_report": report}
+    with output_dir(output, overwrite=overwrite) as out:
+        files = render_sequence(out / "input", overwrite=overwrite, expression=expression,
+                                frames=frames, size=size, seed=seed, head_motion=0.2, noise=1.0,
+                                flow=False)
+        analysis_dir = out / "analysis"
+        analyze_to_folder(files["video"], analysis_dir, overwrite=overwrite, overlay=True,
+                          quiet=not progress)
+        report = public(compare(files["truth"], analysis_dir))
+        evaluation = write_text_atomic(out / EVALUATION_JSON, json.dumps(report, indent=1) + "\n")
+        return {"video": Path(files["video"]), "truth": Path(files["truth"]),
+                "contractions": analysis_dir / CONTRACTIONS_CSV,
+                "plot": analysis_dir / CONTRACTIONS_PNG, "overlay": analysis_dir / OVERLAY_MP4,
+                "analysis": analysis_dir / ANALYSIS_JSON, "evaluation": evaluation,
+                "_report": report}

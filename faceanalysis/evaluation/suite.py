@@ -26,7 +26,7 @@ from faceanalysis.io.outputs import (
     REPORT_MD,
     REPORT_PNG,
     atomic_path,
-    prepare_output_dir,
+    output_dir,
     write_text_atomic,
 )
 
@@ -86,77 +86,78 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
     from faceanalysis.analysis.pipeline import analyze, reestimate
     from synth.render.sequence import render_sequence
 
-    out = prepare_output_dir(output, overwrite=overwrite)
-    seq_dir = out / "sequences"
-    per_est: dict[str, list[dict]] = {e: [] for e in estimators}
-    sequences = []
-    jobs = [(i, kind, spec) for i in range(config.identities) for kind, spec in config.sequences]
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    with output_dir(output, overwrite=overwrite) as out:
+        seq_dir = out / "sequences"
+        per_est: dict[str, list[dict]] = {e: [] for e in estimators}
+        sequences = []
+        jobs = [(i, kind, spec) for i in range(config.identities)
+                for kind, spec in config.sequences]
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=len(jobs), desc="suite", unit="seq", file=sys.stderr, leave=False)
-    t0 = time.perf_counter()
-    failures = []
-    for i, kind, spec in jobs:
-        seed = config.seed_start + i
-        label = spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(
-            ",", "_")
-        d = seq_dir / f"id{seed:03d}_{label}"
-        kwargs = script_kwargs(kind, spec)
-        render_sequence(d, overwrite=True, frames=config.frames, size=config.size, seed=seed,
-                        head_motion=config.head_motion, noise=config.noise,
-                        illumination=config.illumination, flow=False, **kwargs)
-        video = next(p for p in d.iterdir() if p.stem == "video")
-        truth = pd.read_csv(d / "truth.csv")
-        entry = {"sequence": d.name, "identity": seed, "kind": kind, "spec": spec}
-        try:
-            base = analyze(video)
-        except (ValueError, RuntimeError) as exc:
-            failures.append({**entry, "error": str(exc)})
-            log.warning("suite: %s failed: %s", d.name, exc)
+            bar = tqdm(total=len(jobs), desc="suite", unit="seq", file=sys.stderr, leave=False)
+        t0 = time.perf_counter()
+        failures = []
+        for i, kind, spec in jobs:
+            seed = config.seed_start + i
+            label = spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(
+                ",", "_")
+            d = seq_dir / f"id{seed:03d}_{label}"
+            kwargs = script_kwargs(kind, spec)
+            render_sequence(d, overwrite=True, frames=config.frames, size=config.size, seed=seed,
+                            head_motion=config.head_motion, noise=config.noise,
+                            illumination=config.illumination, flow=False, **kwargs)
+            video = next(p for p in d.iterdir() if p.stem == "video")
+            truth = pd.read_csv(d / "truth.csv")
+            entry = {"sequence": d.name, "identity": seed, "kind": kind, "spec": spec}
+            try:
+                base = analyze(video)
+            except (ValueError, RuntimeError) as exc:
+                failures.append({**entry, "error": str(exc)})
+                log.warning("suite: %s failed: %s", d.name, exc)
+                if bar is not None:
+                    bar.update(1)
+                continue
+            for est in estimators:
+                if est == base.metadata["parameters"]["estimator"]:
+                    a = base
+                elif est == "flow":
+                    from faceanalysis.estimation.flow import reestimate_flow
+
+                    a = reestimate_flow(base, video)
+                else:
+                    a = reestimate(base, est)
+                if keep_videos:
+                    from faceanalysis.io.table import write_contractions
+
+                    write_contractions(a.table, d / f"contractions_{est}.csv")
+                rep = compare(truth, a.table)
+                per_est[est].append(rep)
+                entry[est] = {k: v for k, v in public(rep).items() if k != "controls"}
+            sequences.append(entry)
+            if not keep_videos:
+                video.unlink()
             if bar is not None:
                 bar.update(1)
-            continue
-        for est in estimators:
-            if est == base.metadata["parameters"]["estimator"]:
-                a = base
-            elif est == "flow":
-                from faceanalysis.estimation.flow import reestimate_flow
-
-                a = reestimate_flow(base, video)
-            else:
-                a = reestimate(base, est)
-            if keep_videos:
-                from faceanalysis.io.table import write_contractions
-
-                write_contractions(a.table, d / f"contractions_{est}.csv")
-            rep = compare(truth, a.table)
-            per_est[est].append(rep)
-            entry[est] = {k: v for k, v in public(rep).items() if k != "controls"}
-        sequences.append(entry)
-        if not keep_videos:
-            video.unlink()
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    if not any(per_est.values()):
-        raise RuntimeError("every sequence of the suite failed; see the log")
-    pooled = {e: pool(r) for e, r in per_est.items() if r}
-    report = {
-        "suite": {**{k: v for k, v in config.__dict__.items() if k != "sequences"},
-                  "sequences": [list(s) for s in config.sequences]},
-        "estimators": {e: public(p) for e, p in pooled.items()},
-        "sequences": sequences,
-        "failures": failures,
-        "elapsed_s": time.perf_counter() - t0,
-    }
-    write_text_atomic(out / REPORT_JSON, json.dumps(report, indent=1) + "\n")
-    write_text_atomic(out / REPORT_MD, "# Closed-loop evaluation\n\n"
-                      + format_table(pooled) + "\n")
-    plot_report(pooled, out / REPORT_PNG)
-    return report
+            bar.close()
+        if not any(per_est.values()):
+            raise RuntimeError("every sequence of the suite failed; see the log")
+        pooled = {e: pool(r) for e, r in per_est.items() if r}
+        report = {
+            "suite": {**{k: v for k, v in config.__dict__.items() if k != "sequences"},
+                      "sequences": [list(s) for s in config.sequences]},
+            "estimators": {e: public(p) for e, p in pooled.items()},
+            "sequences": sequences,
+            "failures": failures,
+            "elapsed_s": time.perf_counter() - t0,
+        }
+        write_text_atomic(out / REPORT_JSON, json.dumps(report, indent=1) + "\n")
+        write_text_atomic(out / REPORT_MD, "# Closed-loop evaluation\n\n"
+                          + format_table(pooled) + "\n")
+        plot_report(pooled, out / REPORT_PNG)
+        return report
 
 
 def plot_report(pooled: dict[str, dict], path) -> Path:

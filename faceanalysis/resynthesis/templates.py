@@ -17,7 +17,7 @@ import pandas as pd
 
 from faceanalysis.flow.personalize import personalize_from_table
 from faceanalysis.flow.templates import make_templates, write_templates
-from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV, prepare_output_dir
+from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV, output_dir
 from faceanalysis.resynthesis.personalize import personal_model
 
 __all__ = ["write_template_set"]
@@ -71,28 +71,28 @@ def write_template_set(output: str | os.PathLike, *, subject=None, identity: int
         csv = subject / CONTRACTIONS_CSV if subject.is_dir() else subject
         if not csv.is_file():
             raise FileNotFoundError(f"{csv}: no contractions.csv for the subject")
-    out = prepare_output_dir(output, overwrite=overwrite)
-    options = {"size": size, "n_steps": n_steps, "source": source}
-    generic = make_templates(FaceModel.default(), **options)
-    written = write_templates(generic, out, name="generic", previews=previews)
-    if csv is not None:
-        personal = personal_model(csv.parent, FaceModel.default())
-        if personal is not None:
-            pers = make_templates(personal, **options)
-            pers.meta.update(personalised=True, personalisation="model")
-        else:
-            table = pd.read_csv(csv)
-            pers = personalize_from_table(generic, table, _neutral_frame(csv, table))
-            if not pers.meta.get("personalised"):
-                raise ValueError(f"{csv}: the neutral frame's fiducials are missing")
-            pers.meta["personalisation"] = "warp"
-        written.update({f"personalised_{k}": v for k, v in write_templates(
-            pers, out, name="personalised", previews=previews).items()})
-    if identity is not None:
-        model = FaceModel.build(FaceShape.random(identity))
-        tpl = make_templates(model, texture_seed=identity, **options)
-        tpl.meta["identity"] = int(identity)
-        name = f"identity_{identity}"
-        written.update({f"{name}_{k}": v for k, v in write_templates(
-            tpl, out, name=name, previews=previews).items()})
-    return written
+    with output_dir(output, overwrite=overwrite) as out:
+        options = {"size": size, "n_steps": n_steps, "source": source}
+        generic = make_templates(FaceModel.default(), **options)
+        written = write_templates(generic, out, name="generic", previews=previews)
+        if csv is not None:
+            personal = personal_model(csv.parent, FaceModel.default())
+            if personal is not None:
+                pers = make_templates(personal, **options)
+                pers.meta.update(personalised=True, personalisation="model")
+            else:
+                table = pd.read_csv(csv)
+                pers = personalize_from_table(generic, table, _neutral_frame(csv, table))
+                if not pers.meta.get("personalised"):
+                    raise ValueError(f"{csv}: the neutral frame's fiducials are missing")
+                pers.meta["personalisation"] = "warp"
+            written.update({f"personalised_{k}": v for k, v in write_templates(
+                pers, out, name="personalised", previews=previews).items()})
+        if identity is not None:
+            model = FaceModel.build(FaceShape.random(identity))
+            tpl = make_templates(model, texture_seed=identity, **options)
+            tpl.meta["identity"] = int(identity)
+            name = f"identity_{identity}"
+            written.update({f"{name}_{k}": v for k, v in write_templates(
+                tpl, out, name=name, previews=previews).items()})
+        return written
