@@ -27,6 +27,7 @@ import pandas as pd
 from faceanalysis.io.report import input_metadata
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
+from trackers.torch_backend import check_backend, make_tracker
 
 log = logging.getLogger(__name__)
 
@@ -345,8 +346,6 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         Unreadable video, an empty frame range, no face on the first frame (without
         ``redetect``), unknown points or bad parameters.
     """
-    from trackers.torch_backend import check_backend, make_tracker
-
     points = tuple(points)
     unknown = [p for p in points if p not in POINT_CONTOUR]
     if unknown:
@@ -378,11 +377,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 res = None
                 if frame.ok:
                     t0 = time.perf_counter()
-                    res = _track_frame(tracker, frame, video, layout, source.size,
-                                       redetect, backend, device, tracker_options,
-                                       make_tracker)
-                    tracker = res[0]
-                    res = res[1]
+                    tracker, res = _track_frame(tracker, frame, video, layout, source.size,
+                                                redetect, backend, device, tracker_options)
                     t_track += time.perf_counter() - t0
                 if res is None:
                     good, c = False, 0.0
@@ -433,7 +429,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
 
 
 def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
-                 tracker_options, make_tracker):
+                 tracker_options):
     """(tracker, result) for one decoded frame; result None when the frame is lost."""
     fresh = tracker is None
     try:
