@@ -1,0 +1,130 @@
+"""Face detection with MediaPipe's BlazeFace short-range model (faces within ~2 m)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from trackers.landmarks._image import check_image, sample
+from trackers.landmarks.models import ensure_models
+from trackers.landmarks.runtime import check_runtime, load_network
+
+__all__ = ["FaceDetection", "detect_faces"]
+
+_SIZE = 128
+_IOU = 0.3
+
+
+@dataclass(frozen=True, eq=False)
+class FaceDetection:
+    """One detected face, in image pixels.
+
+    Attributes
+    ----------
+    box : tuple of float
+        (x0, y0, x1, y1).
+    keypoints : ndarray, shape (6, 2)
+        Subject's right eye (image left), subject's left eye, nose tip, mouth centre, right
+        ear tragion, left ear tragion.
+    score : float
+        Face probability.
+    """
+
+    box: tuple[float, float, float, float]
+    keypoints: np.ndarray
+    score: float
+
+
+def _anchors() -> np.ndarray:
+    """(896, 2) anchor centres in [0, 1]: 16x16 cells x 2 anchors, then 8x8 cells x 6."""
+    out = []
+    for n, per_cell in ((16, 2), (8, 6)):
+        y, x = np.mgrid[:n, :n]
+        centres = np.c_[(x.ravel() + 0.5) / n, (y.ravel() + 0.5) / n]
+        out.append(np.repeat(centres, per_cell, axis=0))
+    return np.concatenate(out).astype(np.float32)
+
+
+_ANCHORS = _anchors()
+
+
+def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    lo = np.maximum(box[:2], boxes[:, :2])
+    hi = np.minimum(box[2:], boxes[:, 2:])
+    inter = np.prod(np.clip(hi - lo, 0, None), axis=1)
+    area = lambda b: np.prod(b[..., 2:] - b[..., :2], axis=-1)  # noqa: E731
+    return inter / np.maximum(area(box) + area(boxes) - inter, 1e-12)
+
+
+def _weighted_nms(boxes, keypoints, scores):
+    """MediaPipe's 'weighted' suppression: each cluster (IoU > 0.3 with its best member)
+    becomes the score-weighted mean of its members, with the best member's score."""
+    order = np.argsort(-scores)
+    boxes, keypoints, scores = boxes[order], keypoints[order], scores[order]
+    alive = np.ones(len(scores), bool)
+    out = []
+    for i in range(len(scores)):
+        if not alive[i]:
+            continue
+        members = alive & (_iou(boxes[i], boxes) > _IOU)
+        members[i] = True
+        alive &= ~members
+        w = scores[members] / scores[members].sum()
+        out.append((w @ boxes[members], np.tensordot(w, keypoints[members], 1), scores[i]))
+    return out
+
+
+def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
+                 runtime: str = "auto") -> list[FaceDetection]:
+    """Detect faces in a frame.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3)
+        uint8, or float in [0, 1].
+    channel_order : {'rgb', 'bgr'}
+        Channel order of a colour frame (OpenCV frames are 'bgr').
+    min_score : float
+        Lowest face probability kept, in (0, 1).
+    runtime : {'auto', 'litert', 'opencv'}
+        See :func:`trackers.landmarks.runtime.load_network`.
+
+    Returns
+    -------
+    list of FaceDetection
+        Highest score first; empty when no face is found.
+    """
+    image = check_image(image, channel_order)
+    if not 0 < min_score < 1:
+        raise ValueError(f"min_score={min_score!r} must lie in (0, 1)")
+    net = load_network(ensure_models()["face_detection"], runtime=check_runtime(runtime))
+    h, w = image.shape[:2]
+    # letterbox: scale the longer side to 128 and centre; continuous coordinates map as
+    # square = s * image + t, and pixel indices as square_i = s * image_i + t + (s - 1) / 2
+    s = _SIZE / max(h, w)
+    t = (_SIZE - s * np.array([w, h])) / 2
+    square_to_image = np.array([[1 / s, 0, -(t[0] + (s - 1) / 2) / s],
+                                [0, 1 / s, -(t[1] + (s - 1) / 2) / s]])
+    square = sample(image, square_to_image, _SIZE, channel_order, border=cv2.BORDER_CONSTANT)
+    x = square[None].astype(np.float32) / 127.5 - 1
+    scores_logit, regressors = net.run(x)   # 'classificators', 'regressors' (name order)
+    logits = scores_logit.reshape(-1).astype(np.float64)  # float32 exp overflows
+    scores = 1 / (1 + np.exp(-np.clip(logits, -100, 100)))
+    keep = scores >= min_score
+    if not keep.any():
+        return []
+    raw = regressors.reshape(-1, 16)[keep] / _SIZE
+    anchors = _ANCHORS[keep]
+    centre = raw[:, :2] + anchors
+    boxes = np.c_[centre - raw[:, 2:4] / 2, centre + raw[:, 2:4] / 2]
+    keypoints = raw[:, 4:].reshape(-1, 6, 2) + anchors[:, None]
+    faces = []
+    for box, kp, score in _weighted_nms(boxes, keypoints, scores[keep]):
+        # pixel-index coordinates (pixel centres on integers), OpenCV's convention
+        to_image = lambda p: (p * _SIZE - t) / s - 0.5  # noqa: E731
+        box = to_image(box.reshape(2, 2)).ravel()
+        faces.append(FaceDetection(tuple(float(v) for v in box), to_image(kp),
+                                   float(score)))
+    return faces

@@ -1,0 +1,76 @@
+"""MediaPipe's 468-point face mesh on an eye-aligned crop of the face."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from trackers.landmarks._image import check_image, sample
+from trackers.landmarks.detection import FaceDetection
+from trackers.landmarks.models import ensure_models
+from trackers.landmarks.runtime import check_runtime, load_network
+
+__all__ = ["N_LANDMARKS", "face_landmarks", "roi_transform"]
+
+N_LANDMARKS = 468
+_SIZE = 192
+_SCALE = 1.5             # crop side / longer side of the face box, as MediaPipe
+_EYES = (33, 263)        # outer eye corners, subject's right (image left) then left
+
+
+def roi_transform(roi) -> np.ndarray:
+    """The 2x3 map from crop pixels (192x192) to image pixels for a detection or landmarks.
+
+    The crop is a square of side 1.5 x the longer side of the face box, centred on the box and
+    rotated so that the line from the subject's right eye to the left eye is horizontal.
+    """
+    if isinstance(roi, FaceDetection):
+        (x0, y0, x1, y1), eyes = roi.box, roi.keypoints[:2]
+    else:
+        pts = np.asarray(roi, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[0] != N_LANDMARKS or pts.shape[1] not in (2, 3):
+            raise ValueError(f"roi of shape {pts.shape} is neither a FaceDetection nor "
+                             f"({N_LANDMARKS}, 2|3) landmarks")
+        (x0, y0), (x1, y1) = pts[:, :2].min(0), pts[:, :2].max(0)
+        eyes = pts[list(_EYES), :2]
+    dx, dy = eyes[1] - eyes[0]
+    theta = np.arctan2(dy, dx)
+    k = _SCALE * max(x1 - x0, y1 - y0) / _SIZE
+    rot = k * np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+    # pixel indices: crop continuous = index + 0.5, around the crop centre at 96
+    return np.c_[rot, centre - rot @ np.full(2, _SIZE / 2 - 0.5)]
+
+
+def face_landmarks(image, roi, *, channel_order: str = "rgb",
+                   runtime: str = "auto") -> tuple[np.ndarray, float]:
+    """The 468 landmarks of the face in a region of interest.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3)
+        uint8, or float in [0, 1].
+    roi : FaceDetection or ndarray, shape (468, 2) or (468, 3)
+        A detection, or the previous frame's landmarks (tracking).
+    channel_order : {'rgb', 'bgr'}
+    runtime : {'auto', 'litert', 'opencv'}
+
+    Returns
+    -------
+    points : ndarray, shape (468, 3)
+        x, y in image pixels (pixel centres on integers) and z, depth relative to the face
+        centre in the same pixel scale (smaller is nearer the camera).
+    presence : float
+        Probability that the crop shows a face (below 0.5: the face is lost).
+    """
+    image = check_image(image, channel_order)
+    net = load_network(ensure_models()["face_landmark"], runtime=check_runtime(runtime))
+    m = roi_transform(roi)
+    crop = sample(image, m, _SIZE, channel_order, border=cv2.BORDER_REPLICATE)
+    coords, logit = net.run(crop[None].astype(np.float32) / 255)  # 'conv2d_21', 'conv2d_31'
+    raw = coords.reshape(N_LANDMARKS, 3).astype(np.float64)
+    points = np.empty_like(raw)
+    points[:, :2] = (raw[:, :2] - 0.5) @ m[:, :2].T + m[:, 2]
+    points[:, 2] = raw[:, 2] * np.hypot(*m[:, 0])
+    presence = 1 / (1 + np.exp(-np.clip(float(logit.reshape(-1)[0]), -100, 100)))
+    return points, float(presence)

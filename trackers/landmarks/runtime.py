@@ -1,0 +1,96 @@
+"""Running a ``.tflite`` network: OpenCV's dnn module (no extra dependency) or LiteRT (faster).
+
+Both take the same float32 NHWC input and return the outputs sorted by their tensor names,
+so the callers do not depend on the runtime.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["RUNTIMES", "load_network", "litert_available"]
+
+RUNTIMES = ("auto", "litert", "opencv")
+_local = threading.local()  # networks are not thread-safe: one per thread
+
+
+def litert_available() -> bool:
+    """Whether the optional ``ai-edge-litert`` package is installed."""
+    return importlib.util.find_spec("ai_edge_litert") is not None
+
+
+def check_runtime(runtime: str) -> str:
+    """The concrete runtime for ``runtime`` ('auto' -> 'litert' when installed)."""
+    if runtime not in RUNTIMES:
+        raise ValueError(f"runtime={runtime!r} is not one of {', '.join(map(repr, RUNTIMES))}")
+    if runtime == "auto":
+        return "litert" if litert_available() else "opencv"
+    if runtime == "litert" and not litert_available():
+        raise ValueError("runtime='litert' needs the optional package ai-edge-litert "
+                         "(pip install 'faceanalysis[litert]'); or use runtime='opencv'")
+    return runtime
+
+
+class _OpenCVNet:
+    def __init__(self, path: Path):
+        import cv2
+
+        kwargs = {}
+        if int(cv2.__version__.split(".")[0]) >= 5:  # the new engine returns only one output
+            kwargs["engine"] = cv2.dnn.ENGINE_CLASSIC
+        self._net = cv2.dnn.readNetFromTFLite(str(path), **kwargs)
+        self._names = sorted(self._net.getUnconnectedOutLayersNames())
+
+    def run(self, x: np.ndarray) -> list[np.ndarray]:
+        self._net.setInput(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32))
+        return [np.asarray(o) for o in self._net.forward(self._names)]
+
+
+class _LiteRTNet:
+    def __init__(self, path: Path):
+        from ai_edge_litert.interpreter import Interpreter
+
+        # one thread: the toolkit parallelises over videos (Dask workers), not inside a frame
+        self._it = Interpreter(model_path=str(path), num_threads=1)
+        self._it.allocate_tensors()
+        self._input = self._it.get_input_details()[0]["index"]
+        out = sorted(self._it.get_output_details(), key=lambda d: d["name"])
+        self._outputs = [d["index"] for d in out]
+
+    def run(self, x: np.ndarray) -> list[np.ndarray]:
+        self._it.set_tensor(self._input, np.ascontiguousarray(x, dtype=np.float32))
+        self._it.invoke()
+        return [self._it.get_tensor(i).copy() for i in self._outputs]
+
+
+def load_network(path: str | os.PathLike, *, runtime: str = "auto"):
+    """Load a ``.tflite`` network.
+
+    Parameters
+    ----------
+    path : path
+        The model file.
+    runtime : {'auto', 'litert', 'opencv'}
+        'opencv': ``cv2.dnn.readNetFromTFLite``; 'litert': ``ai_edge_litert`` (optional
+        package, about 1.6 times faster); 'auto': LiteRT when installed, else OpenCV.
+
+    Returns
+    -------
+    object
+        With ``run(x) -> list[np.ndarray]``: ``x`` a float32 NHWC batch, the outputs sorted by
+        tensor name. Networks are shared per (file, runtime) within a thread.
+    """
+    runtime = check_runtime(runtime)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no model file {path}")
+    key = (str(path.resolve()), runtime)
+    cache = _local.__dict__.setdefault("nets", {})
+    if key not in cache:
+        cache[key] = (_LiteRTNet if runtime == "litert" else _OpenCVNet)(path)
+    return cache[key]
