@@ -194,7 +194,8 @@ def ensure_models(*, wheel: str | os.PathLike | None = None,
             raise FileNotFoundError(f"no wheel {wheel}; {_HOW_OFFLINE}")
     if paths is None:
         if wheel is None and not download:
-            raise FileNotFoundError(f"the face models are not in {folder}; {_HOW_OFFLINE}")
+            raise FileNotFoundError(f"the face models in {folder} are missing or corrupt; "
+                                    f"{_HOW_OFFLINE}")
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

@@ -1,0 +1,29 @@
+import numpy as np
+import pytest
+
+from trackers.landmarks import RUNTIMES, litert_available, load_network
+
+
+def test_unknown_runtime_names_the_valid_ones(models):
+    with pytest.raises(ValueError, match="'auto', 'litert', 'opencv'"):
+        load_network(models["face_landmark"], runtime="tflite")
+
+
+def test_missing_model_file(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        load_network(tmp_path / "none.tflite", runtime="opencv")
+
+
+def test_outputs_come_in_name_order(models):
+    net = load_network(models["face_detection"], runtime="opencv")
+    scores, boxes = net.run(np.zeros((1, 128, 128, 3), np.float32))
+    assert scores.size == 896 and boxes.size == 896 * 16
+
+
+@pytest.mark.skipif(not litert_available(), reason="ai-edge-litert is not installed")
+def test_litert_and_opencv_agree(models):
+    x = np.random.default_rng(0).random((1, 192, 192, 3), dtype=np.float32)
+    a, b = (load_network(models["face_landmark"], runtime=r).run(x) for r in RUNTIMES[1:])
+    assert [o.size for o in a] == [o.size for o in b] == [1404, 1]
+    for u, v in zip(a, b):
+        np.testing.assert_allclose(u.ravel(), v.ravel(), atol=0.05 * max(1, np.abs(u).max()))
