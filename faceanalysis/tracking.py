@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.report import input_metadata
-from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS
+from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
 
@@ -36,6 +37,7 @@ __all__ = [
     "MIN_FURROW_STRETCH",
     "MIN_POINTS",
     "POINT_CONTOUR",
+    "TRACKERS",
     "Tracks",
     "faded_furrow_ends",
     "measure_frame",
@@ -250,6 +252,11 @@ class Tracks:
         Length of each point's contour relative to the tracker's first frame.
     contours : list
         Per frame, contour name -> (n, 2) nodes (None for frames that did not decode).
+    pose : ndarray, shape (T, 2)
+        Head pitch and yaw in degrees relative to the tracker's first frame (landmark
+        tracker); NaN on lost frames and with the snakes tracker.
+    tracker : str
+        Which tracker ran (:data:`TRACKERS`).
     timings : dict
         ``track_s`` (time in the tracker) and ``frames``.
     """
@@ -266,7 +273,13 @@ class Tracks:
     points: np.ndarray
     stretch: np.ndarray
     contours: list
+    pose: np.ndarray | None = None
+    tracker: str = "snakes"
     timings: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.pose is None:
+            self.pose = np.full((len(self.frames), 2), np.nan)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -279,6 +292,8 @@ class Tracks:
                "success": self.success.astype(np.int64)}
         for j, col in enumerate(HEAD_COLUMNS):
             out[col] = self.heads[:, j]
+        for j, col in enumerate(POSE_COLUMNS):
+            out[col] = self.pose[:, j]
         for j, name in enumerate(FIDUCIALS):
             out[f"fid_{name}_x"] = self.fiducials[:, j, 0]
             out[f"fid_{name}_y"] = self.fiducials[:, j, 1]
@@ -295,10 +310,16 @@ def _detect(image, frame_index: int, video):
         raise ValueError(f"{video}: {exc}") from None
 
 
+#: The trackers :func:`track` can run: 'landmarks' (snakes placed and held by MediaPipe's
+#: face mesh, :class:`trackers.AnchoredTracker`) and 'snakes' (004: Haar cascades, the
+#: template layout and free snakes).
+TRACKERS = ("landmarks", "snakes")
+
+
 def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS),
           fps: float | None = None, start: int = 0, end: int | None = None, layout=None,
-          tracker_options: dict | None = None, backend: str = "numpy",
-          device: str | None = None, redetect: bool = False,
+          tracker: str = "landmarks", tracker_options: dict | None = None,
+          backend: str = "numpy", device: str | None = None, redetect: bool = False,
           overlay: str | os.PathLike | None = None, progress: bool = False) -> Tracks:
     """Track the face in a video: head frame, fiducials and measurement points per frame.
 
@@ -315,17 +336,26 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     start, end : int, optional
         Frame range ``[start, end)``.
     layout : FaceLayout or path-like, optional
-        Initial contours (e.g. corrected by hand and saved with ``FaceLayout.to_json``);
-        by default they are placed by OpenCV's face and eye detectors on the first frame.
+        Initial contours (e.g. corrected by hand and saved with ``FaceLayout.to_json``)
+        for ``tracker='snakes'``; by default they are placed by OpenCV's face and eye
+        detectors on the first frame.
+    tracker : {'landmarks', 'snakes'}, keyword-only
+        'landmarks' (default): a learned landmark model (MediaPipe's face mesh) finds
+        the face on every frame, places the contours and holds them with springs
+        (:class:`trackers.AnchoredTracker`); a frame without a face is lost and the
+        analysis starts on the first frame with one. 'snakes': the method of 004
+        (Haar cascades, the template layout and free snakes), which needs no model.
     tracker_options : dict, optional
-        Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
+        Keyword arguments for :class:`trackers.Tracker` or, with 'landmarks',
+        :class:`trackers.AnchoredTracker` (e.g. ``{"brow_mid": 0.556}``).
     backend : {'numpy', 'torch'}, keyword-only
         Where the snakes relax: compiled NumPy/Numba (default) or batched torch (the
         ``[torch]`` extra; same contours within 1e-6 px).
     device : str, optional
         Torch device with ``backend='torch'``.
     redetect : bool, keyword-only
-        False (default): no face on the first frame is a ``ValueError``. True: a frame
+        With ``tracker='snakes'``. False (default): no face on the first frame is a
+        ``ValueError``. True: a frame
         where the face is not found or the contours leave the image is lost, the face is
         looked for again on the next frame, and fresh contours get two more relaxations
         to settle.
@@ -352,6 +382,18 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         raise ValueError(f"unknown measurement points {unknown}; choose from "
                          f"{', '.join(POINT_CONTOUR)}")
     check_backend(backend, device)
+    if tracker not in TRACKERS:
+        raise ValueError(f"unknown tracker {tracker!r}; choose from {', '.join(TRACKERS)}")
+    if tracker == "landmarks" and layout is not None:
+        raise ValueError("a layout places the snakes of tracker='snakes'; the landmark "
+                         "tracker places its own")
+    if tracker == "landmarks":
+        from trackers.landmarks import ensure_models
+
+        try:
+            ensure_models()   # before any frame: a missing model is one clear error
+        except RuntimeError as exc:
+            raise FaceAnalysisError(str(exc)) from None
     # frames are read at 8 bits: the same picture at any bit depth gives the same tracks
     source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE,
                         eight_bit=True)
@@ -362,9 +404,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     nan_pts = np.full((len(points), 2), np.nan)
     nan_stretch = np.full(len(points), np.nan)
     nan_head = np.full(4, np.nan)
-    frames, stamps, ok, conf = [], [], [], []
+    frames, stamps, ok, conf, poses = [], [], [], [], []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
-    tracker = None
+    kind, tracker = tracker, None
+    nan_pose = np.full(2, np.nan)
     writer = None
     t_track = 0.0
     bar = progress_bar(source.n_frames, progress, "track")
@@ -377,8 +420,14 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 res = None
                 if frame.ok:
                     t0 = time.perf_counter()
-                    tracker, res = _track_frame(tracker, frame, video, layout, source.size,
-                                                redetect, backend, device, tracker_options)
+                    if kind == "landmarks":
+                        if tracker is None:
+                            tracker = _anchored(backend, device, tracker_options)
+                        res = tracker.track(frame.image)
+                    else:
+                        tracker, res = _track_frame(tracker, frame, video, layout,
+                                                    source.size, redetect, backend, device,
+                                                    tracker_options)
                     t_track += time.perf_counter() - t0
                 if res is None:
                     good, c = False, 0.0
@@ -393,6 +442,11 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     stretch = np.array([res.quality[c_].stretch for c_ in point_contours])
                     if not good:
                         fids, pts, head = nan_fid, nan_pts, nan_head
+                pose = nan_pose
+                if good and "head_pitch" in res.extra:
+                    pose = np.array([res.extra["head_pitch"], res.extra["head_yaw"]])
+                    c = min(c, float(res.extra["presence"]))
+                poses.append(pose)
                 ok.append(good)
                 conf.append(c)
                 fid_rows.append(fids)
@@ -423,9 +477,17 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
+                  pose=np.stack(poses), tracker=kind,
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames)})
+
+
+def _anchored(backend, device, tracker_options):
+    from trackers.anchored import AnchoredTracker
+
+    return AnchoredTracker(channel_order="bgr", backend=backend, device=device,
+                           **(tracker_options or {}))
 
 
 def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,

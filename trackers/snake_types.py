@@ -99,6 +99,11 @@ class Contour:
         taken from the two neighbours). Eq. 12 applies the whole force (False, the
         default); along an uneven ravine its tangential part slides the nodes toward
         the deepest spot and, with viscoelastic rest lengths, shrinks the contour.
+    spring : float or array_like (n,)
+        Stiffness of a spring from each node to a target position (an external force
+        of eq. 12, ``spring * (target - x)``, integrated implicitly so that a stiff
+        spring is as stable as a weak one); the targets start at the initial nodes
+        and are moved with :meth:`ContourSystem.set_targets`. 0 (default): no spring.
     """
 
     points: np.ndarray
@@ -113,6 +118,7 @@ class Contour:
     field: int = 0
     name: str = ""
     normal_forces: bool = False
+    spring: object = 0.0
 
 
 @dataclass

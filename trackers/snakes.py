@@ -240,9 +240,12 @@ class ContourSystem:
             self.b_n[s:e] = b
             self.p_n[s:e] = p
             self.rest[s:e] = self._initial_rest(c, self.X[s:e], name)
+            # a node's spring and a fixed end share the implicit anchor term: the
+            # spring is kappa (x - target) on the matrix's diagonal and the right side
+            self.kappa[s:e] = _per_node(c.spring, 0.0, n, "spring", name)
+            self.anchor[s:e] = self.X[s:e]
             if c.fixed_ends:
                 self.kappa[[s, e - 1]] = _ANCHOR
-                self.anchor[[s, e - 1]] = self.X[[s, e - 1]]
         self.gdt = np.array([float((c.params or params).gamma / (c.params or params).dt)
                              for c in contours])
         self.dts = np.array([float((c.params or params).dt) for c in contours])
@@ -388,6 +391,23 @@ class ContourSystem:
         if reset_rest:
             c = self.contours[k]
             self.rest[sl] = self._initial_rest(c, pts, self.names[k])
+
+    def set_targets(self, k, points) -> None:
+        """Move the targets of contour ``k``'s springs (see ``Contour.spring``).
+
+        The stiffnesses are part of the factored matrix; the targets are not, so
+        this never refactors. Fixed ends keep their anchors.
+        """
+        k = self._index(k)
+        sl = self.contour_slice(k)
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.shape != (sl.stop - sl.start, 2) or not np.isfinite(pts).all():
+            raise ValueError(f"contour {self.names[k]!r}: targets must be a finite "
+                             f"({sl.stop - sl.start}, 2) array, got shape {pts.shape}")
+        if self.contours[k].fixed_ends:
+            pts = pts.copy()
+            pts[[0, -1]] = self.anchor[[sl.start, sl.stop - 1]]
+        self.anchor[sl] = pts
 
     def set_strength(self, k, p) -> None:
         """Change the image-force strength ``p`` of contour ``k`` (scalar or per node).

@@ -151,6 +151,11 @@ class Tracker(HeadFrameSearch, ContourFields):
     redetect_interval : int
         Least number of frames between two detections; doubled (up to 16 times)
         after each detection that finds no face or does not help.
+    springs : float or dict name -> float, optional
+        Stiffness of the springs that pull each contour's nodes toward the target
+        curves given to :meth:`track` (``Contour.spring``; relative to the damping
+        ``gamma/dt`` = 0.5 of each step). Without targets the springs hold the nodes
+        where they were last placed; None or 0 (default): free snakes, as in 004.
     head_anchor : {'auto', 'eyes', 'features', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -196,7 +201,7 @@ class Tracker(HeadFrameSearch, ContourFields):
                  max_step: float = 1.0, brow_mid=BROW_MID_FRACTION, max_shape_change: float = 0.15,
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile", redetect: bool = True,
-                 redetect_interval: int = 15):
+                 redetect_interval: int = 15, springs=None):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -275,13 +280,23 @@ class Tracker(HeadFrameSearch, ContourFields):
         self._lost_streak = dict.fromkeys(self.names, 0)
         self.specs = [(layout.contours[n].kind, float(layout.contours[n].sigma))
                       for n in self.names]
+        if springs is None or isinstance(springs, int | float):
+            springs = dict.fromkeys(self.names, float(springs or 0.0))
+        unknown = sorted(set(springs) - set(self.names))
+        if unknown:
+            raise ValueError(f"springs for unknown contours {unknown}; choose from "
+                             f"{', '.join(self.names)}")
+        if not all(np.isfinite(v) and v >= 0 for v in springs.values()):
+            raise ValueError(f"spring stiffnesses must be finite and >= 0, got {springs}")
+        self.springs = {n: float(springs.get(n, 0.0)) for n in self.names}
         contours = []
         for name in self.names:
             c = layout.contours[name]
             p0 = paper_equivalent_strength(c.sigma, params.p) if strength in ("auto", "paper") \
                 else float(strength)
             contours.append(Contour(c.points, closed=c.closed, params=params, p=p0,
-                                    field=len(contours), name=name, normal_forces=True))
+                                    field=len(contours), name=name, normal_forces=True,
+                                    spring=self.springs[name]))
         self.system = ContourSystem(contours, params, max_step=max_step)
         self.sigma_max = max(sig for _, sig in self.specs)
         self.index = 0
@@ -334,11 +349,30 @@ class Tracker(HeadFrameSearch, ContourFields):
             if new is not pts:
                 self.system.set_contour(k, resample_polyline(new, n), reset_rest=True)
 
+    def _n_nodes(self, k):
+        sl = self.system.contour_slice(k)
+        return sl.stop - sl.start
+
+    def _set_targets(self, targets):
+        """Resampled target curves (name -> (n, 2)) for the contours ``targets`` names."""
+        out = {}
+        W, H = self.frame_size
+        for k, name in enumerate(self.names):
+            curve = targets.get(name)
+            if curve is None:
+                continue
+            pts = np.clip(resample_polyline(np.asarray(curve, float), self._n_nodes(k),
+                                            closed=self.layout.contours[name].closed),
+                          0, [W - 1, H - 1])
+            self.system.set_targets(k, pts)
+            out[name] = pts
+        return out
+
     def _layout_points(self, k, head):
         """Layout contour ``k`` moved by the similarity between the first and this frame."""
         name = self.names[k]
         c = self.layout.contours[name]
-        n = self.system.contour_slice(k).stop - self.system.contour_slice(k).start
+        n = self._n_nodes(k)
         pts = resample_polyline(c.points, n, closed=c.closed)
         if self.ref_head is not None and head is not None:
             pts = head.to_image(self.ref_head.to_head(pts))
@@ -429,8 +463,20 @@ class Tracker(HeadFrameSearch, ContourFields):
         return q
 
     # ------------------------------------------------------------------ public
-    def track(self, frame) -> TrackResult:
+    def track(self, frame, *, targets=None, head=None) -> TrackResult:
         """Relax the contours on ``frame`` (starting from the last equilibrium).
+
+        Parameters
+        ----------
+        frame : ndarray
+        targets : dict name -> (m, 2) array, optional
+            Where this frame's springs pull (see ``springs``), e.g. curves from a
+            landmark model; a contour lost on this frame is re-placed on its target
+            instead of the layout, and the face is not detected again.
+        head : HeadFrame, optional
+            This frame's head frame when it is known from elsewhere (e.g. rigid
+            landmarks); ignored on the first frame, whose head frame comes from the
+            contours (004).
 
         Raises
         ------
@@ -439,6 +485,8 @@ class Tracker(HeadFrameSearch, ContourFields):
             (the message names the frame index).
         """
         first = self.index == 0
+        placed = self._set_targets(targets) if targets else {}
+        given_head = None if first else head
         Ps, origins, gray, gorigin = self._fields(frame)
         cap = self.first_max_iter if first else self.max_iter
 
@@ -479,7 +527,11 @@ class Tracker(HeadFrameSearch, ContourFields):
         quality = self._quality(depths, outside)
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
-        head = self._head(frame, first)
+        if given_head is not None:
+            head = given_head
+            self.head_source = "given"
+        else:
+            head = self._head(frame, first)
         lost = [k for k, n in enumerate(self.names) if quality[n].lost]
         for n in self.names:
             self._lost_streak[n] = self._lost_streak[n] + 1 if quality[n].lost else 0
@@ -492,7 +544,10 @@ class Tracker(HeadFrameSearch, ContourFields):
             base = self.last_head if quality["hairline"].lost or quality["nose_tip"].lost \
                 else head
             for k in lost:
-                self.system.set_contour(k, self._layout_points(k, base), reset_rest=True)
+                pts = placed.get(self.names[k])
+                if pts is None:
+                    pts = self._layout_points(k, base)
+                self.system.set_contour(k, pts, reset_rest=True)
                 reinit.add(self.names[k])
             # the new positions need their own boxes
             Ps, origins, gray, gorigin = self._fields(frame)
@@ -504,8 +559,8 @@ class Tracker(HeadFrameSearch, ContourFields):
             quality = self._quality(depths, outside, reinit)
             self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
             self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
-            head = self._head(frame)
-        if not first:
+            head = given_head if given_head is not None else self._head(frame)
+        if not first and not placed:
             n_lost = sum(q.lost for q in quality.values())
             self._failing = self._failing + 1 if n_lost >= 3 else 0
             if (self.redetect and self._failing >= 3

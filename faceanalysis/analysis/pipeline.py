@@ -31,6 +31,7 @@ from faceanalysis.io.table import (
     HEAD_COLUMNS,
     JAW,
     MUSCLES,
+    POSE_COLUMNS,
     empty_table,
     with_au_columns,
 )
@@ -53,7 +54,8 @@ __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "analyze", "analyze_to_
 def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
-            tracker_options: dict | None = None, backend: str = "numpy",
+            tracker: str | None = None, tracker_options: dict | None = None,
+            backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
@@ -77,8 +79,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         default: the first tracked frame that sees every measurement point.
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
-        ``FaceLayout.to_json``); by default they are placed by OpenCV's face and
-        eye detectors on the first frame.
+        ``FaceLayout.to_json``) for the snakes tracker.
+    tracker : {'landmarks', 'snakes'}, optional
+        'landmarks' (default): MediaPipe's face mesh finds the face on every frame and
+        holds the snakes (:class:`trackers.AnchoredTracker`); frames without a face are
+        lost. 'snakes' (the default when ``layout`` is given): 004's Haar cascades,
+        template layout and free snakes. See :func:`faceanalysis.tracking.track`.
     response : FiducialResponse, optional
         Model response to invert (default: the generic face model's, cached).
     refine : bool, keyword-only
@@ -135,8 +141,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         response = model_response()
     if neutral is not None:
         _check_neutral_in_range(video, neutral, fps=fps, start=start, end=end)
+    if tracker is None:
+        tracker = "snakes" if layout is not None else "landmarks"
     tracks = track(video, points=response.fiducials, fps=fps, start=start, end=end,
-                   layout=layout, tracker_options=tracker_options, backend=backend,
+                   layout=layout, tracker=tracker, tracker_options=tracker_options,
+                   backend=backend,
                    device=device, overlay=overlay, progress=progress)
     if not tracks.success.any():
         raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
@@ -156,6 +165,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
         "neutral_frame": int(tracks.frames[k]),
+        "tracker": tracker,
         "layout": None if layout is None else str(layout),
         "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,
@@ -256,6 +266,7 @@ def _tracking_table(tracks: Tracks) -> pd.DataFrame:
     table["success"] = tracks.success.astype(np.int64)
     table["confidence"] = tracks.confidence
     table[list(HEAD_COLUMNS)] = tracks.heads
+    table[list(POSE_COLUMNS)] = tracks.pose
     for j, name in enumerate(FIDUCIALS):
         table[f"fid_{name}_x"] = tracks.fiducials[:, j, 0]
         table[f"fid_{name}_y"] = tracks.fiducials[:, j, 1]

@@ -25,6 +25,11 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first frame tracked)")
+    group.add_argument("--tracker", choices=("landmarks", "snakes"),
+                       help="landmarks: MediaPipe's face mesh finds the face on every frame "
+                            "and holds the snakes (default); snakes: the paper's Haar "
+                            "cascades and free snakes, no model needed (default with "
+                            "--layout)")
     group.add_argument("--layout", type=Path, metavar="JSON",
                        help="initial contours from a JSON file (FaceLayout.to_json) instead "
                             "of automatic placement")
@@ -68,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,
-        end=args.end, neutral=args.neutral, layout=args.layout, refine=args.refine,
+        end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
+        refine=args.refine,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
     q = result.metadata.get("quality", {})

@@ -53,8 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="also write overlay.mp4 for every video")
 
 
-_ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "layout", "overlay",
-                     "refine", "backend", "device")
+_ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "tracker", "layout",
+                     "overlay", "refine", "backend", "device")
 
 
 def _options(args: argparse.Namespace) -> dict:

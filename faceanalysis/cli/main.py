@@ -30,6 +30,7 @@ SUBCOMMANDS: dict[str, str] = {
     "demo": "demo",
     "evaluate": "evaluate",
     "info": "info",
+    "models": "models",
     "batch": "batch",
     "probe": "probe",
     "synth": "synth",

@@ -44,6 +44,7 @@ __all__ = [
     "FIDUCIAL_COLUMNS",
     "FRAME_COLUMNS",
     "HEAD_COLUMNS",
+    "POSE_COLUMNS",
     "JAW",
     "MUSCLES",
     "MUSCLE_BASES",
@@ -68,6 +69,10 @@ FRAME_COLUMNS: tuple[str, ...] = ("frame", "timestamp", "success", "confidence")
 #: Head reference frame columns.
 HEAD_COLUMNS: tuple[str, ...] = ("head_x", "head_y", "head_scale", "head_roll")
 
+#: Head pose beyond the image plane: pitch and yaw in degrees relative to the tracker's
+#: first frame (the landmark tracker; empty with the snakes tracker).
+POSE_COLUMNS: tuple[str, ...] = ("head_pitch", "head_yaw")
+
 #: ``fid_<name>_x``, ``fid_<name>_y`` for every fiducial.
 FIDUCIAL_COLUMNS: tuple[str, ...] = tuple(
     f"fid_{name}_{axis}" for name in FIDUCIALS for axis in ("x", "y"))
@@ -84,6 +89,7 @@ _DECIMALS: dict[str, int] = {
     "timestamp": 6, "confidence": 4,
     **{c: 3 for c in ("head_x", "head_y", "head_scale")},
     "head_roll": 6,
+    **{c: 3 for c in POSE_COLUMNS},
     **{c: 3 for c in FIDUCIAL_COLUMNS},
     **{c: 6 for c in MUSCLES},
     JAW: 6,
@@ -122,9 +128,10 @@ def contraction_columns() -> list[str]:
     --------
     >>> cols = contraction_columns()
     >>> cols[:5], len(cols)
-    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 76)
+    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 78)
     """
-    return [*FRAME_COLUMNS, *HEAD_COLUMNS, *FIDUCIAL_COLUMNS, *MUSCLES, JAW, *AU_COLUMNS]
+    return [*FRAME_COLUMNS, *HEAD_COLUMNS, *POSE_COLUMNS, *FIDUCIAL_COLUMNS, *MUSCLES, JAW,
+            *AU_COLUMNS]
 
 
 def empty_table(n: int, *, frames: Sequence[int] | None = None,

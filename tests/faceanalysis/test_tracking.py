@@ -88,3 +88,43 @@ def test_to_head_frame_removes_translation_rotation_and_scale():
 
 def test_every_point_names_its_contour():
     assert len(POINT_CONTOUR) >= MIN_POINTS
+
+
+@pytest.fixture(scope="module")
+def rendered_face():
+    from trackers.landmarks import ensure_models
+
+    try:
+        ensure_models()
+    except (RuntimeError, FileNotFoundError) as exc:
+        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    from synth.render.sequence import synthesize
+
+    return synthesize(frames=1, size=192, seed=3, flow=False, texture_size=256,
+                      supersample=1).images[0]
+
+
+def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
+        tmp_path, rendered_face):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    blank = np.full_like(rendered_face, 120)
+    for i, img in enumerate([blank, blank, rendered_face, rendered_face, blank,
+                             rendered_face]):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    tr = track(folder, fps=10)
+    assert tr.tracker == "landmarks"
+    assert tr.success.tolist() == [False, False, True, True, False, True]
+    t = tr.table
+    assert t.loc[[0, 1, 4], ["head_x", "head_pitch", "fid_chin_x"]].isna().all().all()
+    assert t.loc[[2, 3, 5], ["head_pitch", "head_yaw"]].abs().max().max() < 3.0
+    assert (tr.confidence[[2, 3, 5]] > 0.3).all() and (tr.confidence[[0, 1, 4]] == 0).all()
+
+
+def test_tracker_choice_is_checked(tmp_path):
+    path, lay = _face_video(tmp_path, frames_lost_brow=())
+    with pytest.raises(ValueError, match="unknown tracker 'mesh'; choose from landmarks, "):
+        track(path, tracker="mesh")
+    with pytest.raises(ValueError, match="layout"):
+        track(path, layout=lay, tracker="landmarks")
+    assert track(path, layout=lay, tracker="snakes").tracker == "snakes"

@@ -245,3 +245,37 @@ def test_bad_contours_and_nodes_outside():
         s.relax(np.zeros((20, 30)))
     with pytest.raises(ValueError, match="user_forces"):
         s.relax(np.zeros((20, 50, 2)), user_forces=np.zeros((3, 2)))
+
+
+def test_springs_pull_nodes_to_their_targets_where_the_image_is_flat():
+    pts = np.c_[np.linspace(10, 50, 9), np.full(9, 30.0)]
+    sys_ = ContourSystem([Contour(pts, spring=0.5)])
+    target = pts + [0.0, 4.0]
+    sys_.set_targets(0, target)
+    flat = np.zeros((64, 64))
+    r = sys_.relax(potentials=flat, tol=1e-4, max_iter=500)
+    assert r.converged
+    np.testing.assert_allclose(sys_.contour_points(0), target, atol=1e-2)
+
+
+def test_a_spring_shares_a_node_with_the_image_force():
+    # a dark horizontal line at y = 30 and a target 3 px below it: a weak spring leaves
+    # the node near the line, a stiff one takes it to the target
+    yy = np.arange(64)[:, None] * np.ones((1, 64))
+    P = -100.0 * np.exp(-0.5 * ((yy - 30.0) / 2.0) ** 2)
+    ends = []
+    for k in (0.001, 5.0):
+        pts = np.c_[np.linspace(10, 50, 9), np.full(9, 30.0)]
+        s = ContourSystem([Contour(pts, spring=k, p=0.05)])
+        s.set_targets(0, pts + [0.0, 3.0])
+        s.relax(potentials=P, tol=1e-5, max_iter=5000)
+        ends.append(s.contour_points(0)[:, 1].mean())
+    assert ends[0] < 30.3 and ends[1] > 32.0
+
+
+def test_targets_are_checked():
+    s = ContourSystem([Contour(np.c_[np.arange(5.0), np.zeros(5)], spring=1.0)])
+    with pytest.raises(ValueError, match="targets"):
+        s.set_targets(0, np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="spring"):
+        ContourSystem([Contour(np.c_[np.arange(5.0), np.zeros(5)], spring=-1.0)])

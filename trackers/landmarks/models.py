@@ -38,7 +38,7 @@ MODEL_FILES = {
 }
 LICENSE_FILE = (f"mediapipe-{MEDIAPIPE_VERSION}.dist-info/LICENSE",
                 "8707eef0533987efc5b155d64761eeb6e20793f50b9bd1a68dad1cf4719d0ed8")
-_LICENSE_NAME = "LICENSE_mediapipe.txt"
+LICENSE_NAME = "LICENSE_mediapipe.txt"
 
 _HOW_OFFLINE = ("install them offline with `faceanalysis models --wheel PATH` (or set "
                 "FACEANALYSIS_MODEL_WHEEL to a local copy of " + WHEEL_NAME + "), or point "
@@ -71,7 +71,7 @@ def _sha256(data_or_path) -> str:
 
 def _targets(folder: Path) -> dict[str, tuple[str, str, Path]]:
     files = {k: (p, h, folder / Path(p).name) for k, (p, h) in MODEL_FILES.items()}
-    files["license"] = (*LICENSE_FILE, folder / _LICENSE_NAME)
+    files["license"] = (*LICENSE_FILE, folder / LICENSE_NAME)
     return files
 
 

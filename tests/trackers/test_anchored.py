@@ -1,0 +1,100 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tests.trackers.landmarks.conftest import face, models  # noqa: F401 (fixtures)
+from trackers.anchored import AnchoredTracker, rigid_similarity, rotation_angles
+from trackers.fiducials import FIDUCIAL_NAMES
+
+
+@pytest.fixture(scope="module")
+def face_truth(models):  # noqa: F811
+    from synth.render.sequence import synthesize
+
+    seq = synthesize(frames=1, size=192, seed=3, flow=False, texture_size=256, supersample=1)
+    t = seq.truth.iloc[0]
+    truth = {n: np.array([t[f"fid_{n}_x"], t[f"fid_{n}_y"]]) for n in FIDUCIAL_NAMES}
+    return seq.images[0], truth
+
+
+def _shift(img, dx, dy):
+    out = np.empty_like(img)
+    out[:] = img[0, 0]
+    h, w = img.shape[:2]
+    out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = \
+        img[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]
+    return out
+
+
+def test_fiducials_head_frame_and_lost_frames(face_truth):
+    img, truth = face_truth
+    tracker = AnchoredTracker()
+    first = tracker.track(img)
+    iod = np.linalg.norm(truth["brow_inner_l"] - truth["brow_inner_r"]) * 2.0
+    err = [np.linalg.norm(np.subtract(first.fiducials[n], truth[n])) for n in FIDUCIAL_NAMES]
+    assert np.median(err) < 0.06 * iod and max(err) < 0.25 * iod
+    assert first.extra["head_source"] == "landmarks" and 0.5 < first.extra["presence"] <= 1
+    moved = tracker.track(_shift(img, 6, 4))
+    dx, dy = moved.head.x - first.head.x, moved.head.y - first.head.y
+    assert abs(dx - 6) < 1.0 and abs(dy - 4) < 1.0
+    assert abs(moved.extra["head_pitch"]) < 3 and abs(moved.extra["head_yaw"]) < 3
+    assert tracker.track(np.full_like(img, 128)) is None        # no face: lost
+    back = tracker.track(img)                                   # picked up again
+    assert back is not None and back.extra["detected"]
+    assert abs(back.head.x - first.head.x) < 1.0 and abs(back.head.y - first.head.y) < 1.0
+    assert back.index == 3
+
+
+class _Moved:
+    """Landmarks of a real model, with the mouth's moved down by ``shift`` px from the
+    second frame on: the contour stays on the image's mouth and disagrees."""
+
+    def __init__(self, shift):
+        from trackers.landmarks import LandmarkTracker
+
+        self.inner = LandmarkTracker()
+        self.shift = shift
+        self.calls = 0
+
+    def track(self, frame):
+        lm = self.inner.track(frame)
+        self.calls += 1
+        if self.calls > 1:
+            pts = lm.points.copy()
+            mouth = list(range(468))
+            pts[mouth] = pts[mouth] + [0.0, self.shift] * (pts[mouth, 1:2] > pts[2, 1])
+            lm = dataclasses.replace(lm, points=pts)
+        return lm
+
+
+def test_a_contour_far_from_its_landmarks_is_lost(face_truth):
+    img, _ = face_truth
+    # no springs: the snakes stay on the image's features whatever the landmarks say
+    tracker = AnchoredTracker(landmarks=_Moved(25.0), springs=0.0)
+    assert not tracker.track(img).quality["upper_lip"].lost
+    res = tracker.track(img)
+    assert res.quality["upper_lip"].lost and not res.quality["brow_l"].lost
+
+
+def test_bad_options_are_refused(models):  # noqa: F811
+    with pytest.raises(ValueError, match="channel_order"):
+        AnchoredTracker(channel_order="rgba")
+    with pytest.raises(ValueError, match="max_disagreement"):
+        AnchoredTracker(max_disagreement=0)
+    with pytest.raises(ValueError, match="redetect"):
+        AnchoredTracker(redetect=True)
+
+
+def test_rigid_similarity_and_rotation_angles():
+    rng = np.random.default_rng(1)
+    src = rng.normal(size=(9, 2))
+    a, b = 1.3 * np.exp(0.2j), 4 - 2j
+    z = a * (src[:, 0] + 1j * src[:, 1]) + b
+    got_a, got_b = rigid_similarity(src, np.c_[z.real, z.imag])
+    assert abs(got_a - a) < 1e-9 and abs(got_b - b) < 1e-9
+    p3 = rng.normal(size=(9, 3))
+    t = np.radians(12.0)
+    Rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    pitch, yaw = rotation_angles(p3, 2.0 * p3 @ Rx.T + 5.0)
+    assert abs(pitch - 12.0) < 1e-6 and abs(yaw) < 1e-6

@@ -1,0 +1,74 @@
+import numpy as np
+import pytest
+
+from trackers.landmark_contours import (
+    eye_centres,
+    landmark_curves,
+    layout_from_landmarks,
+)
+from trackers.layout import CONTOUR_NAMES, TEMPLATE, layout_from_eyes
+
+
+def _mesh_from_template(eye_r=(100.0, 120.0), eye_l=(160.0, 120.0)):
+    """468 points where every mesh point a curve uses sits on the template's curve: a
+    face whose landmarks agree with the layout template."""
+    from trackers.landmark_contours import _BROW_EDGES, _LIP_INNER, EYE_POINTS, MESH_CURVES
+
+    lay = layout_from_eyes(eye_r, eye_l, (256, 256))
+    pts = np.full((468, 2), 128.0)
+    for k, idx in enumerate(EYE_POINTS):
+        pts[list(idx)] = (eye_r, eye_l)[k]
+
+    def put(indices, curve):
+        t = np.linspace(0, len(curve) - 1, len(indices))
+        pts[list(indices)] = np.c_[np.interp(t, np.arange(len(curve)), curve[:, 0]),
+                                   np.interp(t, np.arange(len(curve)), curve[:, 1])]
+
+    for name, (up, lo) in _BROW_EDGES.items():
+        put(up, lay.contours[name].points)
+        put(lo, lay.contours[name].points)
+    lip = lay.contours["upper_lip"].points
+    pts[61], pts[291] = lip[0], lip[-1]
+    put(_LIP_INNER[0], lip[1:-1])
+    put(_LIP_INNER[1], lip[1:-1])
+    for name, idx in MESH_CURVES.items():
+        curve = lay.contours[name].points
+        put(idx, np.vstack([curve, curve[:1]]) if lay.contours[name].closed else curve)
+    return pts, lay
+
+
+def test_curves_run_in_the_templates_direction():
+    pts, lay = _mesh_from_template()
+    curves = landmark_curves(pts)
+    assert set(curves) == set(CONTOUR_NAMES) - {"hairline"}
+    for name, curve in curves.items():
+        ref = lay.contours[name].points
+        # same first end as the template's (brows inner, furrows top, lips from the left)
+        assert np.linalg.norm(curve[0] - ref[0]) < np.linalg.norm(curve[0] - ref[-1]) + 1e-9 \
+            or lay.contours[name].closed, name
+
+
+def test_layout_from_landmarks_keeps_the_templates_settings():
+    pts, lay = _mesh_from_template()
+    got = layout_from_landmarks(pts, (256, 256))
+    assert got.source == "landmarks"
+    np.testing.assert_allclose(got.eyes, eye_centres(pts))
+    for name in CONTOUR_NAMES:
+        c, ref = got.contours[name], lay.contours[name]
+        assert (c.closed, c.kind, c.sigma) == (ref.closed, ref.kind, ref.sigma)
+        # the placed curve lies on the template's curve
+        d = np.linalg.norm(c.points[:, None] - ref.points[None], axis=2).min(axis=1)
+        assert d.max() < 3.0, name   # an 8-point chin loop cuts the ellipse by 2.6 px
+    # the mouth line's ends are the mesh's corners, not relocated by the tracker
+    assert got.contours["upper_lip"].ends == "free"
+
+
+def test_bad_landmarks_are_refused():
+    with pytest.raises(ValueError, match="468"):
+        landmark_curves(np.zeros((68, 2)))
+    with pytest.raises(ValueError, match="468"):
+        layout_from_landmarks(np.zeros((468,)), (64, 64))
+
+
+def test_template_and_curves_share_names():
+    assert set(TEMPLATE) == set(CONTOUR_NAMES)

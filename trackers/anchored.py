@@ -1,0 +1,220 @@
+"""Snakes placed and held by a learned landmark model.
+
+A landmark model (:class:`~trackers.landmarks.LandmarkTracker`, MediaPipe's face mesh)
+finds the face on every frame and says when it is gone; it is right to a few percent of
+the inter-ocular distance on real faces, where free snakes slide onto the wrong
+feature, but it is smooth and off by pixels on crisp edges, where snakes are exact.
+:class:`AnchoredTracker` uses each for what it does best:
+
+* the nine contours are placed from the landmarks on the first frame with a face
+  (:func:`~trackers.landmark_contours.layout_from_landmarks`);
+* on every frame each node is pulled toward its landmark curve by a spring (an
+  external force of eq. 7, ``Contour.spring``) while the image potential refines it
+  where the image has an edge: with the default stiffness a node sits in its ravine
+  when one is there and falls back on the landmark curve where the image has nothing
+  to hold it (a faint furrow, a hand over the mouth);
+* the head frame is the first frame's (004: from the contours) moved by the
+  similarity that carries the first frame's rigid landmarks (eye corners, nose bridge)
+  onto this frame's, and the head's pitch and yaw relative to the first frame come
+  from the same points in 3-D;
+* a frame is lost (``None``) when the model finds no face, and a contour is lost
+  when it lies farther than ``max_disagreement`` inter-ocular distances from its
+  landmark curve (the snake followed something else).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trackers.head_search import _apply_similarity
+from trackers.landmark_contours import (
+    RIGID_POINTS,
+    eye_centres,
+    landmark_curves,
+    layout_from_landmarks,
+)
+from trackers.quality import ContourQuality, TrackResult
+from trackers.torch_backend import check_backend, make_tracker
+from trackers.tracking import Tracker
+
+__all__ = ["DEFAULT_SPRINGS", "MAX_DISAGREEMENT", "AnchoredTracker", "rigid_similarity",
+           "rotation_angles"]
+
+#: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). The
+#: hairline has no landmarks and stays a free snake.
+DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.02, "brow_r": 0.02, "furrow_l": 0.05,
+                   "furrow_r": 0.05, "nose_tip": 0.02, "upper_lip": 0.02,
+                   "lower_lip": 0.02, "chin_boss": 0.05}
+
+#: A contour whose nodes lie farther than this from their landmark curve, on average,
+#: in inter-ocular distances, is lost.
+MAX_DISAGREEMENT = 0.12
+
+
+def rigid_similarity(src, dst):
+    """Least-squares similarity ``z -> a z + b`` (complex numbers) from ``src`` to ``dst``.
+
+    Examples
+    --------
+    >>> a, b = rigid_similarity([[0, 0], [1, 0], [0, 1]], [[1, 1], [1, 3], [-1, 1]])
+    >>> np.round(a, 6), np.round(b, 6)
+    (np.complex128(2j), np.complex128(1+1j))
+    """
+    s = np.asarray(src, float)
+    d = np.asarray(dst, float)
+    zs = s[:, 0] + 1j * s[:, 1]
+    zd = d[:, 0] + 1j * d[:, 1]
+    ms, md = zs.mean(), zd.mean()
+    den = float(np.sum(np.abs(zs - ms) ** 2))
+    if den < 1e-12:
+        raise ValueError("the source points coincide")
+    a = complex(np.sum(np.conj(zs - ms) * (zd - md)) / den)
+    return a, complex(md - a * ms)
+
+
+def rotation_angles(src, dst) -> tuple[float, float]:
+    """Pitch and yaw (degrees) of the rotation that best carries 3-D ``src`` onto ``dst``.
+
+    Both point sets are centred and scaled to unit size before the rotation is fitted
+    (Kabsch). Image axes: x right, y down, z away from the camera; a positive pitch
+    turns the face down (chin toward the chest), a positive yaw turns it toward the
+    image's right.
+
+    Examples
+    --------
+    >>> pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    >>> t = np.radians(10)
+    >>> Ry = np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+    >>> [round(v, 6) for v in rotation_angles(pts, pts @ Ry.T)]
+    [0.0, 10.0]
+    """
+    a = np.asarray(src, float)
+    b = np.asarray(dst, float)
+    a = a - a.mean(axis=0)
+    b = b - b.mean(axis=0)
+    a /= max(np.linalg.norm(a), 1e-12)
+    b /= max(np.linalg.norm(b), 1e-12)
+    u, _, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    R = u @ np.diag([1.0, 1.0, d]) @ vt
+    pitch = np.degrees(np.arctan2(R[2, 1], R[2, 2]))
+    yaw = np.degrees(np.arcsin(np.clip(R[0, 2], -1.0, 1.0)))
+    return float(pitch), float(yaw)
+
+
+class AnchoredTracker:
+    """Track the nine contours with springs to a landmark model's curves.
+
+    Parameters
+    ----------
+    landmarks : LandmarkTracker, optional
+        The landmark model (default a new :class:`~trackers.landmarks.LandmarkTracker`
+        with ``channel_order`` and ``runtime``).
+    channel_order : {'rgb', 'bgr'}
+    springs : float or dict name -> float
+        Spring stiffness per contour (:data:`DEFAULT_SPRINGS`).
+    max_disagreement : float
+        Mean node distance from the landmark curve, in inter-ocular distances, beyond
+        which a contour is lost (:data:`MAX_DISAGREEMENT`).
+    runtime : str
+        The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
+    backend, device
+        Where the snakes relax (:func:`~trackers.torch_backend.make_tracker`).
+    **tracker_options
+        Passed to :class:`~trackers.tracking.Tracker` (``tol``, ``brow_mid``...).
+
+    Notes
+    -----
+    :meth:`track` returns ``None`` on a frame without a face. When the face comes back
+    (the model had to detect it again) every contour is placed on its landmark curve
+    again; the head frame stays tied to the first frame's by the rigid landmarks, so
+    measurements before and after the gap are comparable.
+    """
+
+    def __init__(self, *, landmarks=None, channel_order: str = "rgb",
+                 springs=None, max_disagreement: float = MAX_DISAGREEMENT,
+                 runtime: str = "auto", backend: str = "numpy", device=None,
+                 **tracker_options):
+        if channel_order not in ("rgb", "bgr"):
+            raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
+        if not np.isfinite(max_disagreement) or max_disagreement <= 0:
+            raise ValueError(f"max_disagreement must be positive, got {max_disagreement}")
+        for key in ("redetect", "springs", "channel_order"):
+            if key in tracker_options:
+                raise ValueError(f"{key!r} is set by the AnchoredTracker itself")
+        if landmarks is None:
+            from trackers.landmarks import LandmarkTracker
+
+            landmarks = LandmarkTracker(channel_order=channel_order, runtime=runtime)
+        self.landmarks = landmarks
+        self.channel_order = channel_order
+        self.springs = dict(DEFAULT_SPRINGS) if springs is None else springs
+        self.max_disagreement = float(max_disagreement)
+        check_backend(backend, device)
+        self.backend, self.device = backend, device
+        # the contour's ends are the mesh's mouth corners (see LANDMARK_ENDS)
+        self.tracker_options = {"mouth_corner": "ends", **tracker_options}
+        self.tracker: Tracker | None = None
+        self.index = 0
+        self._ref_rigid: np.ndarray | None = None
+        self._ref_rigid3: np.ndarray | None = None
+        self._gap = False
+
+    def track(self, frame) -> TrackResult | None:
+        """Track one frame; ``None`` when no face is found on it."""
+        index = self.index
+        self.index += 1
+        lm = self.landmarks.track(frame)
+        if lm is None:
+            self._gap = True
+            return None
+        targets = landmark_curves(lm.points)
+        rigid = lm.points[list(RIGID_POINTS)]
+        rigid3 = np.c_[rigid, lm.z[list(RIGID_POINTS)]]
+        if self.tracker is None:
+            h, w = frame.shape[:2]
+            layout = layout_from_landmarks(lm.points, (w, h))
+            self.tracker = make_tracker(layout, backend=self.backend, device=self.device,
+                                        channel_order=self.channel_order,
+                                        springs=self.springs, redetect=False,
+                                        **self.tracker_options)
+            res = self.tracker.track(frame, targets=targets)
+            self._ref_rigid, self._ref_rigid3 = rigid, rigid3
+        else:
+            a, b = rigid_similarity(self._ref_rigid, rigid)
+            head = _apply_similarity(self.tracker.ref_head, a, b)
+            if self._gap:
+                self._replace(targets, head)
+            res = self.tracker.track(frame, targets=targets, head=head)
+        self._gap = False
+        iod = float(np.hypot(*np.subtract(*eye_centres(lm.points))))
+        quality = dict(res.quality)
+        for name in targets:
+            k = self.tracker.names.index(name)
+            nodes = self.tracker.system.contour_points(k)
+            placed = self.tracker.system.anchor[self.tracker.system.contour_slice(k)]
+            gap = float(np.mean(np.hypot(*(nodes - placed).T))) / max(iod, 1e-9)
+            q = quality[name]
+            if gap > self.max_disagreement and not q.lost:
+                quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised, q.shape)
+        pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
+        extra = dict(res.extra, head_source="landmarks", presence=float(lm.presence),
+                     head_pitch=pitch, head_yaw=yaw, landmarks=lm.points,
+                     detected=bool(lm.detected))
+        return TrackResult(index, res.contours, quality, res.iterations, res.converged,
+                           res.head, res.fiducials, extra)
+
+    def _replace(self, targets, head):
+        """Put every contour on its landmark curve again (the face came back)."""
+        t = self.tracker
+        placed = t._set_targets(targets)
+        for k, name in enumerate(t.names):
+            pts = placed.get(name)
+            if pts is None:
+                pts = t._layout_points(k, head)
+            t.system.set_contour(k, pts, reset_rest=True)
+
+    def run(self, frames):
+        """Generator of :meth:`track` results for an iterable of frames."""
+        for frame in frames:
+            yield self.track(frame)

@@ -1,0 +1,146 @@
+"""The nine contours of 004 read off a 468-point face mesh.
+
+MediaPipe's face mesh (:mod:`trackers.landmarks`) puts 468 points on a face; this module
+says which of them trace each contour of :data:`~trackers.layout.CONTOUR_NAMES`, so
+that the contours can be placed from the landmarks on a first frame and pulled toward
+them on every frame (:class:`~trackers.anchored.AnchoredTracker`). Curves run in the
+layout template's direction (:data:`~trackers.layout.TEMPLATE`): brows from the inner
+end, furrows from the top, the lips and nose from the image's left, the chin boss
+clockwise on screen from its image-right side.
+
+The mesh has no hairline: that contour is placed from the template by the eyes and is
+left to its snake.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trackers.layout import CONTOUR_NAMES, FaceLayout, LayoutContour, layout_from_eyes
+from trackers.polyline import resample_polyline
+
+__all__ = [
+    "EYE_POINTS",
+    "LANDMARK_ENDS",
+    "MESH_CURVES",
+    "RIGID_POINTS",
+    "eye_centres",
+    "landmark_curves",
+    "layout_from_landmarks",
+]
+
+# Eyebrow band: (upper edge, lower edge), inner end first; the contour is its centre line.
+_BROW_EDGES = {
+    "brow_r": ((107, 66, 105, 63, 70), (55, 65, 52, 53, 46)),
+    "brow_l": ((336, 296, 334, 293, 300), (285, 295, 282, 283, 276)),
+}
+# The mouth line is the centre line between the inner borders of the two lips, from
+# one outer corner (61, image left) to the other (291).
+_LIP_INNER = ((191, 80, 81, 82, 13, 312, 311, 310, 415),
+              (95, 88, 178, 87, 14, 317, 402, 318, 324))
+
+#: Mesh points (single indices) of the contours that follow one row of points.
+MESH_CURVES: dict[str, tuple[int, ...]] = {
+    # alar crease down along the cheek, lateral to the mouth corner
+    "furrow_r": (129, 203, 206, 216, 212),
+    "furrow_l": (358, 423, 426, 436, 432),
+    # the lower border of the nostrils, through the subnasale
+    "nose_tip": (98, 97, 2, 326, 327),
+    "lower_lip": (146, 91, 181, 84, 17, 314, 405, 321, 375),
+    "chin_boss": (428, 396, 152, 171, 208, 201, 200, 421),
+}
+
+#: Eye centres as the mean of four eyelid points (corners, mid upper and lower lid):
+#: row 0 the subject's right eye (image left).
+EYE_POINTS = ((33, 133, 159, 145), (362, 263, 386, 374))
+
+#: End handling that replaces the template's (:data:`~trackers.layout.CONTOUR_DEFAULTS`)
+#: for contours placed from the landmarks: the mesh's mouth corners (61, 291) lie
+#: closer to hand-placed corners than the end of the dark mouth line does.
+LANDMARK_ENDS = {"upper_lip": "free"}
+
+#: Points on the skull that expressions barely move (eye corners, nose bridge and
+#: dorsum): the head's rigid motion is read off them.
+RIGID_POINTS = (33, 133, 362, 263, 168, 6, 197, 195, 5)
+
+
+def _check(points):
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[0] != 468 or p.shape[1] < 2:
+        raise ValueError(f"landmarks must have shape (468, 2) or (468, 3), got {p.shape}")
+    return p[:, :2]
+
+
+def eye_centres(points) -> np.ndarray:
+    """(2, 2) eye centres from the mesh: row 0 subject's right (image left)."""
+    p = _check(points)
+    return np.array([p[list(idx)].mean(axis=0) for idx in EYE_POINTS])
+
+
+def landmark_curves(points) -> dict[str, np.ndarray]:
+    """The eight mesh-traced contours (all but the hairline) in image pixels.
+
+    Parameters
+    ----------
+    points : array_like, shape (468, 2) or (468, 3)
+        Face-mesh landmarks in image pixels.
+
+    Returns
+    -------
+    dict name -> ndarray (m, 2)
+
+    Examples
+    --------
+    >>> pts = np.random.default_rng(0).uniform(0, 100, (468, 2))
+    >>> sorted(landmark_curves(pts))[:3]
+    ['brow_l', 'brow_r', 'chin_boss']
+    """
+    p = _check(points)
+    out = {name: 0.5 * (p[list(up)] + p[list(lo)]) for name, (up, lo) in _BROW_EDGES.items()}
+    upper, lower = (p[list(idx)] for idx in _LIP_INNER)
+    out["upper_lip"] = np.vstack([p[61], 0.5 * (upper + lower), p[291]])
+    for name, idx in MESH_CURVES.items():
+        out[name] = p[list(idx)]
+    return out
+
+
+def layout_from_landmarks(points, image_size, *, spacing: float | None = None) -> FaceLayout:
+    """A :class:`~trackers.layout.FaceLayout` placed from face-mesh landmarks.
+
+    The template is placed by the mesh's eye centres
+    (:func:`~trackers.layout.layout_from_eyes`, which sets each contour's potential,
+    width and end handling); every contour but the hairline is then replaced by its
+    mesh curve, resampled to the same node spacing.
+
+    Parameters
+    ----------
+    points : array_like, shape (468, 2) or (468, 3)
+    image_size : (width, height)
+    spacing : float, optional
+        Node spacing in pixels (default 3 % of the inter-eye distance, at least 1).
+
+    Returns
+    -------
+    FaceLayout
+        ``source='landmarks'``.
+    """
+    eyes = eye_centres(points)
+    lay = layout_from_eyes(eyes[0], eyes[1], image_size, spacing=spacing, source="landmarks")
+    iod = lay.inter_eye
+    step = max(1.0, 0.03 * iod) if spacing is None else float(spacing)
+    w, h = lay.image_size
+    contours = dict(lay.contours)
+    for name, curve in landmark_curves(points).items():
+        c = lay.contours[name]
+        n = max(5 if c.closed else 3, len(c.points),
+                int(round(_length(curve, c.closed) / step)) + (0 if c.closed else 1))
+        pts = np.clip(resample_polyline(curve, n, closed=c.closed), 0, [w - 1, h - 1])
+        contours[name] = LayoutContour(pts, c.closed, c.kind, c.sigma,
+                                       LANDMARK_ENDS.get(name, c.ends))
+    return FaceLayout({n: contours[n] for n in CONTOUR_NAMES}, (w, h), eyes, None,
+                      "landmarks")
+
+
+def _length(curve, closed):
+    d = np.diff(np.vstack([curve, curve[:1]]) if closed else curve, axis=0)
+    return float(np.hypot(d[:, 0], d[:, 1]).sum())
