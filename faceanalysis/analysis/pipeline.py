@@ -81,10 +81,10 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
     tracker : {'landmarks', 'snakes'}, optional
-        'landmarks' (default): MediaPipe's face mesh finds the face on every frame and
-        holds the snakes (:class:`trackers.AnchoredTracker`); frames without a face are
-        lost. 'snakes' (the default when ``layout`` is given): 004's Haar cascades,
-        template layout and free snakes. See :func:`faceanalysis.tracking.track`.
+        'landmarks' (recommended for real video): MediaPipe's face mesh finds the face
+        on every frame and holds the snakes (:class:`trackers.AnchoredTracker`); frames
+        without a face are lost. 'snakes' (default): 004's Haar cascades, template
+        layout and free snakes. See :func:`faceanalysis.tracking.track`.
     response : FiducialResponse, optional
         Model response to invert (default: the generic face model's, cached).
     refine : bool, keyword-only
@@ -141,8 +141,6 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         response = model_response()
     if neutral is not None:
         _check_neutral_in_range(video, neutral, fps=fps, start=start, end=end)
-    if tracker is None:
-        tracker = "snakes" if layout is not None else "landmarks"
     tracks = track(video, points=response.fiducials, fps=fps, start=start, end=end,
                    layout=layout, tracker=tracker, tracker_options=tracker_options,
                    backend=backend,
@@ -165,7 +163,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
         "neutral_frame": int(tracks.frames[k]),
-        "tracker": tracker,
+        "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
         "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,

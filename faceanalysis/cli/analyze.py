@@ -27,9 +27,10 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "(default: the first frame tracked)")
     group.add_argument("--tracker", choices=("landmarks", "snakes"),
                        help="landmarks: MediaPipe's face mesh finds the face on every frame "
-                            "and holds the snakes (default); snakes: the paper's Haar "
-                            "cascades and free snakes, no model needed (default with "
-                            "--layout)")
+                            "and holds the snakes; frames without a face are lost "
+                            "(recommended for real video; the model is downloaded on first "
+                            "use, see `faceanalysis models`); snakes: the paper's Haar "
+                            "cascades and free snakes, no model needed (default)")
     group.add_argument("--layout", type=Path, metavar="JSON",
                        help="initial contours from a JSON file (FaceLayout.to_json) instead "
                             "of automatic placement")

@@ -270,6 +270,18 @@ def with_au_columns(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _with_pose(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with empty pose columns where it has none: tables written before the pose
+    was measured, and by the snakes tracker's users, are still tables."""
+    missing = [c for c in POSE_COLUMNS if c not in df.columns]
+    if not missing:
+        return df
+    df = df.copy()
+    for c in missing:
+        df[c] = np.nan
+    return df
+
+
 def _check_frame(df: pd.DataFrame, path) -> None:
     missing = [c for c in contraction_columns() if c not in df.columns]
     if missing:
@@ -317,6 +329,7 @@ def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     np.float64(0.25)
     """
     path = Path(path)
+    df = _with_pose(df)
     _check_frame(df, path)
     _validate(df, path)
     columns = contraction_columns()
@@ -447,6 +460,7 @@ def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"{path}: not a CSV table ({first})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
+    raw = _with_pose(raw)
     _check_frame(raw, path)
     numeric = _validate(raw, path)
     out = numeric.copy()

@@ -112,7 +112,7 @@ def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
     for i, img in enumerate([blank, blank, rendered_face, rendered_face, blank,
                              rendered_face]):
         cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    tr = track(folder, fps=10)
+    tr = track(folder, fps=10, tracker="landmarks")
     assert tr.tracker == "landmarks"
     assert tr.success.tolist() == [False, False, True, True, False, True]
     t = tr.table
@@ -127,4 +127,4 @@ def test_tracker_choice_is_checked(tmp_path):
         track(path, tracker="mesh")
     with pytest.raises(ValueError, match="layout"):
         track(path, layout=lay, tracker="landmarks")
-    assert track(path, layout=lay, tracker="snakes").tracker == "snakes"
+    assert track(path, layout=lay).tracker == "snakes"

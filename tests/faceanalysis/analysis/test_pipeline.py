@@ -136,6 +136,23 @@ def test_no_face_names_the_file_and_frame(tmp_path):
         analyze(path)
 
 
+def test_landmark_tracker_without_a_face_names_the_file(tmp_path):
+    pytest.importorskip("cv2")
+    path = tmp_path / "wall.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    for _ in range(3):
+        writer.write(np.full((120, 160, 3), 128, np.uint8))
+    writer.release()
+    try:
+        from trackers.landmarks import ensure_models
+
+        ensure_models()
+    except (RuntimeError, FileNotFoundError) as exc:
+        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    with pytest.raises(ValueError, match=r"wall\.avi: no face found in any of the 3 frames"):
+        analyze(path, tracker="landmarks")
+
+
 def test_unknown_estimator_lists_the_choices(surprise):
     with pytest.raises(ValueError, match="choose from joint, tw93, flow"):
         analyze(surprise["video"], estimator="magic")

@@ -47,11 +47,12 @@ def test_schema_matches_design():
     cols = contraction_columns()
     assert cols[:8] == ["frame", "timestamp", "success", "confidence",
                         "head_x", "head_y", "head_scale", "head_roll"]
-    assert cols[8:10] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
+    assert cols[8:10] == ["head_pitch", "head_yaw"]
+    assert cols[10:12] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
     assert cols.index(JAW) == cols.index("orbicularis_oculi_r") + 1
     assert cols[-len(AU_COLUMNS):] == list(AU_COLUMNS)
     assert AU_COLUMNS[0] == "AU01_r" and AU_COLUMNS[-1] == "AU27_r" and len(AU_COLUMNS) == 16
-    assert len(cols) == len(set(cols)) == 4 + 4 + 22 + 29 + 1 + 16
+    assert len(cols) == len(set(cols)) == 4 + 4 + 2 + 22 + 29 + 1 + 16
 
 
 def test_round_trip(tmp_path):

@@ -1,0 +1,196 @@
+"""Accuracy of the landmark-anchored tracker against the snakes of 004 and the landmarks.
+
+Three measurements (the issue "hold the nine contours on real faces"):
+
+* photographs, ``annotated/imm_dev`` (20 people, types 1-5): mouth-corner and brow
+  error over the inter-ocular distance (eye centres from the hand-placed eye contours)
+  for the mesh's own points, the anchored tracker's fiducials and the snakes';
+  smile vs neutral (type 2 vs 1) from the tracked mouth width over the eye distance;
+* real clips, ``real/``: frames tracked and lost by ``track``;
+* rendered faces: the standard suite's sequences for a few identities, mean fiducial
+  error against the renderer's truth, per tracker.
+
+Reads ``../shared/data`` (or ``$FACEANALYSIS_SHARED_DATA``) and says so when absent.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _harness import Figure, emit  # noqa: E402
+
+DATA = Path(os.environ.get("FACEANALYSIS_SHARED_DATA",
+                           Path(__file__).resolve().parents[2] / "shared" / "data"))
+
+
+def _fig(case, metric, value, unit, higher_is_better, target=None):
+    return Figure("landmark_tracking", case, metric, float(value), unit, higher_is_better,
+                  target)
+
+
+def _asf(path, shape):
+    pts = []
+    for line in Path(path).read_text().splitlines():
+        f = line.split()
+        if len(f) >= 7 and not line.startswith("#"):
+            try:
+                pts.append((float(f[2]) * shape[1], float(f[3]) * shape[0]))
+            except ValueError:
+                pass
+    return np.array(pts)
+
+
+def _auc(pos, neg):
+    pos, neg = np.asarray(pos), np.asarray(neg)
+    return float(np.mean([(p > n) + 0.5 * (p == n) for p in pos for n in neg]))
+
+
+# IMM point -> our fiducial (subject's side): mouth corners 39 (right), 43 (left); brows
+# 29..33 (left, inner to outer), 34..38 (right, inner to outer)
+_IMM = {"mouth_corner_r": 39, "mouth_corner_l": 43, "brow_inner_l": 29, "brow_mid_l": 31,
+        "brow_outer_l": 33, "brow_inner_r": 34, "brow_mid_r": 36, "brow_outer_r": 38}
+_MESH = {"mouth_corner_r": [61], "mouth_corner_l": [291]}
+
+
+def photographs(quick=False):
+    import cv2
+
+    from trackers import detect_layout
+    from trackers.anchored import AnchoredTracker
+    from trackers.tracking import Tracker
+
+    folder = DATA / "annotated" / "imm_dev"
+    if not folder.is_dir():
+        print(f"# {folder} is absent: photograph figures skipped")
+        return []
+    people = range(21, 31) if quick else range(21, 41)
+    err = {k: {t: [] for t in range(1, 6)} for k in ("mesh", "anchored", "snakes")}
+    brow = {k: [] for k in ("anchored", "snakes")}
+    width = {k: {1: [], 2: []} for k in ("mesh", "anchored", "snakes")}
+    missed = {"anchored": 0, "snakes": 0}
+    for person in people:
+        for t in range(1, 6):
+            path = next(folder.glob(f"{person}-{t}?.jpg"))
+            img = cv2.imread(str(path))
+            gt = _asf(path.with_suffix(".asf"), img.shape)
+            eyes = np.array([gt[21:29].mean(0), gt[13:21].mean(0)])
+            iod = float(np.hypot(*(eyes[1] - eyes[0])))
+            fids = {}
+            r = AnchoredTracker(channel_order="bgr").track(img)
+            if r is None:
+                missed["anchored"] += 1
+            else:
+                fids["anchored"] = r.fiducials
+                lm = r.extra["landmarks"]
+                fids["mesh"] = {n: lm[i].mean(0) for n, i in _MESH.items()}
+            try:
+                fids["snakes"] = Tracker(detect_layout(img, channel_order="bgr"),
+                                         channel_order="bgr").track(img).fiducials
+            except ValueError:
+                missed["snakes"] += 1
+            for kind, f in fids.items():
+                e = [np.hypot(*np.subtract(f[n], gt[_IMM[n]])) / iod
+                     for n in ("mouth_corner_r", "mouth_corner_l")]
+                err[kind][t].append(float(np.mean(e)))
+                if kind in brow and t in (1, 2):
+                    brow[kind] += [np.hypot(*np.subtract(f[n], gt[i])) / iod
+                                   for n, i in _IMM.items() if n.startswith("brow")]
+                if t in (1, 2):
+                    width[kind][t].append(np.hypot(*np.subtract(
+                        f["mouth_corner_l"], f["mouth_corner_r"])) / iod)
+    figs = []
+    for kind in err:
+        for t in range(1, 6):
+            if err[kind][t]:
+                figs.append(_fig(f"IMM type {t}, {kind}", "mouth-corner error",
+                                 np.mean(err[kind][t]), "IOD", False,
+                                 0.03 if kind == "anchored" and t <= 2 else None))
+        w1, w2 = np.array(width[kind][1]), np.array(width[kind][2])
+        if len(w1) == len(w2) and len(w1):
+            figs.append(_fig(f"IMM smile vs neutral, {kind}", "people whose smile is wider",
+                             (w2 > w1).sum(), f"of {len(w1)}", True,
+                             len(w1) if kind == "anchored" else None))
+            figs.append(_fig(f"IMM smile vs neutral, {kind}", "AUC", _auc(w2, w1), "", True,
+                             0.97 if kind == "anchored" else None))
+    for kind, v in brow.items():
+        figs.append(_fig(f"IMM types 1-2, {kind}", "brow point error", np.mean(v), "IOD",
+                         False))
+    for kind, n in missed.items():
+        figs.append(_fig(f"IMM types 1-5, {kind}", "photographs without a face found", n,
+                         "images", False))
+    return figs
+
+
+def real_clips(quick=False):
+    from faceanalysis.tracking import track
+
+    folder = DATA / "real"
+    if not folder.is_dir():
+        print(f"# {folder} is absent: real-clip figures skipped")
+        return []
+    figs = []
+    for name, lost_range in (("face_noface.mov", (72, 169)), ("noface_face.mov", (0, 96))):
+        tr = track(folder / name)
+        lo, hi = lost_range
+        figs.append(_fig(name, f"frames {lo}-{hi - 1} without a face marked lost",
+                         (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
+        other = np.r_[0:lo, hi:len(tr)]
+        figs.append(_fig(name, "frames with a face tracked", tr.success[other].sum(),
+                         f"of {len(other)}", True))
+    return figs
+
+
+def rendered(quick=False):
+    import pandas as pd
+
+    from faceanalysis.evaluation.suite import STANDARD_SEQUENCES, script_kwargs
+    from faceanalysis.tracking import track
+    from synth.render.sequence import synthesize
+
+    ids = (101,) if quick else (101, 102, 103)
+    errs = {"landmarks": [], "snakes": []}
+    import tempfile
+
+    from trackers.fiducials import FIDUCIAL_NAMES
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in ids:
+            for kind, spec in STANDARD_SEQUENCES:
+                seq = synthesize(frames=30, size=256, seed=seed, head_motion=0.3, noise=2.0,
+                                 illumination=0.3, flow=False, **script_kwargs(kind, spec))
+                folder = Path(tmp) / f"{seed}_{spec}".replace(":", "-").replace(",", "_")
+                folder.mkdir()
+                import cv2
+
+                for i, im in enumerate(seq.images):
+                    cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(im, cv2.COLOR_RGB2BGR))
+                truth = seq.truth
+                for tk in errs:
+                    tab = track(folder, fps=30, tracker=tk).table
+                    ok = tab["success"].to_numpy() == 1
+                    for n in FIDUCIAL_NAMES:
+                        d = np.hypot(tab[f"fid_{n}_x"] - truth[f"fid_{n}_x"],
+                                     tab[f"fid_{n}_y"] - truth[f"fid_{n}_y"])[ok]
+                        errs[tk] += list(pd.Series(d).dropna())
+    return [_fig(f"rendered suite, {len(ids)} identities x 11 sequences, {tk}",
+                 "mean fiducial error", np.mean(v), "px", False,
+                 0.815 if tk == "landmarks" else None) for tk, v in errs.items()]
+
+
+def run(quick: bool = False):
+    figs = []
+    for part in (photographs, real_clips, rendered):
+        t0 = time.perf_counter()
+        figs += part(quick)
+        print(f"# {part.__name__}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return figs
+
+
+if __name__ == "__main__":
+    emit("landmark_tracking", run("--quick" in sys.argv))
