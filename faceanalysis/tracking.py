@@ -474,6 +474,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                                        not good))
                 if bar is not None:
                     bar.update(1)
+        if kind == "landmarks" and frames and not any(ok):
+            # before the overlay is finished: a failed run leaves no file behind
+            raise ValueError(f"{video}: no face found in any of the {len(frames)} frames")
         if writer is not None:
             writer.close()
             writer = None
@@ -484,8 +487,6 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             writer.abort()
     if not frames:
         raise ValueError(f"{video}: no frames in the requested range")
-    if kind == "landmarks" and not any(ok):
-        raise ValueError(f"{video}: no face found in any of the {len(frames)} frames")
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),

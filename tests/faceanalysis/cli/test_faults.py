@@ -242,3 +242,17 @@ def test_batch_follows_the_umask(face, tmp_path, run_cli, umask027):
     assert code == 0, err
     assert (tmp_path / "res" / "video" / "overlay.mp4").is_file()
     _assert_umask_027(tmp_path / "res")
+
+
+def test_landmark_tracker_failed_run_leaves_no_overlay(tmp_path, run_cli):
+    from trackers.landmarks import ensure_models
+
+    try:
+        ensure_models()
+    except (RuntimeError, FileNotFoundError) as exc:
+        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    video = _blank_video(tmp_path / "blank.mp4")
+    code, _, err = run_cli("analyze", video, "-o", tmp_path / "new" / "out", "--overlay",
+                           "--tracker", "landmarks")
+    assert code == 1 and "no face found in any of the 3 frames" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blank.mp4"]
