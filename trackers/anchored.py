@@ -33,6 +33,7 @@ from trackers.landmark_contours import (
     landmark_curves,
     layout_from_landmarks,
 )
+from trackers.polyline import resample_polyline
 from trackers.quality import ContourQuality, TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
@@ -157,12 +158,13 @@ class AnchoredTracker:
         check_backend(backend, device)
         self.backend, self.device = backend, device
         # the contour's ends are the mesh's mouth corners (see LANDMARK_ENDS)
-        self.tracker_options = {"mouth_corner": "ends", **tracker_options}
+        self.tracker_options = {"mouth_corner": "snap", **tracker_options}
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None
         self._ref_rigid3: np.ndarray | None = None
         self._gap = False
+        self._offsets: dict[str, np.ndarray] = {}
 
     def track(self, frame) -> TrackResult | None:
         """Track one frame; ``None`` when no face is found on it."""
@@ -172,9 +174,10 @@ class AnchoredTracker:
         if lm is None:
             self._gap = True
             return None
-        targets = landmark_curves(lm.points)
+        curves = landmark_curves(lm.points)
         rigid = lm.points[list(RIGID_POINTS)]
         rigid3 = np.c_[rigid, lm.z[list(RIGID_POINTS)]]
+        iod = float(np.hypot(*np.subtract(*eye_centres(lm.points))))
         if self.tracker is None:
             h, w = frame.shape[:2]
             layout = layout_from_landmarks(lm.points, (w, h))
@@ -182,16 +185,22 @@ class AnchoredTracker:
                                         channel_order=self.channel_order,
                                         springs=self.springs, redetect=False,
                                         **self.tracker_options)
+            targets = self._node_targets(curves, 0j)
+            # the chin boss is held where it was placed (the mesh has no outline of it)
+            targets["chin_boss"] = self.tracker.system.contour_points(
+                self.tracker.names.index("chin_boss")).copy()
             res = self.tracker.track(frame, targets=targets)
             self._ref_rigid, self._ref_rigid3 = rigid, rigid3
+            self._learn_offsets(targets, res, iod)
+            targets = self._node_targets(curves, 1 + 0j)
         else:
             a, b = rigid_similarity(self._ref_rigid, rigid)
             head = _apply_similarity(self.tracker.ref_head, a, b)
+            targets = self._node_targets(curves, a)
             if self._gap:
                 self._replace(targets, head)
             res = self.tracker.track(frame, targets=targets, head=head)
         self._gap = False
-        iod = float(np.hypot(*np.subtract(*eye_centres(lm.points))))
         quality = dict(res.quality)
         for name in targets:
             k = self.tracker.names.index(name)
@@ -207,6 +216,45 @@ class AnchoredTracker:
                      detected=bool(lm.detected))
         return TrackResult(index, res.contours, quality, res.iterations, res.converged,
                            res.head, res.fiducials, extra)
+
+    def _node_targets(self, curves, a):
+        """The landmark curves at the contours' node counts, each node moved by its
+        offset from the first frame (turned and scaled by ``a``, the similarity since)."""
+        t = self.tracker
+        out = {}
+        for k, name in enumerate(t.names):
+            curve = curves.get(name)
+            if curve is None:
+                continue
+            sl = t.system.contour_slice(k)
+            pts = resample_polyline(curve, sl.stop - sl.start,
+                                    closed=t.layout.contours[name].closed)
+            off = self._offsets.get(name)
+            if off is not None and a != 0:
+                z = a * off
+                pts = pts + np.c_[z.real, z.imag]
+            out[name] = pts
+        return out
+
+    def _learn_offsets(self, targets, res, iod):
+        """Where the first frame's snakes settled relative to their landmark curves.
+
+        The mesh's curves and the image's features differ by a steady, per-face amount
+        (the mesh's brow line lies below the centre of a thick brow, its chin is a guess,
+        its mouth line is smoother than the lips' meeting line); from here on the
+        springs pull toward each curve moved by that amount, so that they resist the
+        snakes' motion relative to the landmarks, not the snakes' precision. A contour
+        lost on the first frame, or farther than ``max_disagreement`` from its curve,
+        keeps no offset.
+        """
+        self._offsets = {}
+        for name, pts in targets.items():
+            q = res.quality[name]
+            k = self.tracker.names.index(name)
+            d = self.tracker.system.contour_points(k) - pts
+            if q.lost or np.mean(np.hypot(*d.T)) > self.max_disagreement * iod:
+                continue
+            self._offsets[name] = d[:, 0] + 1j * d[:, 1]
 
     def _replace(self, targets, head):
         """Put every contour on its landmark curve again (the face came back)."""

@@ -20,6 +20,7 @@ from trackers.layout import CONTOUR_NAMES, FaceLayout, LayoutContour, layout_fro
 from trackers.polyline import resample_polyline
 
 __all__ = [
+    "CHIN_CENTRE",
     "EYE_POINTS",
     "LANDMARK_ENDS",
     "MESH_CURVES",
@@ -47,8 +48,15 @@ MESH_CURVES: dict[str, tuple[int, ...]] = {
     # the lower border of the nostrils, through the subnasale
     "nose_tip": (98, 97, 2, 326, 327),
     "lower_lip": (146, 91, 181, 84, 17, 314, 405, 321, 375),
-    "chin_boss": (428, 396, 152, 171, 208, 201, 200, 421),
 }
+
+#: The chin boss: the layout template's ellipse (:data:`~trackers.layout.TEMPLATE`,
+#: half axes in inter-eye distances, turned with the eye line), centred this fraction of
+#: the way from the lower lip's lowest point (17) to the chin's tip (152). The mesh has
+#: no outline of the boss; on renders of the face model, whose chin boss defines the
+#: ``chin`` fiducial, its centroid lies at 0.58 +- 0.07 of that segment (five faces).
+CHIN_CENTRE = 0.58
+_CHIN_AXES = (0.262, 0.148)
 
 #: Eye centres as the mean of four eyelid points (corners, mid upper and lower lid):
 #: row 0 the subject's right eye (image left).
@@ -101,6 +109,14 @@ def landmark_curves(points) -> dict[str, np.ndarray]:
     out["upper_lip"] = np.vstack([p[61], 0.5 * (upper + lower), p[291]])
     for name, idx in MESH_CURVES.items():
         out[name] = p[list(idx)]
+    eyes = eye_centres(p)
+    d = eyes[1] - eyes[0]
+    iod = float(np.hypot(*d))
+    c, s = d / max(iod, 1e-9)
+    t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    local = np.c_[_CHIN_AXES[0] * np.cos(t), _CHIN_AXES[1] * np.sin(t)] * iod
+    centre = p[17] + CHIN_CENTRE * (p[152] - p[17])
+    out["chin_boss"] = centre + local @ np.array([[c, s], [-s, c]])
     return out
 
 
@@ -130,7 +146,13 @@ def layout_from_landmarks(points, image_size, *, spacing: float | None = None) -
     step = max(1.0, 0.03 * iod) if spacing is None else float(spacing)
     w, h = lay.image_size
     contours = dict(lay.contours)
-    for name, curve in landmark_curves(points).items():
+    curves = landmark_curves(points)
+    # the chin boss starts where the template has it below the mesh's lower lip (as the
+    # snakes' layout places it below the lower lip it found): the snake then settles on
+    # the boss's outline from the same side as on a template layout
+    shift = curves["lower_lip"].mean(axis=0) - lay.contours["lower_lip"].points.mean(axis=0)
+    curves["chin_boss"] = lay.contours["chin_boss"].points + shift
+    for name, curve in curves.items():
         c = lay.contours[name]
         n = max(5 if c.closed else 3, len(c.points),
                 int(round(_length(curve, c.closed) / step)) + (0 if c.closed else 1))

@@ -378,7 +378,7 @@ def layout_from_eyes(eye_r, eye_l, image_size, *, spacing: float | None = None,
 
 
 def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
-                  step: float = 1.0) -> FaceLayout:
+                  step: float = 1.0, names=None) -> FaceLayout:
     """Move each contour rigidly to the lowest mean potential within its search window.
 
     The windows are those of :data:`CONTOUR_DEFAULTS`, centred on the template moved by
@@ -395,12 +395,19 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
     channel_order : {'rgb', 'bgr'}
     step : float
         Grid step of the search, pixels.
+    names : sequence of str, optional
+        Search only these contours (the others stay where they are); default all.
 
     Returns
     -------
     FaceLayout
         A new layout (the input is not modified).
     """
+    if names is not None:
+        unknown = sorted(set(names) - set(CONTOUR_NAMES))
+        if unknown:
+            raise ValueError(f"unknown contours {unknown}; choose from "
+                             f"{', '.join(CONTOUR_NAMES)}")
     gray = to_gray(frame, channel_order=channel_order)
     H, W = gray.shape
     if tuple(layout.image_size) != (W, H):
@@ -413,6 +420,9 @@ def refine_layout(frame, layout: FaceLayout, *, channel_order: str = "rgb",
     order = [n for n in CONTOUR_DEFAULTS if n in layout.contours]
     for name in order:
         c = layout.contours[name]
+        if names is not None and name not in names:
+            out[name] = c
+            continue
         win, parent = CONTOUR_DEFAULTS[name][3], CONTOUR_DEFAULTS[name][5]
         rx, ry = win[0] * iod, win[1] * iod
         base = np.asarray(offsets.get(parent, (0.0, 0.0)), float)

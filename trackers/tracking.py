@@ -140,6 +140,13 @@ class Tracker(HeadFrameSearch, ContourFields):
         contour (with the mouth open the contour follows a border of the cavity and
         its ends fall short of the corners); where no clear end is found the last
         corner is kept, moved with the head frame. 'ends': the contour's ends (004).
+        'snap': the contour's ends, each moved onto the end of the dark region that
+        'profile' finds when that lies within ``corner_reach`` of it (for contours
+        whose ends are held by landmarks: the image refines them where it shows the
+        corner, and cannot pull them onto another feature).
+    corner_reach : float
+        With ``mouth_corner='snap'``: the farthest a corner is moved from the
+        contour's end, as a fraction of the first frame's mouth width.
     redetect : bool
         When three or more contours have been lost for three frames in a row, detect
         the face again (:func:`~trackers.layout.detect_layout`, at most every
@@ -201,7 +208,7 @@ class Tracker(HeadFrameSearch, ContourFields):
                  max_step: float = 1.0, brow_mid=BROW_MID_FRACTION, max_shape_change: float = 0.15,
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile", redetect: bool = True,
-                 redetect_interval: int = 15, springs=None):
+                 redetect_interval: int = 15, springs=None, corner_reach: float = 0.06):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -232,9 +239,13 @@ class Tracker(HeadFrameSearch, ContourFields):
         if head_anchor in ("eyes", "features") and layout.eyes is None:
             raise ValueError(f"head_anchor={head_anchor!r} needs a layout with eye centres")
         self.head_anchor = head_anchor
-        if mouth_corner not in ("profile", "ends"):
-            raise ValueError(f"mouth_corner must be 'profile' or 'ends', got {mouth_corner!r}")
+        if mouth_corner not in ("profile", "ends", "snap"):
+            raise ValueError(f"mouth_corner must be 'profile', 'ends' or 'snap', got "
+                             f"{mouth_corner!r}")
+        if not np.isfinite(corner_reach) or corner_reach <= 0:
+            raise ValueError(f"corner_reach must be positive, got {corner_reach}")
         self.mouth_corner_mode = mouth_corner
+        self.corner_reach = float(corner_reach)
         self.mouth_width: float | None = None
         if int(redetect_interval) < 1:
             raise ValueError(f"redetect_interval must be >= 1, got {redetect_interval}")
@@ -361,9 +372,11 @@ class Tracker(HeadFrameSearch, ContourFields):
             curve = targets.get(name)
             if curve is None:
                 continue
-            pts = np.clip(resample_polyline(np.asarray(curve, float), self._n_nodes(k),
-                                            closed=self.layout.contours[name].closed),
-                          0, [W - 1, H - 1])
+            curve = np.asarray(curve, float)
+            n = self._n_nodes(k)
+            if len(curve) != n:   # a curve of the contour's own nodes is taken as it is
+                curve = resample_polyline(curve, n, closed=self.layout.contours[name].closed)
+            pts = np.clip(curve, 0, [W - 1, H - 1])
             self.system.set_targets(k, pts)
             out[name] = pts
         return out
@@ -471,7 +484,7 @@ class Tracker(HeadFrameSearch, ContourFields):
         frame : ndarray
         targets : dict name -> (m, 2) array, optional
             Where this frame's springs pull (see ``springs``), e.g. curves from a
-            landmark model; a contour lost on this frame is re-placed on its target
+            landmark model, resampled to the contour's nodes unless they have as many; a contour lost on this frame is re-placed on its target
             instead of the layout, and the face is not detected again.
         head : HeadFrame, optional
             This frame's head frame when it is known from elsewhere (e.g. rigid
@@ -587,7 +600,8 @@ class Tracker(HeadFrameSearch, ContourFields):
         self.last_head = head
         contours = {n: self.system.contour_points(k) for k, n in enumerate(self.names)}
         fids = fiducials(contours, head, brow_mid_fraction=self.brow_fraction)
-        if self.mouth_corner_mode == "profile" and not quality["upper_lip"].lost:
+        snap = self.mouth_corner_mode == "snap"
+        if self.mouth_corner_mode in ("profile", "snap") and not quality["upper_lip"].lost:
             lip = contours["upper_lip"]
             width = None
             if self.mouth_width is not None and self.ref_head is not None:
@@ -604,7 +618,12 @@ class Tracker(HeadFrameSearch, ContourFields):
             corners = mouth_corners(gray, lip, origin=gorigin, width=width, previous=previous,
                                     sigma=0.5 * float(self.layout.contours["upper_lip"].sigma))
             reach = 0.25 * max(_polyline_length(lip), width or 0.0)
+            if snap:
+                reach = self.corner_reach * (width or _polyline_length(lip))
             for c, e, name in zip(corners, (lip[0], lip[-1]), names):
+                if snap and (c is None or np.hypot(*(c - e)) > reach):
+                    fids[name] = (float(e[0]), float(e[1]))   # the contour's end
+                    continue
                 if c is None or np.hypot(*(c - e)) > reach:
                     # no clear end of the mouth this frame (a highlight, a lip pressed
                     # on the teeth): keep the last corner, moved with the head (the

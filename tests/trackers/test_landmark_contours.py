@@ -12,7 +12,13 @@ from trackers.layout import CONTOUR_NAMES, TEMPLATE, layout_from_eyes
 def _mesh_from_template(eye_r=(100.0, 120.0), eye_l=(160.0, 120.0)):
     """468 points where every mesh point a curve uses sits on the template's curve: a
     face whose landmarks agree with the layout template."""
-    from trackers.landmark_contours import _BROW_EDGES, _LIP_INNER, EYE_POINTS, MESH_CURVES
+    from trackers.landmark_contours import (
+        _BROW_EDGES,
+        _LIP_INNER,
+        CHIN_CENTRE,
+        EYE_POINTS,
+        MESH_CURVES,
+    )
 
     lay = layout_from_eyes(eye_r, eye_l, (256, 256))
     pts = np.full((468, 2), 128.0)
@@ -32,8 +38,11 @@ def _mesh_from_template(eye_r=(100.0, 120.0), eye_l=(160.0, 120.0)):
     put(_LIP_INNER[0], lip[1:-1])
     put(_LIP_INNER[1], lip[1:-1])
     for name, idx in MESH_CURVES.items():
-        curve = lay.contours[name].points
-        put(idx, np.vstack([curve, curve[:1]]) if lay.contours[name].closed else curve)
+        put(idx, lay.contours[name].points)
+    # the chin's tip below the lower lip's lowest point (17) so that the chin boss's
+    # centre falls where the template has it
+    centre = lay.contours["chin_boss"].points.mean(axis=0)
+    pts[152] = pts[17] + (centre - pts[17]) / CHIN_CENTRE
     return pts, lay
 
 
@@ -58,7 +67,7 @@ def test_layout_from_landmarks_keeps_the_templates_settings():
         assert (c.closed, c.kind, c.sigma) == (ref.closed, ref.kind, ref.sigma)
         # the placed curve lies on the template's curve
         d = np.linalg.norm(c.points[:, None] - ref.points[None], axis=2).min(axis=1)
-        assert d.max() < 3.0, name   # an 8-point chin loop cuts the ellipse by 2.6 px
+        assert d.max() < 1.5, name
     # the mouth line's ends are the mesh's corners, not relocated by the tracker
     assert got.contours["upper_lip"].ends == "free"
 
