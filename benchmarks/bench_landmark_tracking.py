@@ -10,7 +10,8 @@ Three measurements (the issue "hold the nine contours on real faces"):
 * rendered faces: the standard suite's sequences for a few identities, mean fiducial
   error against the renderer's truth, per tracker.
 
-Reads ``../shared/data`` (or ``$FACEANALYSIS_SHARED_DATA``) and says so when absent.
+Reads ``../shared/data`` (``$FACEANALYSIS_REAL_DATA`` names its ``real`` folder) and says
+so when absent.
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _harness import Figure, emit  # noqa: E402
 
-DATA = Path(os.environ.get("FACEANALYSIS_SHARED_DATA",
-                           Path(__file__).resolve().parents[2] / "shared" / "data"))
+DATA = Path(os.environ.get("FACEANALYSIS_REAL_DATA",
+                           Path(__file__).resolve().parents[2] / "shared" / "data" / "real")).parent
 
 
 def _fig(case, metric, value, unit, higher_is_better, target=None):
@@ -34,21 +35,19 @@ def _fig(case, metric, value, unit, higher_is_better, target=None):
                   target)
 
 
-def _asf(path, shape):
-    pts = []
-    for line in Path(path).read_text().splitlines():
-        f = line.split()
-        if len(f) >= 7 and not line.startswith("#"):
-            try:
-                pts.append((float(f[2]) * shape[1], float(f[3]) * shape[0]))
-            except ValueError:
-                pass
-    return np.array(pts)
+def _read_asf(path: Path, shape) -> np.ndarray:
+    """The 58 hand-placed points of an IMM photograph, in pixels."""
+    rows = [line.split() for line in path.read_text().splitlines()
+            if line.strip() and not line.startswith("#")]
+    pts = np.array([[float(r[2]), float(r[3])] for r in rows if len(r) >= 7])
+    if len(pts) != 58:
+        raise ValueError(f"{path}: {len(pts)} points, expected 58")
+    return pts * [shape[1], shape[0]]
 
 
-def _auc(pos, neg):
+def _auc(pos, neg) -> float:
     pos, neg = np.asarray(pos), np.asarray(neg)
-    return float(np.mean([(p > n) + 0.5 * (p == n) for p in pos for n in neg]))
+    return float(((pos[:, None] > neg[None]) + 0.5 * (pos[:, None] == neg[None])).mean())
 
 
 # IMM point -> our fiducial (subject's side): mouth corners 39 (right), 43 (left); brows
@@ -72,16 +71,18 @@ def photographs(quick=False):
     people = range(21, 31) if quick else range(21, 41)
     err = {k: {t: [] for t in range(1, 6)} for k in ("mesh", "anchored", "snakes")}
     brow = {k: [] for k in ("anchored", "snakes")}
-    width = {k: {1: [], 2: []} for k in ("mesh", "anchored", "snakes")}
+    width = {k: {1: [], 2: []} for k in ("mesh", "anchored", "snakes", "hand-placed")}
     missed = {"anchored": 0, "snakes": 0}
     for person in people:
         for t in range(1, 6):
             path = next(folder.glob(f"{person}-{t}?.jpg"))
             img = cv2.imread(str(path))
-            gt = _asf(path.with_suffix(".asf"), img.shape)
+            gt = _read_asf(path.with_suffix(".asf"), img.shape)
             eyes = np.array([gt[21:29].mean(0), gt[13:21].mean(0)])
             iod = float(np.hypot(*(eyes[1] - eyes[0])))
             fids = {}
+            if t in (1, 2):
+                width["hand-placed"][t].append(np.hypot(*(gt[43] - gt[39])) / iod)
             r = AnchoredTracker(channel_order="bgr").track(img)
             if r is None:
                 missed["anchored"] += 1

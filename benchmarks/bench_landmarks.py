@@ -1,4 +1,4 @@
-"""Landmarks: MediaPipe face detector and 468-point mesh, speed per runtime and IMM accuracy.
+"""Landmarks: MediaPipe face detector and 468-point mesh, speed per runtime.
 
 Speed: ms per call on one core of the detector (whole frame) and of the landmark model in
 tracking mode (the crop from the previous landmarks), and of ``LandmarkTracker.track`` in
@@ -6,14 +6,7 @@ tracking mode, on a 640x360 frame: the first frame of ``../shared/data/real/cap1
 scaled to 360 rows and padded (a rendered face when the file is absent), for each runtime
 installed (OpenCV's dnn always; LiteRT with ``pip install ai-edge-litert``).
 
-Accuracy, on ``../shared/data/annotated/imm_dev`` (20 people, hand-placed points; skipped
-when absent): each photograph is a fresh track (detection, then the refining second pass).
-The mouth-corner error (points 61 and 291 against the annotated corners 39 and 43) over the
-inter-ocular distance (between the means of each annotated eye contour), per photo type
-(1 neutral, 2 smile, 3-4 head turned, 5 side light, 6 free expression); and smile against
-neutral: mouth width over the distance between the eye centres of the mesh (means of 33, 133,
-159, 145 and of 362, 263, 386, 374), the number of people whose smile (type 2) reads wider
-than their neutral face (type 1), and the ROC AUC of that ratio over the 40 photographs.
+Accuracy on photographs and real clips: ``bench_landmark_tracking.py``.
 """
 
 from __future__ import annotations
@@ -85,67 +78,11 @@ def _speed(quick: bool) -> list[Figure]:
     return figures
 
 
-def _read_asf(path: Path, shape) -> np.ndarray:
-    rows = [line.split() for line in path.read_text().splitlines()
-            if line.strip() and not line.startswith("#")]
-    pts = np.array([[float(r[2]), float(r[3])] for r in rows if len(r) >= 7])
-    assert len(pts) == 58, path
-    return pts * [shape[1], shape[0]]
-
-
-def _auc(neg, pos) -> float:
-    neg, pos = np.asarray(neg), np.asarray(pos)
-    return float(((pos[:, None] > neg[None]) + 0.5 * (pos[:, None] == neg[None])).mean())
-
-
-def _imm() -> list[Figure]:
-    folder = DATA / "annotated" / "imm_dev"
-    if not folder.is_dir():
-        print(f"{folder} not found: the IMM accuracy figures are skipped", file=sys.stderr)
-        return []
-    tracker = LandmarkTracker(channel_order="bgr")
-    err, ratio, hand = {}, {}, {}
-    for jpg in sorted(folder.glob("*.jpg")):
-        person, kind = jpg.stem.split("-")[0], int(jpg.stem.split("-")[1][0])
-        img = cv2.imread(str(jpg))
-        truth = _read_asf(jpg.with_suffix(".asf"), img.shape)
-        iod = np.linalg.norm(truth[13:21].mean(0) - truth[21:29].mean(0))
-        hand[person, kind] = np.linalg.norm(truth[39] - truth[43]) / iod
-        tracker.reset()
-        lm = tracker.track(img)
-        if lm is None:
-            log.warning("no face found in %s", jpg.name)
-            err.setdefault(kind, []).append(np.nan)
-            continue
-        p = lm.points
-        err.setdefault(kind, []).append(
-            np.linalg.norm(p[[61, 291]] - truth[[39, 43]], axis=1).mean() / iod)
-        eyes = [p[idx].mean(0) for idx in EYES_MESH]
-        ratio[person, kind] = np.linalg.norm(p[291] - p[61]) / np.linalg.norm(eyes[1] - eyes[0])
-    figures = []
-    for kind in sorted(err):
-        e = np.array(err[kind])
-        figures.append(Figure(NAME, f"IMM type {kind} ({len(e)} photos)", "mouth-corner error",
-                              float(np.nanmean(e)), "IOD", higher_is_better=False,
-                              extra={"median": float(np.nanmedian(e)),
-                                     "lost": int(np.isnan(e).sum())}))
-    for name, values in (("mesh", ratio), ("hand-placed", hand)):
-        people = sorted({p for p, k in values if (p, 1) in values and (p, 2) in values})
-        wider = int(sum(values[p, 2] > values[p, 1] for p in people))
-        auc = _auc([values[p, 1] for p in people], [values[p, 2] for p in people])
-        case = f"IMM smile vs neutral, {name} ({len(people)} people)"
-        figures.append(Figure(NAME, case, "people whose smile is wider", wider, "people",
-                              higher_is_better=True))
-        figures.append(Figure(NAME, case, "ROC AUC of mouth width / IOD", auc, "",
-                              higher_is_better=True))
-    return figures
-
-
 def run(quick: bool = False) -> list[Figure]:
     ensure_models()
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one core, as a Dask worker runs it
     try:
-        return _speed(quick) + _imm()
+        return _speed(quick)
     finally:
         cv2.setNumThreads(threads)

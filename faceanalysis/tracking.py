@@ -391,7 +391,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                          f"{', '.join(POINT_CONTOUR)}")
     check_backend(backend, device)
     if tracker is None:
-        tracker = DEFAULT_TRACKER
+        tracker = "snakes" if layout is not None else DEFAULT_TRACKER
     if tracker not in TRACKERS:
         raise ValueError(f"unknown tracker {tracker!r}; choose from {', '.join(TRACKERS)}")
     if tracker == "landmarks" and layout is not None:

@@ -157,8 +157,12 @@ class AnchoredTracker:
         self.max_disagreement = float(max_disagreement)
         check_backend(backend, device)
         self.backend, self.device = backend, device
-        # the contour's ends are the mesh's mouth corners (see LANDMARK_ENDS)
-        self.tracker_options = {"mouth_corner": "snap", **tracker_options}
+        # the mouth corners are the contour's ends, held by the mesh's corners (see
+        # LANDMARK_ENDS), moved onto the image's corner only within a small reach: on
+        # photographs a reach of 0.06 of the mouth width already let the dark-region
+        # search pull some corners off (smile AUC 0.95 against 0.97 at 0.04)
+        self.tracker_options = {"mouth_corner": "snap", "corner_reach": 0.04,
+                                **tracker_options}
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None
@@ -193,6 +197,10 @@ class AnchoredTracker:
             self._ref_rigid, self._ref_rigid3 = rigid, rigid3
             self._learn_offsets(targets, res, iod)
             targets = self._node_targets(curves, 1 + 0j)
+            # settle once more toward the offset targets: the first equilibrium held a
+            # spring's pull toward the raw curves, which would otherwise be released
+            # over the next frames as a creep
+            res = self.tracker.track(frame, targets=targets, head=self.tracker.ref_head)
         else:
             a, b = rigid_similarity(self._ref_rigid, rigid)
             head = _apply_similarity(self.tracker.ref_head, a, b)

@@ -43,8 +43,8 @@ _LIP_INNER = ((191, 80, 81, 82, 13, 312, 311, 310, 415),
 #: Mesh points (single indices) of the contours that follow one row of points.
 MESH_CURVES: dict[str, tuple[int, ...]] = {
     # alar crease down along the cheek, lateral to the mouth corner
-    "furrow_r": (129, 203, 206, 216, 212),
-    "furrow_l": (358, 423, 426, 436, 432),
+    "furrow_r": (129, 203, 206, 216, 212, 202),
+    "furrow_l": (358, 423, 426, 436, 432, 422),
     # the lower border of the nostrils, through the subnasale
     "nose_tip": (98, 97, 2, 326, 327),
     "lower_lip": (146, 91, 181, 84, 17, 314, 405, 321, 375),

@@ -158,7 +158,7 @@ class Tracker(HeadFrameSearch, ContourFields):
     redetect_interval : int
         Least number of frames between two detections; doubled (up to 16 times)
         after each detection that finds no face or does not help.
-    springs : float or dict name -> float, optional
+    springs : float or dict name -> float or per-node array, optional
         Stiffness of the springs that pull each contour's nodes toward the target
         curves given to :meth:`track` (``Contour.spring``; relative to the damping
         ``gamma/dt`` = 0.5 of each step). Without targets the springs hold the nodes
@@ -297,9 +297,10 @@ class Tracker(HeadFrameSearch, ContourFields):
         if unknown:
             raise ValueError(f"springs for unknown contours {unknown}; choose from "
                              f"{', '.join(self.names)}")
-        if not all(np.isfinite(v) and v >= 0 for v in springs.values()):
+        if not all(np.all(np.isfinite(v)) and np.all(np.asarray(v) >= 0)
+                   for v in springs.values()):
             raise ValueError(f"spring stiffnesses must be finite and >= 0, got {springs}")
-        self.springs = {n: float(springs.get(n, 0.0)) for n in self.names}
+        self.springs = {n: springs.get(n, 0.0) for n in self.names}
         contours = []
         for name in self.names:
             c = layout.contours[name]
@@ -484,8 +485,9 @@ class Tracker(HeadFrameSearch, ContourFields):
         frame : ndarray
         targets : dict name -> (m, 2) array, optional
             Where this frame's springs pull (see ``springs``), e.g. curves from a
-            landmark model, resampled to the contour's nodes unless they have as many; a contour lost on this frame is re-placed on its target
-            instead of the layout, and the face is not detected again.
+            landmark model, resampled to the contour's nodes unless they have as many;
+            a contour lost on this frame is re-placed on its target instead of the
+            layout, and the face is not detected again.
         head : HeadFrame, optional
             This frame's head frame when it is known from elsewhere (e.g. rigid
             landmarks); ignored on the first frame, whose head frame comes from the

@@ -46,6 +46,21 @@ def test_fiducials_head_frame_and_lost_frames(face_truth):
     assert back.index == 3
 
 
+def test_a_still_face_stays_still(face_truth):
+    # the springs pull toward the landmark curves moved by the first frame's offsets:
+    # on a face that does not move, nothing should creep
+    img, _ = face_truth
+    tracker = AnchoredTracker()
+    runs = [tracker.track(img).fiducials for _ in range(8)]
+    for name in FIDUCIAL_NAMES:
+        track = np.array([r[name] for r in runs])
+        # the mesh itself jitters by up to 0.4 px between the detection frame and the
+        # tracking frames; the chin boss's shallow valley lets its snake descend
+        # slowly for a few frames (about 1.5 px on this coarse face)
+        limit = 2.0 if name == "chin" else 0.6
+        assert np.abs(track - track[0]).max() < limit, name
+
+
 class _Moved:
     """Landmarks of a real model, with the mouth's moved down by ``shift`` px from the
     second frame on: the contour stays on the image's mouth and disagrees."""

@@ -112,6 +112,14 @@ def test_refine_moves_displaced_contours_onto_features():
         assert abs(dy) <= 1.0, (n, dy)
     with pytest.raises(ValueError, match="made for"):
         refine_layout(np.zeros((100, 100), np.uint8), lay)
+    # only the contours named are searched; the others stay where they were
+    only = refine_layout(img, shifted, names=("brow_l",))
+    assert abs(only.contours["brow_l"].points[:, 1].mean()
+               - lay.contours["brow_l"].points[:, 1].mean()) <= 1.0
+    np.testing.assert_array_equal(only.contours["upper_lip"].points,
+                                  shifted.contours["upper_lip"].points)
+    with pytest.raises(ValueError, match="unknown contours"):
+        refine_layout(img, shifted, names=("ear",))
 
 
 def _short_lower_face(cut):

@@ -132,6 +132,12 @@ def test_mouth_corner_option_validated():
     lay = layout_from_eyes((96, 105), (159, 105), (256, 256))
     with pytest.raises(ValueError, match="mouth_corner"):
         Tracker(lay, mouth_corner="tips")
+    with pytest.raises(ValueError, match="corner_reach"):
+        Tracker(lay, mouth_corner="snap", corner_reach=0.0)
+    with pytest.raises(ValueError, match="springs for unknown contours"):
+        Tracker(lay, springs={"ear": 1.0})
+    with pytest.raises(ValueError, match="spring stiffnesses"):
+        Tracker(lay, springs={"brow_l": -1.0})
 
 
 def test_brow_mid_default_is_the_fixed_fraction():
