@@ -137,7 +137,7 @@ def real_clips(quick=False):
         return []
     figs = []
     for name, lost_range in (("face_noface.mov", (72, 169)), ("noface_face.mov", (0, 96))):
-        tr = track(folder / name)
+        tr = track(folder / name, tracker="landmarks")
         lo, hi = lost_range
         figs.append(_fig(name, f"frames {lo}-{hi - 1} without a face marked lost",
                          (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
