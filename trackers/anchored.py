@@ -87,9 +87,11 @@ def rotation_angles(src, dst) -> tuple[float, float]:
 
     Examples
     --------
-    >>> pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    >>> pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, -1.0]])   # nose: z < 0
     >>> t = np.radians(10)
-    >>> Ry = np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+    >>> Ry = np.array([[np.cos(t), 0, -np.sin(t)], [0, 1, 0], [np.sin(t), 0, np.cos(t)]])
+    >>> bool((pts @ Ry.T)[3, 0] > 0)          # the nose moves to the image's right
+    True
     >>> [round(v, 6) + 0.0 for v in rotation_angles(pts, pts @ Ry.T)]
     [0.0, 10.0]
     """
@@ -103,7 +105,8 @@ def rotation_angles(src, dst) -> tuple[float, float]:
     d = np.sign(np.linalg.det(u @ vt))
     R = u @ np.diag([1.0, 1.0, d]) @ vt
     pitch = np.degrees(np.arctan2(R[2, 1], R[2, 2]))
-    yaw = np.degrees(np.arcsin(np.clip(R[0, 2], -1.0, 1.0)))
+    # the nose (z < 0) goes to +x when the face turns toward the image's right: R[0, 2] < 0
+    yaw = np.degrees(np.arcsin(np.clip(-R[0, 2], -1.0, 1.0)))
     return float(pitch), float(yaw)
 
 

@@ -23,6 +23,7 @@ from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
 from faceanalysis.estimation.estimators import fit_residual
+from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_points_3d
 from faceanalysis.estimation.registry import ESTIMATORS, Observations, run_estimator
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import analysis_metadata, quality_summary
@@ -57,6 +58,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
             tracker: str | None = None, tracker_options: dict | None = None,
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
+            pose_correction: bool = True,
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
@@ -105,6 +107,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         They are named in a warning and in ``analysis.json``
         (``calibration.suspect_points``) either way; ``'exclude'`` (default) also
         leaves them out of the calibration and the estimation.
+    pose_correction : bool, keyword-only
+        Where the tracker measures the head's pitch and yaw (``tracker='landmarks'``),
+        take the apparent motion of the head's rotation since the neutral frame out of
+        the points' displacements (:func:`~faceanalysis.estimation.pose.correct_pose`),
+        so that a bowed or turned head is not read as an expression. Whether it was
+        applied is recorded in ``analysis.json`` (``parameters.pose_correction``).
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -155,6 +163,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
 
     t0 = time.perf_counter()
     disp = cal.model_displacements(meas, tracks.heads)
+    disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
                        options={"fps": fps, "start": start, "end": end})
     values = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
@@ -169,6 +178,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),
         "single_frame": len(tracks) == 1,
+        "pose_correction": pose_applied,
     }
     table = _tracking_table(tracks)
     table, residual, fit = _contractions(table, values, disp, response, tracks.confidence,
@@ -255,6 +265,25 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
              "faded_furrow_ends": {n: int(c) for n, c in zip(response.fiducials,
                                                              faded.sum(axis=0)) if c}}
     return meas, cal, calib
+
+
+def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: FiducialResponse,
+                  enabled: bool) -> tuple[np.ndarray, bool]:
+    """``disp`` less the apparent motion of the head's rotation since the neutral frame
+    (:func:`~faceanalysis.estimation.pose.correct_pose`), and whether any frame was
+    corrected: not without a pose on the neutral frame (the snakes tracker), nor for a
+    response whose points the generic face model does not have (their depth is its)."""
+    pose = np.asarray(pose, dtype=float)
+    if not enabled or pose.shape != (len(disp), 2) or not np.isfinite(pose[k]).all():
+        return disp, False
+    try:
+        rest = rest_points_3d(response.fiducials)
+    except ValueError as exc:
+        log.warning("no head pose correction: %s", exc)
+        return disp, False
+    # the model's x-y, which the calibration was fitted to, with the generic face's depth
+    rest[:, :2] = response.rest
+    return correct_pose(disp, pose, k, rest, reference=head_frame_points()), True
 
 
 def _tracking_table(tracks: Tracks) -> pd.DataFrame:
@@ -392,6 +421,12 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
     tracks = analysis.tracks
     k = 0 if tracks is None else int(np.flatnonzero(
         tracks.frames == params.get("neutral_frame", tracks.frames[0]))[0])
+    if params.get("pose_correction"):
+        # the same correction as the analysis's, from the pose columns of its table
+        rows = np.flatnonzero(table["frame"].to_numpy() == params.get("neutral_frame"))
+        if rows.size:
+            disp, _ = _correct_pose(disp, table[list(POSE_COLUMNS)].to_numpy(float),
+                                    int(rows[0]), analysis.response, True)
     obs = Observations(tracks=tracks, response=analysis.response, displacements=disp,
                        neutral=k, options={n: params.get(n) for n in ("fps", "start", "end")})
     values = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
