@@ -51,6 +51,14 @@ DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l"
                    "furrow_r": 0.01, "nose_tip": 0.005, "upper_lip": 0.005,
                    "lower_lip": 0.005, "chin_boss": 0.005}
 
+#: Stiffer springs on the two end nodes of these contours: the mouth line's ends are the
+#: mouth corners, which the mesh places better than the end of the dark line on real
+#: faces (a free end creeps inward along the line, and from one frame to the next it
+#: does not follow a widening smile: on neutral-then-smile photographs the corners were
+#: 0.057 inter-ocular distances off on the smile with the contour's spring, 0.036 with
+#: this one).
+END_SPRINGS = {"upper_lip": 0.5}
+
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
 #: in inter-ocular distances, is lost.
 MAX_DISAGREEMENT = 0.12
@@ -161,11 +169,13 @@ class AnchoredTracker:
         check_backend(backend, device)
         self.backend, self.device = backend, device
         # the mouth corners are the contour's ends, held by the mesh's corners (see
-        # LANDMARK_ENDS), moved onto the image's corner only within a small reach: on
-        # photographs a reach of 0.06 of the mouth width already let the dark-region
-        # search pull some corners off (smile AUC 0.95 against 0.97 at 0.04)
+        # LANDMARK_ENDS and END_SPRINGS), moved onto the image's corner within a small
+        # reach (on photographs 0.06 of the mouth width already let the dark-region
+        # search pull some corners off: smile AUC 0.95 against 0.97 at 0.04), or where
+        # the image's corner follows the last frame's (on rendered faces the mesh's
+        # corners drift up to 9 px from an opening mouth's)
         self.tracker_options = {"mouth_corner": "snap", "corner_reach": 0.04,
-                                **tracker_options}
+                                "corner_follow": 0.05, **tracker_options}
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None
@@ -188,9 +198,17 @@ class AnchoredTracker:
         if self.tracker is None:
             h, w = frame.shape[:2]
             layout = layout_from_landmarks(lm.points, (w, h))
+            springs = self.springs
+            if isinstance(springs, dict):
+                springs = dict(springs)
+                for name, k in END_SPRINGS.items():
+                    per_node = np.full(len(layout.contours[name].points),
+                                       float(springs.get(name, 0.0)))
+                    per_node[[0, -1]] = k
+                    springs[name] = per_node
             self.tracker = make_tracker(layout, backend=self.backend, device=self.device,
                                         channel_order=self.channel_order,
-                                        springs=self.springs, redetect=False,
+                                        springs=springs, redetect=False,
                                         **self.tracker_options)
             targets = self._node_targets(curves, 0j)
             # the chin boss is held where it was placed (the mesh has no outline of it)

@@ -147,6 +147,11 @@ class Tracker(HeadFrameSearch, ContourFields):
     corner_reach : float
         With ``mouth_corner='snap'``: the farthest a corner is moved from the
         contour's end, as a fraction of the first frame's mouth width.
+    corner_follow, corner_cap : float
+        With ``mouth_corner='snap'``: a corner farther than ``corner_reach`` from the
+        contour's end is still taken when it lies within ``corner_follow`` of the last
+        frame's corner and within ``corner_cap`` of the end (fractions of the mouth
+        width); ``corner_follow=0`` (default) turns this off.
     redetect : bool
         When three or more contours have been lost for three frames in a row, detect
         the face again (:func:`~trackers.layout.detect_layout`, at most every
@@ -208,7 +213,8 @@ class Tracker(HeadFrameSearch, ContourFields):
                  max_step: float = 1.0, brow_mid=BROW_MID_FRACTION, max_shape_change: float = 0.15,
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile", redetect: bool = True,
-                 redetect_interval: int = 15, springs=None, corner_reach: float = 0.06):
+                 redetect_interval: int = 15, springs=None, corner_reach: float = 0.06,
+                 corner_follow: float = 0.0, corner_cap: float = 0.2):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -244,8 +250,14 @@ class Tracker(HeadFrameSearch, ContourFields):
                              f"{mouth_corner!r}")
         if not np.isfinite(corner_reach) or corner_reach <= 0:
             raise ValueError(f"corner_reach must be positive, got {corner_reach}")
+        if not (np.isfinite(corner_follow) and corner_follow >= 0
+                and np.isfinite(corner_cap) and corner_cap > 0):
+            raise ValueError(f"corner_follow must be >= 0 and corner_cap positive, got "
+                             f"{corner_follow} and {corner_cap}")
         self.mouth_corner_mode = mouth_corner
         self.corner_reach = float(corner_reach)
+        self.corner_follow = float(corner_follow)
+        self.corner_cap = float(corner_cap)
         self.mouth_width: float | None = None
         if int(redetect_interval) < 1:
             raise ValueError(f"redetect_interval must be >= 1, got {redetect_interval}")
@@ -381,6 +393,21 @@ class Tracker(HeadFrameSearch, ContourFields):
             self.system.set_targets(k, pts)
             out[name] = pts
         return out
+
+    def _snaps(self, c, end, prev, reach, scale) -> bool:
+        """Whether the image's corner ``c`` replaces the contour's ``end`` (``'snap'``):
+        when it lies within ``reach`` of the end, or when it follows the last frame's
+        accepted corner (``prev``, within ``corner_follow`` of the mouth width) and
+        stays within ``corner_cap`` of the end. The second rule keeps a corner that the
+        image shows clearly while the landmarks drift from it (an opening mouth), and
+        the cap bounds how far it can take the corner from them."""
+        if c is None:
+            return False
+        d = float(np.hypot(*(c - end)))
+        if d <= reach:
+            return True
+        return (prev is not None and d <= self.corner_cap * scale
+                and float(np.hypot(*(c - prev))) <= self.corner_follow * scale)
 
     def _layout_points(self, k, head):
         """Layout contour ``k`` moved by the similarity between the first and this frame."""
@@ -622,11 +649,20 @@ class Tracker(HeadFrameSearch, ContourFields):
             reach = 0.25 * max(_polyline_length(lip), width or 0.0)
             if snap:
                 reach = self.corner_reach * (width or _polyline_length(lip))
-            for c, e, name in zip(corners, (lip[0], lip[-1]), names):
-                if snap and (c is None or np.hypot(*(c - e)) > reach):
+            scale = width or _polyline_length(lip)
+            for c, e, name, prev in zip(corners, (lip[0], lip[-1]), names, previous):
+                if snap and not self._snaps(c, e, prev, reach, scale):
+                    if (c is None and prev is not None and self.corner_follow > 0
+                            and np.hypot(*(prev - e)) <= self.corner_cap * scale):
+                        # no clear corner this frame: the last one, moved with the head,
+                        # for one frame (``previous`` holds only fresh corners)
+                        self._corner_misses[name] = self._corner_misses.get(name, 0) + 1
+                        fids[name] = (float(prev[0]), float(prev[1]))
+                        continue
                     fids[name] = (float(e[0]), float(e[1]))   # the contour's end
+                    self._corners_head.pop(name, None)
                     continue
-                if c is None or np.hypot(*(c - e)) > reach:
+                if not snap and (c is None or np.hypot(*(c - e)) > reach):
                     # no clear end of the mouth this frame (a highlight, a lip pressed
                     # on the teeth): keep the last corner, moved with the head (the
                     # contour's end can be far off: 35 px on a rendered AU 15)
