@@ -15,6 +15,7 @@ Reads ``../shared/data`` (or ``$FACEANALYSIS_SHARED_DATA``) and says so when abs
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -39,10 +40,8 @@ def _asf(path, shape):
     for line in Path(path).read_text().splitlines():
         f = line.split()
         if len(f) >= 7 and not line.startswith("#"):
-            try:
+            with contextlib.suppress(ValueError):
                 pts.append((float(f[2]) * shape[1], float(f[3]) * shape[0]))
-            except ValueError:
-                pass
     return np.array(pts)
 
 
