@@ -100,6 +100,11 @@ def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
     if not 0 < min_score < 1:
         raise ValueError(f"min_score={min_score!r} must lie in (0, 1)")
     net = load_network(ensure_models()["face_detection"], runtime=check_runtime(runtime))
+    return _run(net, image, channel_order, min_score)
+
+
+def _run(net, image: np.ndarray, channel_order: str, min_score: float) -> list[FaceDetection]:
+    """:func:`detect_faces` with the network given and the arguments checked."""
     h, w = image.shape[:2]
     # letterbox: scale the longer side to 128 and centre; continuous coordinates map as
     # square = s * image + t, and pixel indices as square_i = s * image_i + t + (s - 1) / 2

@@ -65,6 +65,12 @@ def face_landmarks(image, roi, *, channel_order: str = "rgb",
     """
     image = check_image(image, channel_order)
     net = load_network(ensure_models()["face_landmark"], runtime=check_runtime(runtime))
+    return _run(net, image, roi, channel_order)
+
+
+def _run(net, image: np.ndarray, roi, channel_order: str) -> tuple[np.ndarray, float]:
+    """:func:`face_landmarks` with the network given and the image checked (the tracker's
+    per-frame path: no model-file checks)."""
     m = roi_transform(roi)
     crop = sample(image, m, _SIZE, channel_order, border=cv2.BORDER_REPLICATE)
     coords, logit = net.run(crop[None].astype(np.float32) / 255)  # 'conv2d_21', 'conv2d_31'

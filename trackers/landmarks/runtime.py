@@ -86,11 +86,18 @@ def load_network(path: str | os.PathLike, *, runtime: str = "auto"):
         tensor name. Networks are shared per (file, runtime) within a thread.
     """
     runtime = check_runtime(runtime)
+    cache = _local.__dict__.setdefault("nets", {})
+    # a path already loaded in this thread is found without file-system calls (the
+    # trackers ask for their networks on every frame)
+    given = (os.fspath(path), runtime)
+    net = cache.get(given)
+    if net is not None:
+        return net
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no model file {path}")
     key = (str(path.resolve()), runtime)
-    cache = _local.__dict__.setdefault("nets", {})
     if key not in cache:
         cache[key] = (_LiteRTNet if runtime == "litert" else _OpenCVNet)(path)
+    cache[given] = cache[key]
     return cache[key]

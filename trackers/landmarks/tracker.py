@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trackers.landmarks import detection, mesh
 from trackers.landmarks._image import check_image
-from trackers.landmarks.detection import detect_faces
-from trackers.landmarks.mesh import face_landmarks
-from trackers.landmarks.runtime import check_runtime
+from trackers.landmarks.models import ensure_models
+from trackers.landmarks.runtime import check_runtime, load_network
 
 __all__ = ["Landmarks", "LandmarkTracker"]
 
@@ -70,7 +70,10 @@ class LandmarkTracker:
     def __init__(self, *, channel_order: str = "rgb", runtime: str = "auto",
                  min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True):
         check_image(np.zeros((2, 2), np.uint8), channel_order)
-        check_runtime(runtime)
+        # resolved once: 'auto' looks for LiteRT on the import path, which costs
+        # file-system calls (and, with decoding in another thread, the GIL) every frame
+        self._runtime = check_runtime(runtime)
+        self._models = None    # model paths, checked on the first frame
         for name, value in (("min_presence", min_presence), ("min_score", min_score)):
             if not 0 < value < 1:
                 raise ValueError(f"{name}={value!r} must lie in (0, 1)")
@@ -85,12 +88,19 @@ class LandmarkTracker:
         self._last_centre = None   # where the face was last seen
         self._lost = 0             # frames since then
 
+    def _net(self, name):
+        # the networks are cached per thread by load_network; the files are checked (and
+        # installed if missing) once per tracker, not on every frame
+        if self._models is None:
+            self._models = ensure_models()
+        return load_network(self._models[name], runtime=self._runtime)
+
     def _landmarks(self, image, roi):
-        return face_landmarks(image, roi, channel_order=self.channel_order, runtime=self.runtime)
+        return mesh._run(self._net("face_landmark"), image, roi, self.channel_order)
 
     def _detect(self, image):
-        faces = detect_faces(image, channel_order=self.channel_order, min_score=self.min_score,
-                             runtime=self.runtime)
+        faces = detection._run(self._net("face_detection"), image, self.channel_order,
+                               self.min_score)
         if not faces:
             return None, 0.0
         boxes = np.array([f.box for f in faces])
