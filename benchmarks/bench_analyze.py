@@ -23,7 +23,7 @@ beforehand, per runtime.
 
 Cases: a rendered 640x360 happiness sequence of the project's face model (with head
 motion and noise), and ``WolfgangLanger_Pexels.mp4`` from ``../shared/data/real`` (or
-``$FACEANALYSIS_SHARED_DATA/real``) when present.
+``$FACEANALYSIS_REAL_DATA``) when present.
 
 Peer, measured in the same run where it is installed: MediaPipe's face mesh (the
 landmark tracker the issue names) on the same frames, decode excluded
@@ -57,9 +57,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _harness import Figure  # noqa: E402
 
-DATA = Path(os.environ.get("FACEANALYSIS_SHARED_DATA",
-                           Path(__file__).resolve().parents[2] / "shared" / "data"))
-REAL = DATA / "real"
+REAL = Path(os.environ.get("FACEANALYSIS_REAL_DATA",
+                           Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 PEER = Path(__file__).resolve().parent / "peers" / "mediapipe_face_mesh.py"
 
 #: (label, analyze options, analysis target frames/s, ratio target, end-to-end target)

@@ -175,7 +175,7 @@ class AnchoredTracker:
         # the image's corner follows the last frame's (on rendered faces the mesh's
         # corners drift up to 9 px from an opening mouth's)
         self.tracker_options = {"mouth_corner": "snap", "corner_reach": 0.04,
-                                "corner_follow": 0.05, **tracker_options}
+                                "corner_follow": 0.1, **tracker_options}
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None
