@@ -128,6 +128,39 @@ def photographs(quick=False):
     return figs
 
 
+def neutral_then_smile(quick=False):
+    """The issues' protocol: each person as a two-frame sequence, neutral (type 1) then
+    smile (type 2), tracked by the anchored tracker."""
+    import cv2
+
+    from trackers.anchored import AnchoredTracker
+
+    folder = DATA / "annotated" / "imm_dev"
+    if not folder.is_dir():
+        return []
+    err, width = {1: [], 2: []}, {1: [], 2: []}
+    for person in range(21, 31) if quick else range(21, 41):
+        tracker = AnchoredTracker(channel_order="bgr")
+        for t in (1, 2):
+            path = next(folder.glob(f"{person}-{t}?.jpg"))
+            img = cv2.imread(str(path))
+            gt = _read_asf(path.with_suffix(".asf"), img.shape)
+            iod = float(np.hypot(*(gt[13:21].mean(0) - gt[21:29].mean(0))))
+            f = tracker.track(img).fiducials
+            err[t].append(np.mean([np.hypot(*np.subtract(f[n], gt[_IMM[n]])) / iod
+                                   for n in ("mouth_corner_r", "mouth_corner_l")]))
+            width[t].append(np.hypot(*np.subtract(f["mouth_corner_l"],
+                                                  f["mouth_corner_r"])) / iod)
+    case = "IMM neutral then smile, one sequence per person, anchored"
+    w1, w2 = np.array(width[1]), np.array(width[2])
+    return [_fig(case, "mouth-corner error, neutral frame", np.mean(err[1]), "IOD", False,
+                 0.03),
+            _fig(case, "mouth-corner error, smile frame", np.mean(err[2]), "IOD", False, 0.03),
+            _fig(case, "people whose smile is wider", (w2 > w1).sum(), f"of {len(w1)}", True,
+                 len(w1)),
+            _fig(case, "AUC", _auc(w2, w1), "", True, 0.97)]
+
+
 def real_clips(quick=False):
     from faceanalysis.tracking import track
 
@@ -186,7 +219,7 @@ def rendered(quick=False):
 
 def run(quick: bool = False):
     figs = []
-    for part in (photographs, real_clips, rendered):
+    for part in (photographs, neutral_then_smile, real_clips, rendered):
         t0 = time.perf_counter()
         figs += part(quick)
         print(f"# {part.__name__}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)

@@ -258,6 +258,12 @@ class Tracks:
         tracker); NaN on lost frames and with the snakes tracker.
     tracker : str
         Which tracker ran (:data:`TRACKERS`).
+    landmarks : list
+        Per frame, the landmark tracker's 468 face-mesh points as a (468, 3) float32
+        array (x, y in pixels, z in pixels of depth, toward the camera negative) for
+        the estimators that read more than the fiducials (index map:
+        :mod:`trackers.landmark_contours`); None on lost frames and with the snakes
+        tracker.
     timings : dict
         ``track_s`` (time in the tracker) and ``frames``.
     """
@@ -276,11 +282,14 @@ class Tracks:
     contours: list
     pose: np.ndarray | None = None
     tracker: str = "snakes"
+    landmarks: list | None = None
     timings: dict = field(default_factory=dict)
 
     def __post_init__(self):
         if self.pose is None:
             self.pose = np.full((len(self.frames), 2), np.nan)
+        if self.landmarks is None:
+            self.landmarks = [None] * len(self.frames)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -414,7 +423,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     nan_pts = np.full((len(points), 2), np.nan)
     nan_stretch = np.full(len(points), np.nan)
     nan_head = np.full(4, np.nan)
-    frames, stamps, ok, conf, poses = [], [], [], [], []
+    frames, stamps, ok, conf, poses, mesh = [], [], [], [], [], []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
     kind, tracker = tracker, None
     nan_pose = np.full(2, np.nan)
@@ -457,6 +466,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     pose = np.array([res.extra["head_pitch"], res.extra["head_yaw"]])
                     c = min(c, float(res.extra["presence"]))
                 poses.append(pose)
+                mesh.append(_mesh(res) if good else None)
                 ok.append(good)
                 conf.append(c)
                 fid_rows.append(fids)
@@ -490,10 +500,21 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
-                  pose=np.stack(poses), tracker=kind,
+                  pose=np.stack(poses), tracker=kind, landmarks=mesh,
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames)})
+
+
+def _mesh(res):
+    """The landmark tracker's 468 points (x, y, z) of a tracked frame, float32; None
+    with the snakes tracker."""
+    pts = res.extra.get("landmarks")
+    if pts is None:
+        return None
+    z = res.extra.get("landmarks_z")
+    z = np.zeros(len(pts)) if z is None else z
+    return np.c_[pts, z].astype(np.float32)
 
 
 def _anchored(backend, device, tracker_options):

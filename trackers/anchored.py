@@ -19,7 +19,9 @@ feature, but it is smooth and off by pixels on crisp edges, where snakes are exa
   from the same points in 3-D;
 * a frame is lost (``None``) when the model finds no face, and a contour is lost
   when it lies farther than ``max_disagreement`` inter-ocular distances from its
-  landmark curve (the snake followed something else).
+  landmark curve (the snake followed something else); the lower face is lost when
+  its contours sit on edges far deeper than their features' (a hand over the mouth,
+  :data:`OCCLUSION_WITNESSES`).
 """
 
 from __future__ import annotations
@@ -38,8 +40,8 @@ from trackers.quality import ContourQuality, TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
-__all__ = ["DEFAULT_SPRINGS", "MAX_DISAGREEMENT", "AnchoredTracker", "rigid_similarity",
-           "rotation_angles"]
+__all__ = ["DEFAULT_SPRINGS", "LOWER_FACE", "MAX_DEPTH", "MAX_DISAGREEMENT",
+           "OCCLUSION_WITNESSES", "AnchoredTracker", "rigid_similarity", "rotation_angles"]
 
 #: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). Weak: on
 #: rendered faces, whose edges the snakes find to a fraction of a pixel, stiffer springs
@@ -58,6 +60,14 @@ DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l"
 #: 0.057 inter-ocular distances off on the smile with the contour's spring, 0.036 with
 #: this one).
 END_SPRINGS = {"upper_lip": 0.5}
+
+#: The lower face is taken as covered (every contour of :data:`LOWER_FACE` lost) when two
+#: of these contours lie on edges more than ``max_depth`` times as deep as on the first
+#: frame. On ``WolfgangLanger_Pexels.mp4`` the chin's and lower lip's relative depth rose
+#: to 2.5-8 under the hand held over the mouth and stayed at 0.4-2.2 in the laugh.
+OCCLUSION_WITNESSES = ("lower_lip", "chin_boss", "furrow_l", "furrow_r")
+LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
+MAX_DEPTH = 2.5
 
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
 #: in inter-ocular distances, is lost.
@@ -132,6 +142,10 @@ class AnchoredTracker:
     max_disagreement : float
         Mean node distance from the landmark curve, in inter-ocular distances, beyond
         which a contour is lost (:data:`MAX_DISAGREEMENT`).
+    max_depth : float
+        Relative potential depth beyond which a contour of :data:`OCCLUSION_WITNESSES`
+        counts as lying on a foreign edge (:data:`MAX_DEPTH`, ``inf`` to turn the
+        occlusion test off).
     runtime : str
         The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
     backend, device
@@ -149,12 +163,16 @@ class AnchoredTracker:
 
     def __init__(self, *, landmarks=None, channel_order: str = "rgb",
                  springs=None, max_disagreement: float = MAX_DISAGREEMENT,
+                 max_depth: float = MAX_DEPTH,
                  runtime: str = "auto", backend: str = "numpy", device=None,
                  **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if not np.isfinite(max_disagreement) or max_disagreement <= 0:
             raise ValueError(f"max_disagreement must be positive, got {max_disagreement}")
+        if not max_depth > 1:
+            raise ValueError(f"max_depth must be > 1, got {max_depth}")
+        self.max_depth = float(max_depth)
         for key in ("redetect", "springs", "channel_order"):
             if key in tracker_options:
                 raise ValueError(f"{key!r} is set by the AnchoredTracker itself")
@@ -239,9 +257,18 @@ class AnchoredTracker:
             q = quality[name]
             if gap > self.max_disagreement and not q.lost:
                 quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised, q.shape)
+        deep = [n for n in OCCLUSION_WITNESSES
+                if not quality[n].lost and quality[n].depth > self.max_depth]
+        if len(deep) >= 2:
+            # an edge much stronger than the features' own across the lower face: a
+            # hand, fingers, a microphone; the mesh goes on drawing a mouth under it
+            for name in LOWER_FACE:
+                q = quality[name]
+                quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised,
+                                               q.shape)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
         extra = dict(res.extra, head_source="landmarks", presence=float(lm.presence),
-                     head_pitch=pitch, head_yaw=yaw, landmarks=lm.points,
+                     head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
                      detected=bool(lm.detected))
         return TrackResult(index, res.contours, quality, res.iterations, res.converged,
                            res.head, res.fiducials, extra)

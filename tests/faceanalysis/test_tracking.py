@@ -119,6 +119,10 @@ def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
     assert t.loc[[0, 1, 4], ["head_x", "head_pitch", "fid_chin_x"]].isna().all().all()
     assert t.loc[[2, 3, 5], ["head_pitch", "head_yaw"]].abs().max().max() < 3.0
     assert (tr.confidence[[2, 3, 5]] > 0.3).all() and (tr.confidence[[0, 1, 4]] == 0).all()
+    # the mesh's 468 points for the estimators that read more than the fiducials
+    assert [m is None for m in tr.landmarks] == [True, True, False, False, True, False]
+    assert tr.landmarks[2].shape == (468, 3) and tr.landmarks[2].dtype == np.float32
+    np.testing.assert_allclose(tr.landmarks[2][61, :2], tr.landmarks[3][61, :2], atol=1.0)
 
 
 def test_tracker_choice_is_checked(tmp_path):

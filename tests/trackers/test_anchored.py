@@ -113,3 +113,23 @@ def test_rigid_similarity_and_rotation_angles():
     Rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
     pitch, yaw = rotation_angles(p3, 2.0 * p3 @ Rx.T + 5.0)
     assert abs(pitch - 12.0) < 1e-6 and abs(yaw) < 1e-6
+
+
+def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
+    img, truth = face_truth
+    tracker = AnchoredTracker()
+    first = tracker.track(img)
+    assert not any(first.quality[n].lost for n in ("upper_lip", "lower_lip", "chin_boss"))
+    # fingers: high-contrast bars across the mouth and the chin
+    covered = img.copy()
+    x0 = int(truth["mouth_corner_r"][0]) - 12
+    x1 = int(truth["mouth_corner_l"][0]) + 12
+    y0 = int(truth["mouth_corner_r"][1]) - 10
+    y1 = int(truth["chin"][1]) + 12
+    for k, y in enumerate(range(y0, y1, 6)):
+        covered[y:y + 6, x0:x1] = (235, 200, 180) if k % 2 else (70, 45, 35)
+    res = tracker.track(covered)
+    if res is None:
+        pytest.skip("the mesh gave up on the covered face")
+    assert all(res.quality[n].lost for n in ("upper_lip", "lower_lip", "chin_boss"))
+    assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
