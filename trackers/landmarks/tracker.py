@@ -6,8 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trackers.landmarks import detection, mesh
 from trackers.landmarks._image import check_image
+from trackers.landmarks.detection import _run as _detect
+from trackers.landmarks.mesh import _run as _mesh
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
@@ -96,10 +97,10 @@ class LandmarkTracker:
         return load_network(self._models[name], runtime=self._runtime)
 
     def _landmarks(self, image, roi):
-        return mesh._run(self._net("face_landmark"), image, roi, self.channel_order)
+        return _mesh(self._net("face_landmark"), image, roi, self.channel_order)
 
     def _detect(self, image):
-        faces = detection._run(self._net("face_detection"), image, self.channel_order,
+        faces = _detect(self._net("face_detection"), image, self.channel_order,
                                self.min_score)
         if not faces:
             return None, 0.0
