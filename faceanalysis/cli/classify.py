@@ -98,9 +98,9 @@ def reference_reason(rec) -> str:
            "first": "first frame searched; no frame is clearly less contracted"}
     text = how.get(rec.reference_source, str(rec.reference_source))
     doubt = {"still": "",
-             "moving": "; the face does not hold still there, so it is probably a lull in "
-                       "an expression rather than rest: the labels are doubtful, pass "
-                       "--neutral FRAME or a larger --rest-lookback",
+             "moving": "; the face does not hold still there (a lull in an expression, or "
+                       "a face still relaxing), so it may not be at rest: the labels are "
+                       "doubtful, pass --neutral FRAME or a larger --rest-lookback",
              "unresolved": "; tracking noise on this clip hides the difference between rest "
                            "and expression, so it may not be at rest: the labels are "
                            "doubtful, pass --neutral FRAME"}

@@ -99,7 +99,8 @@ WEIGHTS = (0.8, 0.2)
 #: :func:`relative_contraction`) is at least this much smaller.
 REST_MARGIN = 0.25
 #: ... and by at least this many times the clip's frame-to-frame noise of that total (a
-#: robust SD), so that noisy tracking on a real video does not pick a random frame.
+#: robust SD of its second difference), so that noisy tracking on a real video does not
+#: pick a random frame.
 REST_NOISE = 4.0
 #: A rest frame is *still* when the total contraction stays within half the margin of its
 #: value for this many frames on one side (a face at rest holds; a lull in a laugh does
@@ -563,9 +564,10 @@ def _pick_rest(total: np.ndarray, frames: np.ndarray, reference: int, *,
     # a 5-frame running median: a single mistracked frame is not a rest frame
     smooth = np.full_like(total, np.nan)
     smooth[ok] = median_filter(total[ok], size=5, mode="nearest")
-    # the clip's own frame-to-frame noise (robust SD): a frame must be less contracted
-    # than the reference by more than noise can explain
-    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok])))) / np.sqrt(2.0)
+    # the clip's own frame-to-frame noise (robust SD of the second difference, which a
+    # smooth expression hardly has, so that a clip's motion is not taken for noise): a frame
+    # must be less contracted than the reference by more than noise can explain
+    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok], 2)))) / np.sqrt(6.0)
     tol = max(margin, REST_NOISE * noise)
     best = int(np.nanargmin(smooth))
     at_ref = np.flatnonzero(frames == reference)
