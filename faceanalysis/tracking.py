@@ -336,7 +336,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
           fps: float | None = None, start: int = 0, end: int | None = None, layout=None,
           tracker: str | None = None, tracker_options: dict | None = None,
           backend: str = "numpy", device: str | None = None, redetect: bool = False,
-          overlay: str | os.PathLike | None = None, progress: bool = False) -> Tracks:
+          overlay: str | os.PathLike | None = None, progress: bool = False,
+          keep_contours: bool = True) -> Tracks:
     """Track the face in a video: head frame, fiducials and measurement points per frame.
 
     Parameters
@@ -380,6 +381,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         Write the frames with contours, fiducials and head frame drawn to this video.
     progress : bool
         Progress bar on stderr.
+    keep_contours : bool, keyword-only
+        Keep every frame's contours in :attr:`Tracks.contours` (a few kB a frame); False
+        leaves None there, for callers that only read the measurements, whose memory then
+        does not grow with the contours.
 
     Returns
     -------
@@ -473,15 +478,15 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 pt_rows.append(pts)
                 head_rows.append(head)
                 stretch_rows.append(stretch)
-                contours.append(None if res is None else res.contours)
+                contours.append(None if res is None or not keep_contours else res.contours)
                 if overlay is not None and frame.ok:
                     if writer is None:
                         from synth.render.video import VideoWriter
 
                         writer = VideoWriter(overlay, source.fps, source.size,
                                              channel_order="bgr")
-                    writer.write(_draw(frame, contours[-1], fids, head if good else None,
-                                       not good))
+                    shown = None if res is None else res.contours
+                    writer.write(_draw(frame, shown, fids, head if good else None, not good))
                 if bar is not None:
                     bar.update(1)
         if kind == "landmarks" and frames and not any(ok):

@@ -15,6 +15,7 @@ HELP = "name the expression (six primaries or neutral) of a video by flow templa
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from faceanalysis.flow.dense import FLOW_METHODS
+    from faceanalysis.flow.recognition import REST_LOOKBACK
 
     parser.description = (
         "Track the face, compute its flow from the neutral frame on the canonical face grid "
@@ -32,9 +33,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="reuse the head frames and fiducials of an analysis folder "
                              "instead of tracking again")
     parser.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
-                        help="neutral reference frame (default: the detected rest frame, "
-                             "the least contracted face of the range; the command says "
-                             "which frame it used)")
+                        help="neutral reference frame, which may precede --start (default: "
+                             "the detected rest frame, the least contracted face of the "
+                             "range and the --rest-lookback frames before it; the command "
+                             "says which frame it used and whether it looks at rest)")
+    parser.add_argument("--rest-lookback", type=non_negative_int, metavar="FRAMES",
+                        help="frames before --start searched for the rest frame "
+                             f"(default {REST_LOOKBACK})")
     parser.add_argument("--method", choices=FLOW_METHODS, default="dis",
                         help="optical flow (default dis)")
     parser.add_argument("--threshold", type=positive_float, metavar="E",
@@ -64,9 +69,10 @@ def run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"{csv}: no contractions.csv in the analysis folder")
         table = pd.read_csv(csv)
     templates = FlowTemplates.load(args.templates) if args.templates is not None else None
+    lookback = {} if args.rest_lookback is None else {"rest_lookback": args.rest_lookback}
     rec = classify_video(args.video, templates=templates, table=table, neutral=args.neutral,
                          method=args.method, fps=args.fps, start=args.start, end=args.end,
-                         threshold=args.threshold)
+                         threshold=args.threshold, **lookback)
     if args.output is not None:
         from faceanalysis.io.outputs import write_text_atomic
 
@@ -76,12 +82,26 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rec.as_dict()))
         return 0
     print(rec.label)
-    how = {"given": "given by --neutral", "detected": "detected rest frame",
-           "first": "first tracked frame; no frame is clearly more at rest"}
-    print(f"  neutral reference: frame {rec.reference} "
-          f"({how.get(rec.reference_source, rec.reference_source)})")
+    print(f"  neutral reference: frame {rec.reference} ({reference_reason(rec)})")
     print("  " + "  ".join(f"{c} {rec.scores.get(c, 0.0):.3f}" for c in CLASSES))
     for s in rec.segments:
         print(f"  frames {s.start}-{s.end} (apex {s.apex}): {s.label} "
               f"({s.scores[s.label]:.3f})")
     return 0
+
+
+def reference_reason(rec) -> str:
+    """Why the reference frame of a :class:`~faceanalysis.flow.recognition.Recognition` was
+    used, and how far it can be trusted, in words."""
+    how = {"given": "given by --neutral",
+           "detected": "detected rest frame: the least contracted face searched",
+           "first": "first frame searched; no frame is clearly less contracted"}
+    text = how.get(rec.reference_source, str(rec.reference_source))
+    doubt = {"still": "",
+             "moving": "; the face does not hold still there (a lull in an expression, or "
+                       "a face still relaxing), so it may not be at rest: the labels are "
+                       "doubtful, pass --neutral FRAME or a larger --rest-lookback",
+             "unresolved": "; tracking noise on this clip hides the difference between rest "
+                           "and expression, so it may not be at rest: the labels are "
+                           "doubtful, pass --neutral FRAME"}
+    return text + doubt.get(rec.reference_rest, "")

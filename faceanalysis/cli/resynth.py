@@ -39,7 +39,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "CONTRACTIONS when the subject is the video it analysed; key 'resynthesis') and "
         "written beside the video (OUT.json). The report also compares, frame by frame, the "
         "resynthesised fiducials with the analysis's tracked ones (output pixels; the "
-        "command prints their mean, median and maximum).")
+        "command prints their mean, median and maximum) and, when the analysed video is at "
+        "hand, the agreement of the resynthesis's face flow with the video's, as "
+        "'faceanalysis validate' measures it (mean cosine over the frames that move).")
     parser.epilog = (
         "examples:\n"
         "  faceanalysis analyze clip.mp4 -o results/\n"
@@ -74,6 +76,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "into one .npz file")
     parser.add_argument("--mesh-format", choices=MESH_FORMATS, default="obj",
                         help="per-frame mesh format (default obj)")
+    parser.add_argument("--no-flow-check", action="store_true",
+                        help="do not compare the resynthesis's face flow with the input "
+                             "video's (the check measures the video's flow once more)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_quiet_option(parser)
 
@@ -85,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
                        shading=args.shading, fps=args.fps, side_by_side=args.side_by_side,
                        output=args.output, export_meshes=args.export_meshes,
                        mesh_format=args.mesh_format, input_video=args.input,
-                       overwrite=args.overwrite, progress=not args.quiet)
+                       overwrite=args.overwrite, progress=not args.quiet,
+                       check_flow=not args.no_flow_check)
     if args.json:
         print(json.dumps(json.loads(res.report_path.read_text())))
         return 0
@@ -100,6 +106,17 @@ def run(args: argparse.Namespace) -> int:
     if f:
         print(f"fiducials vs tracked: {f['mean_px']:.2f} px mean, {f['median_px']:.2f} median, "
               f"{f['max_px']:.2f} max (frame {f['worst_frame']}) over {f['frames']} frames")
+    a = res.report.get("flow_agreement")
+    if a and "skipped" in a:
+        print(f"flow vs input: not measured ({a['skipped']})")
+    elif a and a.get("active_frames"):
+        line = (f"flow vs input: {a['mean_cosine']:.2f} mean cosine over {a['active_frames']} "
+                f"active frames of {a['frames']}")
+        if a.get("mean_epe_px") is not None:
+            line += f", {a['mean_epe_px']:.2f} px mean end-point error"
+        print(line)
+    elif a:
+        print(f"flow vs input: no active frame among {a['frames']} (nothing moves)")
     c = res.report.get("frame_comparison")
     if c:
         print(f"input vs resynthesis: {c['mean_mae_grey']:.2f} grey levels mean absolute "

@@ -45,7 +45,8 @@ from faceanalysis.flow.grid import (
 log = logging.getLogger(__name__)
 
 __all__ = ["FLOW_METHODS", "STABILIZATION", "FaceFlow", "compute_flow", "tvl1_scales",
-           "stabilize", "face_flow", "video_face_flow", "flow_to_colour"]
+           "stabilize", "face_flow", "video_face_flow", "VideoFlowStream",
+           "flow_to_colour"]
 
 #: Optical-flow methods, first = default.
 FLOW_METHODS = ("dis", "farneback", "tvl1")
@@ -450,58 +451,98 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     """
     import time
 
-    from faceanalysis.io.table import heads_from_table
-    from faceanalysis.io.video import open_video
-    from faceanalysis.tracking import track
-
     grid = grid or FaceGrid()
-    if table is None:
-        table = track(video, fps=fps, start=start, end=end, redetect=True).table
-    if "frame" not in table.columns:
-        raise ValueError("table lacks the 'frame' column")
-    heads = heads_from_table(table)
-    frames = table["frame"].to_numpy(int)
-    if end is not None or start:
-        keep = (frames >= start) & (frames < (end if end is not None else np.iinfo(int).max))
-        heads, frames = heads[keep], frames[keep]
-    ok = np.isfinite(heads).all(axis=1)
-    if not ok.any():
-        raise ValueError(f"{video}: no frame has a head frame (face lost throughout)")
-    if neutral is None:
-        ref_pos = int(np.argmax(ok))
-    else:
-        hits = np.flatnonzero(frames == neutral)
-        if hits.size == 0 or not ok[hits[0]]:
-            raise ValueError(f"neutral frame {neutral} is not a tracked frame of {video}")
-        ref_pos = int(hits[0])
-    ref_frame = int(frames[ref_pos])
-    with open_video(video, fps=fps, start=ref_frame, end=ref_frame + 1,
-                    eight_bit=True) as src:
-        ref_img = next((f.image for f in src if f.ok), None)
-    if ref_img is None:
-        raise ValueError(f"{video}: reference frame {ref_frame} cannot be decoded")
     t0 = time.perf_counter()
-    step = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
-                     stabilization=stabilization)
-    back = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
-                     stabilization="head")
-    pos = {int(f): i for i, f in enumerate(frames)}
+    stream = VideoFlowStream(video, table=table, neutral=neutral, method=method, grid=grid,
+                                  fps=fps, start=start, end=end, px_per_unit=px_per_unit,
+                                  normalize=normalize, stabilization=stabilization)
+    frames = stream.frames
     disp = np.full((len(frames), *grid.shape, 2), np.nan, dtype=dtype)
-    with open_video(video, fps=fps, start=int(frames.min()), end=int(frames.max()) + 1,
-                    eight_bit=True) as src:
-        for f in src:
-            i = pos.get(f.index)
-            if i is None or not f.ok:
-                continue
-            if i == ref_pos:
-                disp[i] = 0.0
-            elif i > ref_pos:
-                disp[i] = step(f.image, heads[i])
-            elif ok[i]:
-                disp[i] = back(f.image, heads[i])
+    for i, d in stream:
+        disp[i] = d
     seen = np.isfinite(disp).all(axis=(1, 2, 3))
-    return FaceFlow(disp, seen, frames, ref_frame, grid, method, step.crop.px_per_unit,
+    return FaceFlow(disp, seen, frames, stream.reference, grid, method, stream.px_per_unit,
                     timings={"flow_s": time.perf_counter() - t0})
+
+
+class VideoFlowStream:
+    """Face flow of a video, one frame at a time: ``for position, displacement in ...``.
+
+    The same flow as :func:`video_face_flow` (same parameters, without ``dtype``), without
+    keeping it: a caller that reduces each frame to a few numbers holds memory that does
+    not grow with the video's length. ``frames`` (frame numbers of the table's rows in the
+    range), ``reference`` (frame number of the neutral frame) and ``px_per_unit`` are known
+    before the iteration; it yields ``(position in frames, (rows, cols, 2) float64
+    displacement)`` for every decoded frame, in video order, NaN where the face is lost.
+    """
+
+    def __init__(self, video: str | os.PathLike, *, table: pd.DataFrame | None = None,
+                 neutral: int | None = None, method: str = "dis",
+                 grid: FaceGrid | None = None, fps: float | None = None, start: int = 0,
+                 end: int | None = None, px_per_unit: float | None = None,
+                 normalize: bool = True, stabilization: str = "flow"):
+        from faceanalysis.io.table import heads_from_table
+        from faceanalysis.io.video import open_video
+        from faceanalysis.tracking import track
+
+        grid = grid or FaceGrid()
+        if table is None:
+            table = track(video, fps=fps, start=start, end=end, redetect=True).table
+        if "frame" not in table.columns:
+            raise ValueError("table lacks the 'frame' column")
+        heads = heads_from_table(table)
+        frames = table["frame"].to_numpy(int)
+        if end is not None or start:
+            keep = (frames >= start) & (frames < (end if end is not None
+                                                  else np.iinfo(int).max))
+            heads, frames = heads[keep], frames[keep]
+        ok = np.isfinite(heads).all(axis=1)
+        if not ok.any():
+            raise ValueError(f"{video}: no frame has a head frame (face lost throughout)")
+        if neutral is None:
+            ref_pos = int(np.argmax(ok))
+        else:
+            hits = np.flatnonzero(frames == neutral)
+            if hits.size == 0 or not ok[hits[0]]:
+                raise ValueError(f"neutral frame {neutral} is not a tracked frame of {video}")
+            ref_pos = int(hits[0])
+        ref_frame = int(frames[ref_pos])
+        with open_video(video, fps=fps, start=ref_frame, end=ref_frame + 1,
+                        eight_bit=True) as src:
+            ref_img = next((f.image for f in src if f.ok), None)
+        if ref_img is None:
+            raise ValueError(f"{video}: reference frame {ref_frame} cannot be decoded")
+        self._step = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
+                               stabilization=stabilization)
+        self._back = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
+                               stabilization="head")
+        self._video, self._fps, self._heads, self._ok = video, fps, heads, ok
+        self._ref_pos = ref_pos
+        self.frames = frames
+        self.reference = ref_frame
+        self.grid = grid
+        self.px_per_unit = self._step.crop.px_per_unit
+
+    def __iter__(self):
+        from faceanalysis.io.video import open_video
+
+        frames, heads, ok, ref_pos = self.frames, self._heads, self._ok, self._ref_pos
+        pos = {int(f): i for i, f in enumerate(frames)}
+        lost = np.full((*self.grid.shape, 2), np.nan)
+        with open_video(self._video, fps=self._fps, start=int(frames.min()),
+                        end=int(frames.max()) + 1, eight_bit=True) as src:
+            for f in src:
+                i = pos.get(f.index)
+                if i is None or not f.ok:
+                    continue
+                if i == ref_pos:
+                    yield i, np.zeros((*self.grid.shape, 2))
+                elif i > ref_pos:
+                    yield i, self._step(f.image, heads[i])
+                else:
+                    # frames before the reference are aligned from their head frame only,
+                    # as the video is streamed forward
+                    yield i, (self._back(f.image, heads[i]) if ok[i] else lost)
 
 
 # ---------------------------------------------------------------------------- drawing

@@ -41,11 +41,26 @@ frame with the smallest total is the least contracted face of the clip, the rest
 (muscles only contract: a face at rest has the smallest total). The first frame is kept
 unless another is less contracted by at least :data:`REST_MARGIN` and by
 :data:`REST_NOISE` times the clip's own frame-to-frame noise, so that a neutral or noisily
-tracked clip keeps its first frame rather than one picked by noise. The reference used is reported
-(:attr:`Recognition.reference`, :attr:`Recognition.reference_source`).
+tracked clip keeps its first frame rather than one picked by noise.
+The search covers the classified range and the :data:`REST_LOOKBACK` frames before it: a
+clip cut in the middle of an expression has no rest frame of its own, while the video often
+shows the face at rest just before. What the detector can say of its pick is reported
+(:attr:`Recognition.reference_rest`): ``'still'`` when the face holds there for
+:data:`REST_HOLD` frames, ``'moving'`` when it does not (the least contracted instant of a
+laugh is a lull between bursts, not rest) and ``'unresolved'`` when :data:`REST_NOISE`
+times the clip's frame-to-frame noise of the total exceeds twice the margin, so that rest
+cannot be told
+from expression (real clips with large head motion or a hand over the face); after
+``'moving'`` or ``'unresolved'`` the labels are doubtful and the reference should be given.
+The reference used is reported (:attr:`Recognition.reference`,
+:attr:`Recognition.reference_source`).
 
-Memory: the displacement is kept on the face mask only, in ``float32``, and read a chunk
-of frames at a time, so a long video costs about 16 kB a frame beyond the tracking.
+Memory: :func:`classify_video` streams the flow
+(:class:`~faceanalysis.flow.dense.VideoFlowStream`) and keeps no displacement per frame: the
+rest-frame pass reduces each frame to its total contraction, and the classification pass
+writes each frame's nuisance-free displacement on the mask to a temporary file (16 kB a
+frame on disk) from which the segments are read back a chunk at a time. What grows with the
+video is the tracked table and a few numbers a frame.
 """
 
 from __future__ import annotations
@@ -66,7 +81,7 @@ log = logging.getLogger(__name__)
 __all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "REST_MARGIN", "Segment",
            "Recognition", "nuisance_free", "motion_energy", "find_segments", "score_segment",
            "classify_flow", "classify_video", "rest_frame", "relative_contraction", "REST_NOISE",
-           "calibrate_threshold"]
+           "calibrate_threshold", "REST_HOLD", "REST_LOOKBACK"]
 
 #: Classes named by the recogniser: the six primary expressions and neutral.
 CLASSES = (*EXPRESSION_NAMES, "neutral")
@@ -84,8 +99,15 @@ WEIGHTS = (0.8, 0.2)
 #: :func:`relative_contraction`) is at least this much smaller.
 REST_MARGIN = 0.25
 #: ... and by at least this many times the clip's frame-to-frame noise of that total (a
-#: robust SD), so that noisy tracking on a real video does not pick a random frame.
+#: robust SD of its second difference), so that noisy tracking on a real video does not
+#: pick a random frame.
 REST_NOISE = 4.0
+#: A rest frame is *still* when the total contraction stays within half the margin of its
+#: value for this many frames on one side (a face at rest holds; a lull in a laugh does
+#: not).
+REST_HOLD = 4
+#: Frames before the classified range searched for the rest frame by default.
+REST_LOOKBACK = 240
 #: Frames processed at a time when the displacement is cleaned (bounds the temporaries).
 _CHUNK = 64
 
@@ -126,7 +148,12 @@ class Recognition:
     ``reference`` is the frame number of the neutral reference the motion was measured
     from, and ``reference_source`` how it was chosen: ``'given'`` (``neutral=``),
     ``'detected'`` (:func:`rest_frame` found a less contracted frame than the first) or
-    ``'first'`` (the first tracked frame, no frame being clearly more at rest).
+    ``'first'`` (the first tracked frame, no frame being clearly more at rest);
+    ``reference_rest`` what the detector can say of a found reference (``None`` for a
+    given one): ``'still'`` (the face holds there, :data:`REST_HOLD`), ``'moving'`` (it
+    does not: probably a lull in an expression rather than the face at rest) or
+    ``'unresolved'`` (the clip's tracking noise hides the difference between rest and
+    expression); after ``'moving'`` or ``'unresolved'`` the labels are doubtful.
     """
 
     label: str
@@ -137,6 +164,7 @@ class Recognition:
     threshold: float
     reference: int | None = None
     reference_source: str | None = None
+    reference_rest: str | None = None
 
     def table(self) -> pd.DataFrame:
         """One row per segment (``start, apex, end, label, peak_energy, score_<class>``)."""
@@ -148,6 +176,7 @@ class Recognition:
                 "threshold": float(self.threshold),
                 "reference": None if self.reference is None else int(self.reference),
                 "reference_source": self.reference_source,
+                "reference_rest": self.reference_rest,
                 "segments": [s.as_dict() for s in self.segments]}
 
 
@@ -173,6 +202,57 @@ def _masked_clean(displacement: np.ndarray, templates: FlowTemplates
         out[a:a + _CHUNK] = chunk
         energy[a:a + _CHUNK] = np.sqrt(np.mean(np.sum(chunk ** 2, axis=-1), axis=1))
     return out, energy
+
+
+def _rows(clean, templates: FlowTemplates, a: int, b: int) -> np.ndarray:
+    """Frames ``a..b-1`` of ``clean`` on the mask, ``(b - a, n, 2)`` float64, NaN as 0."""
+    part = clean[a:b]
+    part = part[:, templates.mask, :] if part.ndim == 4 else part
+    return np.nan_to_num(np.asarray(part, dtype=np.float64))
+
+
+class _FrameStore:
+    """Per-frame ``(n, 2)`` ``float32`` arrays kept in a temporary file, not in memory.
+
+    Classification reads a segment's frames after its end is known; keeping every frame's
+    displacement in memory would make memory grow with the video (16 kB a frame), so the
+    frames go to disk and only the few read back at a time are in memory. Frames never
+    written read as NaN (lost). Sliced like an array: ``store[a:b]``.
+    """
+
+    def __init__(self, n_frames: int, shape: tuple[int, int]):
+        import tempfile
+
+        self.shape = (int(n_frames), *shape)
+        self.ndim = 3
+        self._row = int(np.prod(shape))
+        self._file = tempfile.TemporaryFile()     # noqa: SIM115 - closed by close()
+        self._written = np.zeros(n_frames, bool)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __setitem__(self, i: int, value: np.ndarray) -> None:
+        self._file.seek(int(i) * self._row * 4)
+        self._file.write(np.ascontiguousarray(value, dtype=np.float32).tobytes())
+        self._written[i] = True
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        a, b, step = key.indices(len(self))
+        if step != 1:
+            raise ValueError("a frame store is read in contiguous ranges")
+        b = max(a, b)
+        self._file.seek(a * self._row * 4)
+        buf = self._file.read((b - a) * self._row * 4)
+        out = np.full((b - a) * self._row, np.nan, np.float32)
+        got = np.frombuffer(buf, np.float32)
+        out[:got.size] = got
+        out = out.reshape(b - a, *self.shape[1:])
+        out[~self._written[a:b]] = np.nan
+        return out
+
+    def close(self) -> None:
+        self._file.close()
 
 
 def motion_energy(displacement: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -268,34 +348,38 @@ def score_segment(clean: np.ndarray, templates: FlowTemplates, start: int, apex:
     """
     p = _prepared(templates)
     end = apex if end is None else int(end)
-    m = templates.mask
     s0 = max(0, start - 1)                     # the frame before the onset as its zero
     idx = np.linspace(s0, apex, p.steps + 1)[1:]
     lo = np.floor(idx).astype(int)
     hi = np.minimum(lo + 1, apex)
     w = (idx - lo)[:, None, None]
-    # only the segment's frames (and the one before), not the whole sequence
-    part = clean[s0:end + 1]
-    part = part[:, m, :] if part.ndim == 4 else part
-    obs = np.nan_to_num(np.asarray(part, dtype=np.float64))
-    lo, hi, start, end = lo - s0, hi - s0, start - s0, end - s0
-    onset = (1 - w) * obs[lo] + w * obs[hi]                          # (S, n, 2)
+    # only the frames the onset needs, then the segment a chunk at a time: a long segment
+    # (or one read from disk, :class:`_FrameStore`) is never held whole
+    rows = {r: _rows(clean, templates, r, r + 1)[0] for r in {s0, *lo.tolist(), *hi.tolist()}}
+    onset = (1 - w) * np.stack([rows[r] for r in lo]) + w * np.stack([rows[r] for r in hi])
     onset_flat = onset.reshape(p.steps, -1)
-    prev = np.concatenate([obs[0][None], onset[:-1]], axis=0)
+    prev = np.concatenate([rows[s0][None], onset[:-1]], axis=0)
     energy = np.sum((onset - prev) ** 2, axis=(0, -1))
     wd, we = WEIGHTS
     onset_score = np.array([wd * _cos(onset_flat, p.expr[e]) + we * _cos(energy, p.energy[e])
                             for e in range(len(templates.expressions))])
     # the whole segment votes: energy-weighted cosine of each frame with the apex templates
-    seg = obs[start:end + 1].reshape(end + 1 - start, -1)
-    norms = np.linalg.norm(seg, axis=1)
-    w = norms / max(norms.sum(), 1e-12)
-    cos = (seg @ p.apex.T) / np.maximum(norms, 1e-12)[:, None]
-    mean_cos = w @ cos
+    # (weights norm / sum of norms, so the weighted mean is sum(dots) / sum(norms))
+    dots = np.zeros(len(onset_score))
+    norm_sum = 0.0
+    votes = np.zeros(len(onset_score))
+    for c in range(start, end + 1, _CHUNK):
+        seg = _rows(clean, templates, c, min(c + _CHUNK, end + 1))
+        seg = seg.reshape(len(seg), -1)
+        norms = np.linalg.norm(seg, axis=1)
+        d = seg @ p.apex.T
+        dots += d.sum(axis=0)
+        norm_sum += float(norms.sum())
+        moving = norms > 0
+        votes += np.bincount(np.argmax(d[moving], axis=1), minlength=len(onset_score))
+    mean_cos = dots / max(norm_sum, 1e-12)
     similarity = 0.5 * (onset_score + mean_cos)
-    moving = norms > 0
-    share = (np.bincount(np.argmax(cos[moving], axis=1), minlength=len(onset_score))
-             / max(int(moving.sum()), 1))
+    share = votes / max(votes.sum(), 1)
     out = {name: float((2.0 * similarity[e] + share[e]) / 3.0)
            for e, name in enumerate(templates.expressions)}
     out["_similarity"] = {name: float(similarity[e])
@@ -343,6 +427,15 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     if not thr > 0:
         raise ValueError(f"threshold={thr} must be positive")
     clean, energy = _masked_clean(disp, templates)                # (T, n, 2) float32
+    return _classify_clean(clean, energy, np.asarray(fr), templates, thr, min_score=min_score,
+                           min_length=min_length, min_gap=min_gap)
+
+
+def _classify_clean(clean, energy: np.ndarray, fr: np.ndarray, templates: FlowTemplates,
+                    thr: float, *, min_score: float, min_length: int, min_gap: int
+                    ) -> Recognition:
+    """:func:`classify_flow` from the nuisance-free displacement on the mask (an array or a
+    :class:`_FrameStore`) and its motion energy."""
     segments = []
     dropped = []                       # (peak energy, scores) of segments matching nothing
     for a, b in find_segments(energy, thr, min_length=min_length, min_gap=min_gap):
@@ -372,6 +465,43 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
                        frames=np.asarray(fr), threshold=thr)
 
 
+class _ContractionFit:
+    """Least-squares fit of the templates' per-control flow to nuisance-free frames."""
+
+    def __init__(self, templates: FlowTemplates):
+        m = templates.mask
+        basis = remove_rigid(templates.control, m, templates.nuisance)[:, m, :]
+        self.A = (basis.reshape(len(basis), -1)
+                  * np.asarray(templates.upper, float)[:, None]).T
+        G = self.A.T @ self.A
+        # a light ridge keeps correlated controls apart
+        self.G = G + 1e-3 * np.trace(G) / len(G) * np.eye(len(G))
+        self.controls = len(basis)
+
+    def __call__(self, clean: np.ndarray) -> np.ndarray:
+        """``(k, n, 2)`` nuisance-free frames on the mask -> ``(k, M)``, NaN rows where lost."""
+        out = np.full((len(clean), self.controls), np.nan)
+        ok = np.isfinite(clean).all(axis=(1, 2))
+        if ok.any():
+            rhs = self.A.T @ clean[ok].reshape(int(ok.sum()), -1).astype(np.float64).T
+            out[ok] = np.linalg.solve(self.G, rhs).T
+        return out
+
+
+def _stream_clean(stream, templates: FlowTemplates):
+    """``(positions, clean (k, n, 2) float32, energy (k,))`` a chunk of a
+    :class:`~faceanalysis.flow.dense.VideoFlowStream`'s frames at a time."""
+    pos, buf = [], []
+    for i, d in stream:
+        pos.append(i)
+        buf.append(d)
+        if len(buf) == _CHUNK:
+            yield (np.array(pos), *_masked_clean(np.stack(buf), templates))
+            pos, buf = [], []
+    if buf:
+        yield (np.array(pos), *_masked_clean(np.stack(buf), templates))
+
+
 def relative_contraction(flow: FaceFlow | np.ndarray, templates: FlowTemplates
                          ) -> np.ndarray:
     """Each frame's contractions relative to the flow's reference frame, ``(T, M)``.
@@ -384,17 +514,10 @@ def relative_contraction(flow: FaceFlow | np.ndarray, templates: FlowTemplates
     without flow.
     """
     disp = flow.displacement if isinstance(flow, FaceFlow) else np.asarray(flow, float)
-    m = templates.mask
-    basis = remove_rigid(templates.control, m, templates.nuisance)[:, m, :]
-    A = (basis.reshape(len(basis), -1) * np.asarray(templates.upper, float)[:, None]).T
-    G = A.T @ A
-    G = G + 1e-3 * np.trace(G) / len(G) * np.eye(len(G))
-    clean, _ = _masked_clean(disp, templates)
-    out = np.full((len(clean), len(basis)), np.nan)
-    ok = np.isfinite(clean).all(axis=(1, 2))
-    if ok.any():
-        rhs = A.T @ clean[ok].reshape(int(ok.sum()), -1).astype(np.float64).T
-        out[ok] = np.linalg.solve(G, rhs).T
+    fit = _ContractionFit(templates)
+    out = np.full((len(disp), fit.controls), np.nan)
+    for a in range(0, len(disp), _CHUNK):        # a chunk at a time: no copy of the clip
+        out[a:a + _CHUNK] = fit(_masked_clean(disp[a:a + _CHUNK], templates)[0])
     return out
 
 
@@ -421,34 +544,59 @@ def rest_frame(flow: FaceFlow, templates: FlowTemplates, *, margin: float = REST
     total : ndarray (T,)
         Total contraction of each frame relative to the reference (NaN where unknown).
     """
+    total = relative_contraction(flow, templates).sum(axis=1)
+    frame, _ = _pick_rest(total, np.asarray(flow.frames), int(flow.reference), margin=margin)
+    return frame, total
+
+
+def _pick_rest(total: np.ndarray, frames: np.ndarray, reference: int, *,
+               margin: float = REST_MARGIN) -> tuple[int, str]:
+    """The rest frame from the total contraction relative to ``reference`` (see
+    :func:`rest_frame`) and what can be said of it: ``'still'`` (the face holds there for
+    :data:`REST_HOLD` frames), ``'moving'`` (it does not: a lull in an expression rather
+    than rest) or ``'unresolved'`` (the clip's frame-to-frame noise of the total exceeds
+    the margin: the detector cannot tell a rest frame on this clip)."""
     from scipy.ndimage import median_filter
 
-    total = relative_contraction(flow, templates).sum(axis=1)
-    frames = np.asarray(flow.frames)
     ok = np.isfinite(total)
     if ok.sum() < 3:
-        return int(flow.reference), total
+        return reference, "unresolved"
     # a 5-frame running median: a single mistracked frame is not a rest frame
     smooth = np.full_like(total, np.nan)
     smooth[ok] = median_filter(total[ok], size=5, mode="nearest")
-    # the clip's own frame-to-frame noise (robust SD): a frame must be less contracted
-    # than the reference by more than noise can explain
-    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok])))) / np.sqrt(2.0)
+    # the clip's own frame-to-frame noise (robust SD of the second difference, which a
+    # smooth expression hardly has, so that a clip's motion is not taken for noise): a frame
+    # must be less contracted than the reference by more than noise can explain
+    noise = 1.4826 * float(np.median(np.abs(np.diff(total[ok], 2)))) / np.sqrt(6.0)
+    tol = max(margin, REST_NOISE * noise)
     best = int(np.nanargmin(smooth))
-    at_ref = np.flatnonzero(frames == flow.reference)
-    ref_total = float(smooth[at_ref[0]]) if at_ref.size and ok[at_ref[0]] else 0.0
-    if ref_total - float(smooth[best]) < max(margin, REST_NOISE * noise):
-        return int(flow.reference), total
-    return int(frames[best]), total
+    at_ref = np.flatnonzero(frames == reference)
+    ref_pos = int(at_ref[0]) if at_ref.size and ok[at_ref[0]] else None
+    ref_total = float(smooth[ref_pos]) if ref_pos is not None else 0.0
+    pick = best if ref_total - float(smooth[best]) >= tol else ref_pos
+    if pick is None:
+        return reference, "unresolved"
+    if REST_NOISE * noise > 2.0 * margin:
+        return int(frames[pick]), "unresolved"
+    # a face at rest stays there a while; the least contracted instant of a laugh (a lull
+    # between two bursts) does not: the total rises again within a few frames on both sides
+    good = np.flatnonzero(ok)
+    k = int(np.searchsorted(good, pick))
+    sides = [smooth[good[max(0, k - REST_HOLD):k]], smooth[good[k + 1:k + 1 + REST_HOLD]]]
+    still = any(len(v) == REST_HOLD and np.all(np.abs(v - smooth[pick]) < 0.5 * tol)
+                for v in sides)
+    return int(frames[pick]), "still" if still else "moving"
 
 
 def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None = None,
                    table: pd.DataFrame | None = None, neutral: int | None = None,
                    method: str = "dis", fps: float | None = None, start: int = 0,
                    end: int | None = None, personalised: bool = True,
-                   **kwargs) -> Recognition:
+                   rest_lookback: int = REST_LOOKBACK, threshold: float | None = None,
+                   min_score: float = MIN_SCORE, min_length: int = 3,
+                   min_gap: int = 5) -> Recognition:
     """Recognise the expressions of a video (flow from its neutral frame, then
-    :func:`classify_flow`).
+    :func:`classify_flow`), in memory that does not grow with the video's length.
 
     Parameters
     ----------
@@ -459,24 +607,38 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         Head frames (e.g. an analysis's ``contractions.csv``); default: tracked.
     neutral : int, optional
         Neutral frame number; it may precede ``start`` (the frames between are tracked,
-        not classified). Default: the detected rest frame of the range
-        (:func:`rest_frame`: the least contracted frame by the templates' per-muscle
-        flow; the first tracked frame unless another is clearly more at rest). The
-        frame used is ``Recognition.reference``.
+        not classified). Default: the detected rest frame (:func:`rest_frame`: the least
+        contracted frame by the templates' per-muscle flow) of the range and of the
+        ``rest_lookback`` frames before it; the first tracked frame of that span unless
+        another is clearly more at rest. The frame used is ``Recognition.reference``,
+        how it was chosen ``reference_source`` and whether the face holds still there
+        ``reference_rest``.
     method, fps, start, end
-        See :func:`faceanalysis.flow.dense.video_face_flow`.
+        See :func:`faceanalysis.flow.dense.video_face_flow`. ``start`` and ``end`` bound
+        the frames classified, not where the reference may come from.
     personalised : bool
         Warp the templates onto the subject's neutral fiducials
         (:func:`faceanalysis.flow.personalize.personalize_from_table`).
-    **kwargs
-        Passed to :func:`classify_flow` (``threshold``, ``min_length``, ``min_gap``).
+    rest_lookback : int, keyword-only
+        Frames before ``start`` searched for the rest frame (default
+        :data:`REST_LOOKBACK`): a clip cut in the middle of an expression has no rest
+        frame of its own, while the video often shows the face at rest just before.
+    threshold, min_score, min_length, min_gap
+        See :func:`classify_flow`.
 
     Returns
     -------
     Recognition
-        With ``reference`` and ``reference_source`` set.
+        With ``reference``, ``reference_source`` and ``reference_rest`` set.
+
+    Notes
+    -----
+    The flow is streamed twice (from the first frame of the search span to find the rest
+    frame, then from the rest frame): every frame is reduced to its total contraction on
+    the first pass, and on the second its displacement on the face mask goes to a
+    temporary file (16 kB a frame on disk) from which the segments are scored.
     """
-    from faceanalysis.flow.dense import video_face_flow
+    from faceanalysis.flow.dense import VideoFlowStream
     from faceanalysis.flow.personalize import personalize_from_table
     from faceanalysis.tracking import track
 
@@ -486,32 +648,53 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         templates = default_templates()
     if neutral is not None and neutral < 0:
         raise ValueError(f"neutral frame {neutral} must be >= 0")
-    first = start if neutral is None else min(start, int(neutral))
     if end is not None and neutral is not None and neutral >= end:
         raise ValueError(f"neutral frame {neutral} lies after the range end {end}")
+    if rest_lookback < 0:
+        raise ValueError(f"rest_lookback={rest_lookback} must be >= 0")
+    thr = NEUTRAL_THRESHOLD if threshold is None else float(threshold)
+    if not thr > 0:
+        raise ValueError(f"threshold={thr} must be positive")
+    first = max(0, start - rest_lookback) if neutral is None else min(start, int(neutral))
     if table is None:
-        table = track(video, fps=fps, start=first, end=end, redetect=True).table
-    options = dict(table=table, method=method, grid=templates.grid, fps=fps, start=first,
-                   end=end, dtype=np.float32)
-    ff = video_face_flow(video, neutral=neutral, **options)
-    source = "given"
+        # the contours are not needed here; keeping them would grow with the video
+        table = track(video, fps=fps, start=first, end=end, redetect=True,
+                      keep_contours=False).table
+    options = dict(table=table, method=method, grid=templates.grid, fps=fps, end=end)
+    rest = None
     if neutral is None:
-        rest, _ = rest_frame(ff, templates)
-        source = "first"
-        if rest != ff.reference:
+        stream = VideoFlowStream(video, start=first, **options)
+        fit = _ContractionFit(templates)
+        total = np.full(len(stream.frames), np.nan)
+        for pos, clean, _ in _stream_clean(stream, templates):
+            total[pos] = fit(clean).sum(axis=1)
+        ref, rest = _pick_rest(total, stream.frames, stream.reference)
+        source = "first" if ref == stream.reference else "detected"
+        if source == "detected":
             log.info("%s: frame %d is more at rest than the first tracked frame %d; it is "
-                     "the neutral reference", video, rest, ff.reference)
-            del ff                                   # one flow in memory at a time
-            ff = video_face_flow(video, neutral=rest, **options)
-            source = "detected"
+                     "the neutral reference", video, ref, stream.reference)
+        del stream, total
+    else:
+        ref, source = int(neutral), "given"
     if personalised:
-        templates = personalize_from_table(templates, table, ff.reference)
-    if first < start:                      # the neutral frame precedes the range: drop it
-        keep = ff.frames >= start
-        ff = replace(ff, displacement=ff.displacement[keep], valid=ff.valid[keep],
-                     frames=ff.frames[keep])
-    rec = classify_flow(ff, templates, **kwargs)
-    return replace(rec, reference=int(ff.reference), reference_source=source)
+        templates = personalize_from_table(templates, table, ref)
+    stream = VideoFlowStream(video, neutral=ref, start=min(start, ref), **options)
+    keep = stream.frames >= start          # frames before the range are not classified
+    row = np.cumsum(keep) - 1
+    frames = stream.frames[keep]
+    store = _FrameStore(len(frames), (int(templates.mask.sum()), 2))
+    energy = np.full(len(frames), np.nan)
+    try:
+        for pos, clean, e in _stream_clean(stream, templates):
+            for i, c, v in zip(pos, clean, e):
+                if keep[i]:
+                    store[row[i]] = c
+                    energy[row[i]] = v
+        rec = _classify_clean(store, energy, frames, templates, thr, min_score=min_score,
+                              min_length=min_length, min_gap=min_gap)
+    finally:
+        store.close()
+    return replace(rec, reference=int(ref), reference_source=source, reference_rest=rest)
 
 
 def calibrate_threshold(neutral_energies, expression_energies) -> float:

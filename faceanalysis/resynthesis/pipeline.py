@@ -25,8 +25,8 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
                  shading: str = "textured", fps: float | None = None,
                  side_by_side: bool = False, output=None, export_meshes=None,
                  mesh_format: str = "obj", input_video=None, overwrite: bool = False,
-                 tol: float = 2e-3, texture_seed: int = 0, progress: bool = False
-                 ) -> Resynthesis:
+                 tol: float = 2e-3, texture_seed: int = 0, progress: bool = False,
+                 check_flow: bool = True) -> Resynthesis:
     """Drive the face model with a contraction time series and render it (004, Fig. 7c).
 
     Parameters
@@ -74,6 +74,13 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
         256 px frontal view are within ~0.05 px of the converged equilibrium on average).
     progress : bool
         Progress bar on stderr.
+    check_flow : bool, keyword-only
+        With ``output``, when the analysed video is at hand (``input_video`` or the one
+        named in ``analysis.json``) and the table has head frames: compare the video's face
+        flow with the flow of the model driven by the contractions, frame by frame, as
+        ``faceanalysis validate`` does (:func:`faceanalysis.flow.agreement.
+        video_flow_agreement`), and add it to the report (``flow_agreement``). It measures
+        the flow of the whole video once more.
 
     Returns
     -------
@@ -145,6 +152,8 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     if output is not None:
         res.write(output, export_meshes=export_meshes, mesh_format=mesh_format,
                   overwrite=overwrite, progress=progress)
+        if check_flow:
+            res.report["flow_agreement"] = _flow_agreement(series, res, subj, input_video)
         res.report_path = _write_report(res, view, shading)
         if "personalisation" in res.report:
             _record_in_analysis(res, source, subject)
@@ -154,6 +163,40 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
             exporter.add(st, res.model)
         res.report["meshes"] = str(exporter.finish(series))
     return res
+
+
+def _flow_agreement(series, res: Resynthesis, subject, input_video) -> dict:
+    """The flow agreement of the resynthesis with the analysed video, for the report; a
+    ``skipped`` reason when it cannot be measured."""
+    from faceanalysis.flow.agreement import video_flow_agreement
+    from faceanalysis.io.table import HEAD_COLUMNS
+
+    video = Path(input_video) if input_video is not None else series.input_path
+    table = series.table
+    if video is None or not video.exists():
+        return {"skipped": "the analysed video is not at hand (pass input_video / --input)"}
+    if table is None or "frame" not in table.columns or \
+            not all(c in table.columns for c in HEAD_COLUMNS):
+        return {"skipped": "the table has no frame numbers and head frames"}
+    neutral = int(series.frames[series.neutral_row])
+    # the personalised model is compared as it is when it was made from this video's
+    # neutral frame; otherwise the generic model's flow is warped onto the subject in 2-D
+    same = (subject is not None and subject.source
+            and Path(subject.source).exists()
+            and Path(subject.source).resolve() == video.resolve())
+    try:
+        agree, summary, _, _ = video_flow_agreement(
+            video, table, neutral=neutral, model=None if same else res.model,
+            personal=res.model if same else None)
+    except ValueError as exc:
+        return {"skipped": str(exc)}
+    act = agree[agree["active"].astype(bool)]
+    return {"what": "cosine and end-point error between the input video's face flow and the "
+                    "resynthesis's, from the neutral frame, nuisance motion removed "
+                    "(as 'faceanalysis validate'); means over active frames",
+            "video": str(video), **summary,
+            "per_frame": [[int(f), None if not np.isfinite(c) else round(float(c), 4)]
+                          for f, c in zip(act["frame"], act["cosine"])]}
 
 
 def _write_report(res: Resynthesis, view: str, shading: str) -> Path:

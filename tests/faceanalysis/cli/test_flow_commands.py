@@ -68,3 +68,16 @@ def test_laughing_part_of_the_real_video_is_happiness(run_cli, real_video_dir):
     assert res["label"] == "happiness", res["scores"]
     seg = max(res["segments"], key=lambda s: s["end"] - s["start"])
     assert seg["label"] == "happiness" and seg["end"] - seg["start"] > 150
+
+
+@pytest.mark.slow
+def test_the_laugh_without_a_neutral_frame_is_named_or_doubted(run_cli, real_video_dir):
+    video = real_video_dir / "WolfgangLanger_Pexels.mp4"
+    if not video.is_file():
+        pytest.skip("WolfgangLanger_Pexels.mp4 not found")
+    # the laugh never shows the face at rest; the reference is searched before it too, and
+    # the command either names the laugh or says it cannot vouch for its reference
+    code, out, err = run_cli("classify", video, "--start", "250", "--end", "470", "-q")
+    assert code == 0, err
+    assert "neutral reference: frame" in out
+    assert out.splitlines()[0] == "happiness" or "doubtful" in out, out

@@ -20,11 +20,60 @@ def test_a_clip_that_starts_at_the_apex_is_not_neutral(smile):
 
     apex = int(np.argmax(envelope(20) >= 0.999))      # the onset frames are dropped
     assert apex > 3
-    rec = classify_video(smile["video"], start=apex)
+    rec = classify_video(smile["video"], start=apex, rest_lookback=0)
     assert rec.label == "happiness", rec.scores
     # the reference is the face at rest at the end of the offset, and it is said
     assert rec.reference_source == "detected" and rec.reference >= 17
     assert rec.as_dict()["reference"] == rec.reference
+
+
+@pytest.fixture(scope="module")
+def relaxing(tmp_path_factory):
+    """A smile held from the first frame, relaxing at frame 5 and at rest from frame 12."""
+    import pandas as pd
+
+    from faceanalysis.io.table import MUSCLES
+    from synth.render.sequence import contraction_timeline, render_sequence
+
+    apex = contraction_timeline(MUSCLES, expression="happiness", frames=20).max()
+    env = np.r_[np.ones(5), 0.5 + 0.5 * np.cos(np.pi * np.arange(1, 8) / 7), np.zeros(10)]
+    drive = pd.DataFrame(np.outer(env, apex.to_numpy()), columns=apex.index)
+    out = tmp_path_factory.mktemp("relaxing")
+    return render_sequence(out, contractions=drive, frames=len(drive), size=160, seed=11,
+                           flow=False)
+
+
+def test_the_relaxed_face_is_the_reference_and_it_is_still(relaxing):
+    rec = classify_video(relaxing["video"])
+    assert rec.reference_source == "detected" and rec.reference >= 12, rec.reference
+    assert rec.reference_rest == "still"
+    assert rec.label == "happiness", rec.scores
+
+
+def test_a_lull_is_not_still():
+    from faceanalysis.flow.recognition import _pick_rest
+
+    t = np.arange(48.0)
+    # total contraction relative to frame 0 in a held laugh, with a brief lull at frame 25
+    laugh = -0.6 * np.exp(-(((t - 25) / 3.0) ** 2))
+    frame, still = _pick_rest(laugh, t.astype(int), 0)
+    assert 24 <= frame <= 26 and still == "moving"
+    # a face that relaxes from frame 0 and holds at rest from frame 10
+    rest = -2.0 * np.clip(t / 10, 0, 1)
+    frame, still = _pick_rest(rest, t.astype(int), 0)
+    assert frame >= 10 and still == "still"
+
+
+def test_the_rest_frame_may_precede_the_range(smile):
+    """--start/--end bound what is classified; the face at rest before the range is the
+    reference a careful user would pick."""
+    from synth.facs import envelope
+
+    apex = int(np.argmax(envelope(20) >= 0.999))
+    rec = classify_video(smile["video"], start=apex)
+    assert rec.reference < apex and rec.reference_source in ("first", "detected")
+    assert rec.label == "happiness", rec.scores
+    assert rec.frames.min() >= apex                     # the lead-in is not classified
 
 
 def test_a_given_neutral_frame_is_used_and_reported(smile):
