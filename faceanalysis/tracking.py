@@ -372,8 +372,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     device : str, optional
         Torch device with ``backend='torch'``.
     redetect : bool, keyword-only
-        With ``tracker='snakes'``. False (default): no face on the first frame is a
-        ``ValueError``. True: a frame
+        With ``tracker='snakes'``. Frames before the first one with a face are lost
+        either way. False (default): once the face is found, the snakes follow it to the
+        end. True: a frame
         where the face is not found or the contours leave the image is lost, the face is
         looked for again on the next frame, and fresh contours get two more relaxations
         to settle.
@@ -395,8 +396,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     FileNotFoundError
         If the video (or layout file) does not exist.
     ValueError
-        Unreadable video, an empty frame range, no face on the first frame (without
-        ``redetect``), unknown points or bad parameters.
+        Unreadable video, an empty frame range, no face in any frame, unknown points or
+        bad parameters.
     """
     points = tuple(points)
     unknown = [p for p in points if p not in POINT_CONTOUR]
@@ -451,7 +452,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     else:
                         tracker, res = _track_frame(tracker, frame, video, layout,
                                                     source.size, redetect, backend, device,
-                                                    tracker_options)
+                                                    tracker_options, waiting=not any(ok))
                     t_track += time.perf_counter() - t0
                 if res is None:
                     good, c = False, 0.0
@@ -489,7 +490,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     writer.write(_draw(frame, shown, fids, head if good else None, not good))
                 if bar is not None:
                     bar.update(1)
-        if kind == "landmarks" and frames and not any(ok):
+        if frames and not any(ok) and layout is None:
             # before the overlay is finished: a failed run leaves no file behind
             raise ValueError(f"{video}: no face found in any of the {len(frames)} frames")
         if writer is not None:
@@ -530,14 +531,23 @@ def _anchored(backend, device, tracker_options):
 
 
 def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
-                 tracker_options):
-    """(tracker, result) for one decoded frame; result None when the frame is lost."""
+                 tracker_options, waiting=False):
+    """(tracker, result) for one decoded frame; result None when the frame is lost.
+
+    ``waiting``: no face has been found yet; a frame without one is lost, not an error
+    (the analysis starts on the first frame with a face)."""
     fresh = tracker is None
     try:
         if fresh:
             lay = load_layout(layout, size)
             if lay is None:
-                lay = _detect(frame.image, frame.index, video)
+                try:
+                    lay = _detect(frame.image, frame.index, video)
+                except ValueError:
+                    if not waiting:
+                        raise
+                    log.debug("%s: frame %d: no face yet", video, frame.index)
+                    return None, None
             tracker = make_tracker(lay, backend=backend, device=device, channel_order="bgr",
                                    **(tracker_options or {}))
         res = tracker.track(frame.image)

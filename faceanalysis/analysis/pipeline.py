@@ -127,8 +127,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     FileNotFoundError
         If the video (or layout file) does not exist.
     ValueError
-        Unreadable video, no face in the first frame, a neutral frame outside the
-        range or not tracked, bad parameters.
+        Unreadable video, no face in any frame, a neutral frame outside the range or
+        not tracked, bad parameters.
     """
     from trackers.torch_backend import check_backend
 

@@ -65,6 +65,22 @@ def test_without_redetect_a_frame_without_a_face_is_an_error_naming_the_file(tmp
         track(path)
 
 
+@pytest.mark.parametrize("redetect", [False, True])
+def test_frames_before_the_first_face_are_lost(tmp_path, redetect):
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=2, size=256,
+                            seed=5, flow=False)
+    cap = cv2.VideoCapture(str(files["video"]))
+    faces = [cap.read()[1] for _ in range(2)]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate([np.full_like(faces[0], 128)] * 2 + faces):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    tr = track(folder, redetect=redetect, tracker="snakes")
+    assert tr.success.tolist() == [False, False, True, True]
+
+
 def test_with_redetect_frames_without_a_face_are_lost_and_the_face_is_found_again(tmp_path):
     from synth.render.sequence import render_sequence
 

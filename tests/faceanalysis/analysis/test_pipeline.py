@@ -132,7 +132,7 @@ def test_no_face_names_the_file_and_frame(tmp_path):
     for _ in range(3):
         writer.write(np.full((120, 160, 3), 128, np.uint8))
     writer.release()
-    with pytest.raises(ValueError, match=r"wall\.avi: no face found in frame 0"):
+    with pytest.raises(ValueError, match=r"wall\.avi: no face found in any of the 3 frames"):
         analyze(path)
 
 
