@@ -142,6 +142,14 @@ class AnchoredTracker:
     max_disagreement : float
         Mean node distance from the landmark curve, in inter-ocular distances, beyond
         which a contour is lost (:data:`MAX_DISAGREEMENT`).
+    head_frame : {'landmarks', 'tracker'}
+        Where the head frame after the first frame comes from: the similarity of the
+        rigid landmarks ('landmarks', default), or the snakes' own search (the irises,
+        :class:`~trackers.tracking.Tracker`, ``head_anchor``) with the landmarks' frame
+        standing in where the irises are not found ('tracker'). On rendered faces the
+        mesh's rigid points move with strong expressions (a surprise reads up to 3
+        degrees of pitch on a still head) and 'tracker' halved the frontalis error of a
+        rendered surprise; on real video, the landmarks follow turns the irises lose.
     max_depth : float
         Relative potential depth beyond which a contour of :data:`OCCLUSION_WITNESSES`
         counts as lying on a foreign edge (:data:`MAX_DEPTH`, ``inf`` to turn the
@@ -163,7 +171,8 @@ class AnchoredTracker:
 
     def __init__(self, *, landmarks=None, channel_order: str = "rgb",
                  springs=None, max_disagreement: float = MAX_DISAGREEMENT,
-                 max_depth: float = MAX_DEPTH,
+                 max_depth: float = MAX_DEPTH, head_frame: str = "landmarks",
+
                  runtime: str = "auto", backend: str = "numpy", device=None,
                  **tracker_options):
         if channel_order not in ("rgb", "bgr"):
@@ -173,6 +182,9 @@ class AnchoredTracker:
         if not max_depth > 1:
             raise ValueError(f"max_depth must be > 1, got {max_depth}")
         self.max_depth = float(max_depth)
+        if head_frame not in ("landmarks", "tracker"):
+            raise ValueError(f"head_frame must be 'landmarks' or 'tracker', got {head_frame!r}")
+        self.head_frame = head_frame
         for key in ("redetect", "springs", "channel_order"):
             if key in tracker_options:
                 raise ValueError(f"{key!r} is set by the AnchoredTracker itself")
@@ -219,10 +231,10 @@ class AnchoredTracker:
             springs = self.springs
             if isinstance(springs, dict):
                 springs = dict(springs)
-                for name, k in END_SPRINGS.items():
-                    per_node = np.full(len(layout.contours[name].points),
-                                       float(springs.get(name, 0.0)))
-                    per_node[[0, -1]] = k
+                for name, c in layout.contours.items():
+                    per_node = np.full(len(c.points), float(springs.get(name, 0.0)))
+                    if name in END_SPRINGS:
+                        per_node[[0, -1]] = END_SPRINGS[name]
                     springs[name] = per_node
             self.tracker = make_tracker(layout, backend=self.backend, device=self.device,
                                         channel_order=self.channel_order,
@@ -246,7 +258,10 @@ class AnchoredTracker:
             targets = self._node_targets(curves, a)
             if self._gap:
                 self._replace(targets, head)
-            res = self.tracker.track(frame, targets=targets, head=head)
+            if self.head_frame == "landmarks":
+                res = self.tracker.track(frame, targets=targets, head=head)
+            else:
+                res = self.tracker.track(frame, targets=targets, fallback_head=head)
         self._gap = False
         quality = dict(res.quality)
         for name in targets:
@@ -267,7 +282,8 @@ class AnchoredTracker:
                 quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised,
                                                q.shape)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
-        extra = dict(res.extra, head_source="landmarks", presence=float(lm.presence),
+        source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
+        extra = dict(res.extra, head_source=source, presence=float(lm.presence),
                      head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
                      detected=bool(lm.detected))
         return TrackResult(index, res.contours, quality, res.iterations, res.converged,

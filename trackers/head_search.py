@@ -115,6 +115,15 @@ class HeadFrameSearch:
                 self.features = None  # seeded again from here when the irises go
                 self._keep_gray(frame)
                 return head
+        fallback = getattr(self, "_fallback_head", None)
+        if fallback is not None:
+            # where the irises are not found, a head frame known from elsewhere (rigid
+            # landmarks) stands in for the features and the contours
+            self.head_source = "landmarks"
+            self._anchor_base = (hc, fallback)
+            if self.anchors is not None:
+                self._move_iris_search(fallback)
+            return fallback
         head = self._feature_head(frame)
         if head is not None:
             self.head_source = "features"

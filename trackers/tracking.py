@@ -504,7 +504,7 @@ class Tracker(HeadFrameSearch, ContourFields):
         return q
 
     # ------------------------------------------------------------------ public
-    def track(self, frame, *, targets=None, head=None) -> TrackResult:
+    def track(self, frame, *, targets=None, head=None, fallback_head=None) -> TrackResult:
         """Relax the contours on ``frame`` (starting from the last equilibrium).
 
         Parameters
@@ -519,6 +519,9 @@ class Tracker(HeadFrameSearch, ContourFields):
             This frame's head frame when it is known from elsewhere (e.g. rigid
             landmarks); ignored on the first frame, whose head frame comes from the
             contours (004).
+        fallback_head : HeadFrame, optional
+            A head frame from elsewhere that stands in, on this frame, for the corner
+            features and the contours' motion when the irises are not found.
 
         Raises
         ------
@@ -527,6 +530,7 @@ class Tracker(HeadFrameSearch, ContourFields):
             (the message names the frame index).
         """
         first = self.index == 0
+        self._fallback_head = None if first else fallback_head
         placed = self._set_targets(targets) if targets else {}
         given_head = None if first else head
         Ps, origins, gray, gorigin = self._fields(frame)

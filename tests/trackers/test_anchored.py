@@ -99,6 +99,18 @@ def test_bad_options_are_refused(models):  # noqa: F811
         AnchoredTracker(max_disagreement=0)
     with pytest.raises(ValueError, match="redetect"):
         AnchoredTracker(redetect=True)
+    with pytest.raises(ValueError, match="head_frame"):
+        AnchoredTracker(head_frame="irises")
+
+
+def test_the_head_frame_can_come_from_the_irises(face_truth):
+    img, _ = face_truth
+    tracker = AnchoredTracker(head_frame="tracker")
+    first = tracker.track(img)
+    moved = tracker.track(_shift(img, 5, -3))
+    assert moved.extra["head_source"] in ("eyes", "landmarks")
+    assert abs(moved.head.x - first.head.x - 5) < 1.0
+    assert abs(moved.head.y - first.head.y + 3) < 1.0
 
 
 def test_rigid_similarity_and_rotation_angles():
