@@ -21,9 +21,15 @@
 - :mod:`trackers.fiducials`: head reference frame and the 11 fiducial points;
 - :mod:`trackers.anchors`: the irises as rigid anchors that keep the head frame
   still under expressions;
-- :mod:`trackers.draw`: overlays.
+- :mod:`trackers.draw`: overlays;
+- :mod:`trackers.landmarks`: MediaPipe's face detection and 468-point face mesh (pinned
+  model files, OpenCV or LiteRT runtime, :class:`~trackers.landmarks.LandmarkTracker`);
+  :mod:`trackers.landmark_contours`: the nine contours on the mesh;
+  :mod:`trackers.anchored`: :class:`AnchoredTracker`, snakes placed and held by the
+  landmarks, with lost frames where there is no face.
 """
 
+from trackers.anchored import AnchoredTracker
 from trackers.anchors import IrisAnchors, find_iris
 from trackers.contour_ends import refine_end
 from trackers.draw import draw_contours, draw_fiducials, draw_head_frame
@@ -53,6 +59,7 @@ from trackers.snakes import ContourSystem, factorization_count, paper_equivalent
 from trackers.tracking import Tracker
 
 __all__ = [
+    "AnchoredTracker",
     "CONTOUR_NAMES", "FIDUCIAL_NAMES", "Contour", "ContourQuality", "ContourSystem",
     "FaceLayout", "HeadFrame", "LayoutContour", "RelaxResult", "SnakeParams", "TrackResult",
     "Tracker", "detect_layout", "draw_contours", "draw_fiducials", "draw_head_frame",
