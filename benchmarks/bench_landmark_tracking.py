@@ -199,7 +199,7 @@ def smile_zygomaticus(quick=False):
         target = tracker == "landmarks"
         figs += [_fig(case, "people analysed on both frames", ok.sum(), f"of {len(ok)}", True),
                  _fig(case, "people whose smile reads more zygomaticus major",
-                      (smile[ok] > neutral[ok]).sum(), f"of {len(ok)}", True,
+                      (smile[ok] > neutral[ok]).sum(), f"of {ok.sum()}", True,
                       len(ok) if target else None),
                  _fig(case, "AUC of zygomaticus major, smile vs neutral",
                       _auc(smile[ok], neutral[ok]), "", True, 0.97 if target else None),
