@@ -432,6 +432,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     frames, stamps, ok, conf, poses, mesh = [], [], [], [], [], []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
     kind, tracker = tracker, None
+    waiting = _Waiting()
     nan_pose = np.full(2, np.nan)
     writer = None
     t_track = 0.0
@@ -452,7 +453,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     else:
                         tracker, res = _track_frame(tracker, frame, video, layout,
                                                     source.size, redetect, backend, device,
-                                                    tracker_options, waiting=not any(ok))
+                                                    tracker_options,
+                                                    waiting=None if any(ok) else waiting)
                     t_track += time.perf_counter() - t0
                 if res is None:
                     good, c = False, 0.0
@@ -530,12 +532,48 @@ def _anchored(backend, device, tracker_options):
                            **(tracker_options or {}))
 
 
+#: After a stretch of at least this many frames without a face (a title card, the sky),
+#: a face box in which the eye detector finds no eyes starts the snakes only once it has
+#: held its place for as many frames: the face cascade fires on such frames too (on
+#: ``noface_face.mov``, on 3 consecutive frames at most), and the contours would then track
+#: a face that is not there. A video that starts with a face, or has only a few frames
+#: without one, starts at once (the eye cascade finds no eyes on the toolkit's rendered
+#: faces).
+START_FRAMES = 5
+
+
+@dataclass
+class _Waiting:
+    """Before the first face: frames without any face so far, and the last eyeless
+    face boxes at one place."""
+
+    empty: int = 0
+    boxes: list = field(default_factory=list)
+
+    def trusts(self, box) -> bool:
+        if self.empty < START_FRAMES:
+            return True
+        if self.boxes and _box_overlap(self.boxes[-1], box) < 0.5:
+            self.boxes = []
+        self.boxes.append(box)
+        return len(self.boxes) >= START_FRAMES
+
+
+def _box_overlap(a, b) -> float:
+    """Intersection over union of two (x, y, w, h) boxes."""
+    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
+    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
+    inter = max(0, x1 - x0) * max(0, y1 - y0)
+    return inter / float(a[2] * a[3] + b[2] * b[3] - inter)
+
+
 def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
-                 tracker_options, waiting=False):
+                 tracker_options, waiting=None):
     """(tracker, result) for one decoded frame; result None when the frame is lost.
 
-    ``waiting``: no face has been found yet; a frame without one is lost, not an error
-    (the analysis starts on the first frame with a face)."""
+    ``waiting``: a :class:`_Waiting` while no face has been found yet (see
+    :data:`START_FRAMES`); a frame without a face is then lost, not an error (the
+    analysis starts on the first frame with a face)."""
     fresh = tracker is None
     try:
         if fresh:
@@ -544,9 +582,16 @@ def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
                 try:
                     lay = _detect(frame.image, frame.index, video)
                 except ValueError:
-                    if not waiting:
+                    if waiting is None:
                         raise
+                    waiting.empty += 1
+                    waiting.boxes = []
                     log.debug("%s: frame %d: no face yet", video, frame.index)
+                    return None, None
+                if (waiting is not None and lay.meta.get("placement") == "face box"
+                        and not waiting.trusts(lay.face_box)):
+                    log.debug("%s: frame %d: a face box without eyes, not yet trusted",
+                              video, frame.index)
                     return None, None
             tracker = make_tracker(lay, backend=backend, device=device, channel_order="bgr",
                                    **(tracker_options or {}))

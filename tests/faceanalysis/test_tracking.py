@@ -148,3 +148,35 @@ def test_tracker_choice_is_checked(tmp_path):
     with pytest.raises(ValueError, match="layout"):
         track(path, layout=lay, tracker="landmarks")
     assert track(path, layout=lay).tracker == "snakes"
+
+
+def test_an_eyeless_face_box_must_hold_its_place_before_the_snakes_start(tmp_path,
+                                                                         monkeypatch):
+    # the face cascade fires on sky and title cards; without eyes found in the box, the
+    # first face is trusted only after START_FRAMES frames at the same place
+    import faceanalysis.tracking as tracking
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=7, size=256,
+                            seed=5, flow=False)
+    real = tracking._detect
+
+    def eyeless(image, index, video):
+        lay = real(image, index, video)
+        lay.meta["placement"] = "face box"
+        return lay
+
+    monkeypatch.setattr(tracking, "_detect", eyeless)
+    # a video that starts with the face starts at once
+    assert track(files["video"], tracker="snakes").success.all()
+    # after START_FRAMES frames without a face, the eyeless box must hold for as many
+    n = tracking.START_FRAMES
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cap = cv2.VideoCapture(str(files["video"]))
+    faces = [cap.read()[1] for _ in range(7)]
+    for i, f in enumerate([np.full_like(faces[0], 128)] * n + faces):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    tr = track(folder, tracker="snakes")
+    assert tr.success.tolist() == [False] * (2 * n - 1) + [True] * (7 - n + 1)
+    assert tracking._box_overlap((0, 0, 10, 10), (5, 0, 10, 10)) == pytest.approx(1 / 3)
