@@ -13,17 +13,9 @@ fiducials in 2-D (:class:`faceanalysis.flow.personalize.SubjectWarp`).
 
 The input's flow is smoothed over time (Gaussian, one frame by default: each frame's flow
 is measured on its own, so its noise is independent from frame to frame while faces move
-smoothly). Both fields have the nuisance motions (head-frame jitter, out-of-plane head
-rotation) projected out on the face mask before they are compared. Agreement per frame and per face
-region (:data:`faceanalysis.flow.templates.REGION_GROUPS`):
-
-- ``cosine``: normalised correlation of the two vector fields on the mask (1 = same motion
-  pattern up to a positive factor);
-- ``epe``: mean end-point error (head units; ``epe_px`` in the input's pixels).
-
-Frames where neither field moves (RMS below
-:data:`faceanalysis.flow.recognition.NEUTRAL_THRESHOLD`) carry no pattern to compare; the
-summary's ``mean_cosine`` is taken over the *active* frames, and says how many there were.
+smoothly). The comparison itself (nuisance motions projected out, ``cosine`` and ``epe``
+per frame and face region, the summary over the active frames) is
+:mod:`faceanalysis.flow.agreement`, which the ``resynth`` report shares.
 """
 
 from __future__ import annotations
