@@ -23,6 +23,7 @@ __all__ = [
     "CHIN_CENTRE",
     "EYE_POINTS",
     "LANDMARK_ENDS",
+    "MOUTH_CORNER_OFFSET",
     "MESH_CURVES",
     "RIGID_POINTS",
     "eye_centres",
@@ -57,6 +58,14 @@ MESH_CURVES: dict[str, tuple[int, ...]] = {
 #: ``chin`` fiducial, its centroid lies at 0.58 +- 0.07 of that segment (five faces).
 CHIN_CENTRE = 0.58
 _CHIN_AXES = (0.262, 0.148)
+
+#: Where the mouth corners lie from the mesh's (points 61 and 291), in inter-ocular
+#: distances: outward along the eye line and down across it. The mesh's points sit on the
+#: lips' outline just inside the commissure: on 20 people's photographs (IMM, 40 images)
+#: hand-placed corners lie 0.015 outward and 0.012 lower; fitted on ten people and applied
+#: to the other ten, the offset lowered their corner error from 0.032 to 0.027 and from
+#: 0.037 to 0.032.
+MOUTH_CORNER_OFFSET = (0.015, 0.012)
 
 #: Eye centres as the mean of four eyelid points (corners, mid upper and lower lid):
 #: row 0 the subject's right eye (image left).
@@ -106,13 +115,18 @@ def landmark_curves(points) -> dict[str, np.ndarray]:
     p = _check(points)
     out = {name: 0.5 * (p[list(up)] + p[list(lo)]) for name, (up, lo) in _BROW_EDGES.items()}
     upper, lower = (p[list(idx)] for idx in _LIP_INNER)
-    out["upper_lip"] = np.vstack([p[61], 0.5 * (upper + lower), p[291]])
-    for name, idx in MESH_CURVES.items():
-        out[name] = p[list(idx)]
     eyes = eye_centres(p)
     d = eyes[1] - eyes[0]
     iod = float(np.hypot(*d))
-    c, s = d / max(iod, 1e-9)
+    ex = d / max(iod, 1e-9)
+    ey = np.array([-ex[1], ex[0]])                  # down the face
+    out_, down = MOUTH_CORNER_OFFSET
+    corner_r = p[61] + iod * (-out_ * ex + down * ey)
+    corner_l = p[291] + iod * (out_ * ex + down * ey)
+    out["upper_lip"] = np.vstack([corner_r, 0.5 * (upper + lower), corner_l])
+    for name, idx in MESH_CURVES.items():
+        out[name] = p[list(idx)]
+    c, s = ex
     t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
     local = np.c_[_CHIN_AXES[0] * np.cos(t), _CHIN_AXES[1] * np.sin(t)] * iod
     centre = p[17] + CHIN_CENTRE * (p[152] - p[17])
