@@ -327,7 +327,7 @@ TRACKERS = ("landmarks", "snakes")
 
 #: The tracker used when none is named. The landmark tracker holds real faces (see
 #: docs/accuracy.md) but is not yet as precise as free snakes on the toolkit's rendered
-#: faces (1.18 px mean fiducial error against 0.81 px), on which the estimators'
+#: faces (1.51 px mean fiducial error against 0.81 px), on which the estimators'
 #: accuracy figures rest; until it is, the default stays the snakes of 004.
 DEFAULT_TRACKER = "snakes"
 
