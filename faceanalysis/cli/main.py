@@ -41,6 +41,19 @@ SUBCOMMANDS: dict[str, str] = {
 }
 
 
+def _signal_in_chain(exc: BaseException):
+    """Terminated or KeyboardInterrupt when one of them caused ``exc``, else None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, Terminated):
+            return Terminated
+        if isinstance(exc, KeyboardInterrupt):
+            return KeyboardInterrupt
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread so that ``finally`` blocks and context managers
     clean up as they do for Ctrl-C (a ``KeyboardInterrupt``)."""
@@ -137,6 +150,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("faceanalysis: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        # a signal that arrives inside compiled code (a Numba dispatcher loading its
+        # cache) comes back wrapped, e.g. as a SystemError whose context is ours
+        signalled = _signal_in_chain(exc)
+        if signalled is Terminated:
+            print("faceanalysis: terminated (SIGTERM)", file=sys.stderr)
+            return 128 + int(signal.SIGTERM)
+        if signalled is KeyboardInterrupt:
+            print("faceanalysis: interrupted", file=sys.stderr)
+            return 130
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover

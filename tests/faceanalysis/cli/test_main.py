@@ -82,3 +82,19 @@ def test_output_under_a_file_says_which_part_is_a_file(run_cli, tmp_path):
     assert code == 1
     assert "Errno" not in err and len(err.strip().splitlines()) == 1, err
     assert f"{tmp_path / 'somefile.txt'} is a file, not a folder" in err, err
+
+
+def test_a_signal_wrapped_by_compiled_code_still_ends_the_run_as_a_signal(monkeypatch, capsys):
+    # a SIGTERM that lands inside a Numba dispatcher comes back as a SystemError whose
+    # context is Terminated: the run must still end as terminated (143), not crash
+    from faceanalysis.cli import info, main
+
+    def wrapped(args):
+        try:
+            raise main.Terminated(15)
+        except main.Terminated as exc:
+            raise SystemError("returned a result with an exception set") from exc
+
+    monkeypatch.setattr(info, "run", wrapped)
+    assert main.main(["info"]) == 143
+    assert "terminated" in capsys.readouterr().err
