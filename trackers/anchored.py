@@ -26,6 +26,8 @@ feature, but it is smooth and off by pixels on crisp edges, where snakes are exa
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from trackers.head_search import _apply_similarity
@@ -36,7 +38,7 @@ from trackers.landmark_contours import (
     layout_from_landmarks,
 )
 from trackers.polyline import resample_polyline
-from trackers.quality import ContourQuality, TrackResult
+from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
@@ -172,7 +174,6 @@ class AnchoredTracker:
     def __init__(self, *, landmarks=None, channel_order: str = "rgb",
                  springs=None, max_disagreement: float = MAX_DISAGREEMENT,
                  occlusion: bool = True, head_frame: str = "landmarks",
-
                  runtime: str = "auto", backend: str = "numpy", device=None,
                  **tracker_options):
         if channel_order not in ("rgb", "bgr"):
@@ -237,7 +238,7 @@ class AnchoredTracker:
                                         channel_order=self.channel_order,
                                         springs=springs, redetect=False,
                                         **self.tracker_options)
-            targets = self._node_targets(curves, 0j)
+            targets = self._node_targets(curves, 1 + 0j)   # no offsets learnt yet
             # the chin boss is held where it was placed (the mesh has no outline of it)
             targets["chin_boss"] = self.tracker.system.contour_points(
                 self.tracker.names.index("chin_boss")).copy()
@@ -266,17 +267,14 @@ class AnchoredTracker:
             nodes = self.tracker.system.contour_points(k)
             placed = self.tracker.system.anchor[self.tracker.system.contour_slice(k)]
             gap = float(np.mean(np.hypot(*(nodes - placed).T))) / max(iod, 1e-9)
-            q = quality[name]
-            if gap > self.max_disagreement and not q.lost:
-                quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised, q.shape)
+            if gap > self.max_disagreement:
+                quality[name] = replace(quality[name], lost=True)
         if self.occlusion and all(not quality[n].lost and quality[n].depth > d
                                   for n, d in OCCLUSION_WITNESSES.items()):
             # an edge much stronger than the features' own across the lower face: a
             # hand, fingers, a microphone; the mesh goes on drawing a mouth under it
             for name in LOWER_FACE:
-                q = quality[name]
-                quality[name] = ContourQuality(q.depth, q.stretch, True, q.reinitialised,
-                                               q.shape)
+                quality[name] = replace(quality[name], lost=True)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
         source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
         extra = dict(res.extra, head_source=source, presence=float(lm.presence),
@@ -298,7 +296,7 @@ class AnchoredTracker:
             pts = resample_polyline(curve, sl.stop - sl.start,
                                     closed=t.layout.contours[name].closed)
             off = self._offsets.get(name)
-            if off is not None and a != 0:
+            if off is not None:
                 z = a * off
                 pts = pts + np.c_[z.real, z.imag]
             out[name] = pts

@@ -115,7 +115,7 @@ class HeadFrameSearch:
                 self.features = None  # seeded again from here when the irises go
                 self._keep_gray(frame)
                 return head
-        fallback = getattr(self, "_fallback_head", None)
+        fallback = self._fallback_head
         if fallback is not None:
             # where the irises are not found, a head frame known from elsewhere (rigid
             # landmarks) stands in for the features and the contours

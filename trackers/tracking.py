@@ -267,6 +267,8 @@ class Tracker(HeadFrameSearch, ContourFields):
         self._last_detect = 0
         self._redetect_wait = self.redetect_interval
         self._sim_cache: tuple | None = None
+        # a head frame from elsewhere for this frame, where the irises are not found
+        self._fallback_head: HeadFrame | None = None
         self._corners_head: dict[str, np.ndarray] = {}
         self._corner_misses: dict[str, int] = {}
         self.anchors = None

@@ -65,33 +65,31 @@ def test_without_redetect_a_frame_without_a_face_is_an_error_naming_the_file(tmp
         track(path)
 
 
-@pytest.mark.parametrize("redetect", [False, True])
-def test_frames_before_the_first_face_are_lost(tmp_path, redetect):
+def _blank_then_faces(tmp_path, blank, faces):
+    """A folder of ``blank`` grey frames, then ``faces`` frames of a rendered smile; and
+    the rendered video itself."""
     from synth.render.sequence import render_sequence
 
-    files = render_sequence(tmp_path / "seq", expression="happiness", frames=2, size=256,
-                            seed=5, flow=False)
+    files = render_sequence(tmp_path / "seq", expression="happiness", frames=faces,
+                            size=256, seed=5, flow=False)
     cap = cv2.VideoCapture(str(files["video"]))
-    faces = [cap.read()[1] for _ in range(2)]
+    shown = [cap.read()[1] for _ in range(faces)]
     folder = tmp_path / "frames"
     folder.mkdir()
-    for i, f in enumerate([np.full_like(faces[0], 128)] * 2 + faces):
+    for i, f in enumerate([np.full_like(shown[0], 128)] * blank + shown):
         cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    return folder, files["video"]
+
+
+@pytest.mark.parametrize("redetect", [False, True])
+def test_frames_before_the_first_face_are_lost(tmp_path, redetect):
+    folder, _ = _blank_then_faces(tmp_path, 2, 2)
     tr = track(folder, redetect=redetect, tracker="snakes")
     assert tr.success.tolist() == [False, False, True, True]
 
 
 def test_with_redetect_frames_without_a_face_are_lost_and_the_face_is_found_again(tmp_path):
-    from synth.render.sequence import render_sequence
-
-    files = render_sequence(tmp_path / "seq", expression="happiness", frames=3, size=256,
-                            seed=5, flow=False)
-    cap = cv2.VideoCapture(str(files["video"]))
-    faces = [cap.read()[1] for _ in range(3)]
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i, f in enumerate([np.full_like(faces[0], 128)] * 2 + faces):
-        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
+    folder, _ = _blank_then_faces(tmp_path, 2, 3)
     tr = track(folder, redetect=True)
     assert tr.success.tolist() == [False, False, True, True, True]
     assert np.isnan(tr.heads[:2]).all() and np.isfinite(tr.heads[2:]).all()
@@ -155,10 +153,9 @@ def test_an_eyeless_face_box_must_hold_its_place_before_the_snakes_start(tmp_pat
     # the face cascade fires on sky and title cards; without eyes found in the box, the
     # first face is trusted only after START_FRAMES frames at the same place
     import faceanalysis.tracking as tracking
-    from synth.render.sequence import render_sequence
 
-    files = render_sequence(tmp_path / "seq", expression="happiness", frames=7, size=256,
-                            seed=5, flow=False)
+    n = tracking.START_FRAMES
+    folder, video = _blank_then_faces(tmp_path, n, 7)
     real = tracking._detect
 
     def eyeless(image, index, video):
@@ -168,15 +165,8 @@ def test_an_eyeless_face_box_must_hold_its_place_before_the_snakes_start(tmp_pat
 
     monkeypatch.setattr(tracking, "_detect", eyeless)
     # a video that starts with the face starts at once
-    assert track(files["video"], tracker="snakes").success.all()
+    assert track(video, tracker="snakes").success.all()
     # after START_FRAMES frames without a face, the eyeless box must hold for as many
-    n = tracking.START_FRAMES
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    cap = cv2.VideoCapture(str(files["video"]))
-    faces = [cap.read()[1] for _ in range(7)]
-    for i, f in enumerate([np.full_like(faces[0], 128)] * n + faces):
-        cv2.imwrite(str(folder / f"{i:03d}.png"), f)
     tr = track(folder, tracker="snakes")
     assert tr.success.tolist() == [False] * (2 * n - 1) + [True] * (7 - n + 1)
     assert tracking._box_overlap((0, 0, 10, 10), (5, 0, 10, 10)) == pytest.approx(1 / 3)
