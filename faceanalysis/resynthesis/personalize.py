@@ -100,8 +100,6 @@ def personalize(subject, *, model=None, kernel: str = "linear") -> SubjectInfo:
 
 def personalize_series(series: Series, video, *, model=None, kernel: str = "linear"
                         ) -> SubjectInfo:
-    from synth.personalize import head_frame_points, personalize_model
-
     if series.fiducials is None or series.heads is None:
         raise ValueError("the subject's table has no fiducials or head frame columns")
     if model is None:
@@ -117,9 +115,46 @@ def personalize_series(series: Series, video, *, model=None, kernel: str = "line
                          "texture); pass the video itself as the subject")
     origin_cm, scale_cm = head_reference(model.mesh)
     framing = framing_from_head(series.heads[k], origin_cm, scale_cm)
+    personal, warp = fit_to_points(model, framing, dict(zip(FIDUCIALS, fid)), kernel=kernel)
+    image = _read_frame(Path(video), int(series.frames[k]))
+    return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
+                       fiducials=fid, neutral_frame=int(series.frames[k]),
+                       reference=(origin_cm, scale_cm), source=str(video),
+                       head=np.array(series.heads[k], dtype=float))
+
+
+def fit_to_points(model, framing: Framing, points: dict, *, kernel: str = "linear"):
+    """Warp ``model`` so that its named landmarks land on image ``points`` (Kähler 001, ch. 8).
+
+    Parameters
+    ----------
+    model : FaceModel
+    framing : Framing
+        Model-to-image similarity of the image (from its head frame).
+    points : dict
+        Landmark name (:meth:`synth.model.FaceModel.landmark_positions`) -> image (x, y).
+    kernel : {'linear', 'gaussian'}
+
+    Returns
+    -------
+    (FaceModel, synth.personalize.LandmarkWarp)
+
+    Raises
+    ------
+    ValueError
+        A name the model does not have, or no warp down to an affine one gives a valid
+        model.
+    """
+    from synth.personalize import head_frame_points, personalize_model
+
     lm = model.landmark_positions()
-    src = np.array([lm[n] for n in FIDUCIALS], dtype=float)
-    xy = framing.invert(fid)
+    unknown = sorted(set(points) - set(lm))
+    if unknown:
+        raise ValueError(f"the model has no landmark {unknown[0]!r}; it has "
+                         f"{', '.join(sorted(lm))}")
+    names = list(points)
+    src = np.array([lm[n] for n in names], dtype=float)
+    xy = framing.invert(np.array([points[n] for n in names], dtype=float))
     # depth is not observed: the model's, scaled by the subject's overall size in the image
     # plane (keeping depth unscaled where the face is narrower would tilt short muscles
     # such as the corrugator into the skull)
@@ -134,7 +169,6 @@ def personalize_series(series: Series, video, *, model=None, kernel: str = "line
     # make a valid model (a fold, or a muscle left without tissue to pull)
     B, *_ = np.linalg.lstsq(np.c_[source, np.ones(len(source))], target, rcond=None)
     affine = np.c_[source, np.ones(len(source))] @ B
-    personal = warp = None
     for alpha in (1.0, 0.75, 0.5, 0.25, 0.0):
         try:
             personal, warp = personalize_model(model, source, affine + alpha * (target - affine),
@@ -146,15 +180,9 @@ def personalize_series(series: Series, video, *, model=None, kernel: str = "line
         if alpha < 1.0:
             log.warning("personalisation: the model follows the subject's landmarks at %.0f%% "
                         "only (see the landmark error in the report)", 100 * alpha)
-        break
-    if personal is None:
-        raise ValueError("the subject's neutral fiducials cannot be fitted by the face model "
-                         "(every warp, down to an affine one, failed)")
-    image = _read_frame(Path(video), int(series.frames[k]))
-    return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
-                       fiducials=fid, neutral_frame=int(series.frames[k]),
-                       reference=(origin_cm, scale_cm), source=str(video),
-                       head=np.array(series.heads[k], dtype=float))
+        return personal, warp
+    raise ValueError("the subject's neutral landmarks cannot be fitted by the face model "
+                     "(every warp, down to an affine one, failed)")
 
 
 def subject_series(subject) -> tuple[Series, Path | None]:

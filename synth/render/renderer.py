@@ -109,8 +109,11 @@ class Renderer:
         Return single-channel images.
     eye_tex : (h, w, 3) array, optional
         Texture of the eyeballs (default :func:`synth.render.shading.eye_texture`).
-    background : tuple of 3 floats
-        Background colour (RGB in [0, 1]).
+    background : tuple of 3 floats, or (H, W, 3) array
+        Background colour (RGB in [0, 1]) drawn as a soft vertical gradient, or a
+        background image of the camera's size (uint8, or float in [0, 1]), e.g. the scene
+        of a photograph; a supersampled frame repeats its pixels, so that the background
+        comes back unchanged where nothing covers it.
 
     Examples
     --------
@@ -159,7 +162,17 @@ class Renderer:
             raise ValueError(f"supersample={supersample} must be an integer in 1..8")
         self.supersample = int(supersample)
         self.grey = bool(grey)
-        self.background = tuple(float(v) for v in background)
+        self._bg_image = None
+        if np.ndim(background) == 3:
+            bg = np.asarray(background)
+            if bg.shape[2] != 3 or bg.shape[:2] != (self.camera.height, self.camera.width):
+                raise ValueError(f"background image must have shape ({self.camera.height}, "
+                                 f"{self.camera.width}, 3), got {bg.shape}")
+            self._bg_image = np.ascontiguousarray(
+                bg.astype(np.float32) / (255.0 if bg.dtype == np.uint8 else 1.0))
+            self.background = tuple(float(v) for v in self._bg_image.mean(axis=(0, 1)))
+        else:
+            self.background = tuple(float(v) for v in background)
         if texture is None:
             texture = np.full((4, 4, 3), (0.78, 0.60, 0.50))
         self.set_texture(texture)
@@ -237,12 +250,26 @@ class Renderer:
                        bary)
         return zbuf, tri_id, bary
 
+    def _background_image(self, cam: Camera) -> np.ndarray:
+        """Float RGB background of ``cam``'s size (the image, repeated when supersampled)."""
+        img = self._bg_image
+        if img is None:
+            return _background(cam.width, cam.height, self.background)
+        h, w = img.shape[:2]
+        if (cam.height, cam.width) == (h, w):
+            return img
+        if cam.height % h or cam.width % w or cam.height // h != cam.width // w:
+            raise ValueError(f"camera {cam.width}x{cam.height} is not a whole multiple of "
+                             f"the background image's {w}x{h}")
+        k = cam.height // h
+        return np.ascontiguousarray(np.repeat(np.repeat(img, k, axis=0), k, axis=1))
+
     def _shade(self, tri_id, bary, world, xy, cam, light: Light, normals, *,
                as_uint8: bool = False) -> np.ndarray:
         key = (cam.width, cam.height, as_uint8)
         bg = self._bg_cache.get(key)
         if bg is None:
-            bg = _background(cam.width, cam.height, self.background)
+            bg = self._background_image(cam)
             if as_uint8:
                 bg = np.clip(bg * 255.0 + 0.5, 0, 255).astype(np.uint8)
             self._bg_cache[key] = bg

@@ -279,14 +279,21 @@ def _progress_bar(total: int):
                 dynamic_ncols=True)
 
 
+def _size_pair(size) -> tuple[int, int]:
+    if isinstance(size, (int, np.integer)):
+        return int(size), int(size)
+    width, height = (int(v) for v in size)
+    return width, height
+
+
 def synthesize(*, model=None, expression: str | None = None, au=None, contractions=None,
-               frames: int | None = 60, fps: float = 30.0, size=256, seed: int = 0,
+               frames: int | None = 60, fps: float = 30.0, size=None, seed: int = 0,
                head_motion: float = 0.0, out_of_plane: bool = True,
                illumination: float = 0.0, noise: float = 0.0, blur: float = 0.0,
                camera: str = "orthographic", supersample: int = 2, grey: bool = False,
                flow: bool = True, intensity: float = 1.0, resolution: float | None = None,
                identity_spread: float = 1.0, texture_size: int = 1024,
-               progress=None) -> SyntheticSequence:
+               appearance=None, progress=None) -> SyntheticSequence:
     """Render a synthetic sequence with exact ground truth (in memory).
 
     Parameters
@@ -299,9 +306,11 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
         See :func:`contraction_timeline`.
     frames : int, optional
     fps : float
-    size : int or (width, height)
+    size : int or (width, height), optional
+        Default 256, or the size of ``appearance``'s camera.
     seed : int
-        Identity (shape, texture), head motion, illumination and noise.
+        Identity (shape, texture; not with ``appearance``), head motion, illumination
+        and noise.
     head_motion : float
         Amplitude of the head motion (0 = still; 1 = ~0.6 cm, ~4 degrees roll).
     out_of_plane : bool
@@ -325,6 +334,12 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     identity_spread : float
         Identity variation of the default model (``FaceShape.random`` spread).
     texture_size : int
+    appearance : synth.render.appearance.PhotoAppearance, optional
+        Render ``model`` with the look of the photograph it was fitted to (its texture,
+        camera, pose and background; see :mod:`synth.render.appearance`) instead of a
+        procedural texture. Needs ``model``; the camera is the appearance's (orthographic),
+        head motion moves the head from the photograph's pose, and illumination changes
+        relight the photograph by ratio.
     progress : bool or callable(int, int), optional
         True: a progress bar on stderr; a callable is called after each frame with
         (done, total).
@@ -333,10 +348,18 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     -------
     SyntheticSequence
     """
-    if isinstance(size, (int, np.integer)):
-        width = height = int(size)
-    else:
-        width, height = (int(v) for v in size)
+    if appearance is not None:
+        if model is None:
+            raise ValueError("appearance= needs the model it was fitted with (model=)")
+        if camera != "orthographic":
+            raise ValueError(f"camera={camera!r}: a photographed face renders through its "
+                             "own orthographic camera")
+        look_size = (appearance.camera.width, appearance.camera.height)
+        if size is not None and _size_pair(size) != look_size:
+            raise ValueError(f"size {size} differs from the appearance's camera "
+                             f"{look_size[0]}x{look_size[1]}")
+        size = look_size
+    width, height = _size_pair(256 if size is None else size)
     if width < 16 or height < 16:
         raise ValueError(f"size {width}x{height} must be at least 16x16")
     if fps <= 0:
@@ -359,17 +382,27 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     df = contraction_timeline(muscles, expression=expression, au=au, contractions=contractions,
                               frames=frames, fps=fps, intensity=intensity)
     T = len(df)
-    cam = default_camera(width, height, kind=camera)
-    tparams = texture_params(int(seed))
-    tex = paint_skin_texture(mesh, int(seed), size=texture_size)
-    light0 = Light()
-    renderer = Renderer(mesh, texture=tex, camera=cam, light=light0, supersample=supersample,
-                        grey=grey)
-    poses = (head_motion_track(T, seed, amplitude=head_motion, fps=fps,
-                               out_of_plane=out_of_plane) if head_motion > 0
-             else [HeadPose()] * T)
+    motions = (head_motion_track(T, seed, amplitude=head_motion, fps=fps,
+                                 out_of_plane=out_of_plane) if head_motion > 0
+               else [HeadPose()] * T)
+    if appearance is None:
+        cam = default_camera(width, height, kind=camera)
+        tparams = texture_params(int(seed))
+        tex = paint_skin_texture(mesh, int(seed), size=texture_size)
+        light0 = Light()
+        renderer = Renderer(mesh, texture=tex, camera=cam, light=light0,
+                            supersample=supersample, grey=grey)
+        poses = motions
+    else:
+        cam = appearance.camera
+        tparams = None
+        light0 = appearance.light
+        renderer = appearance.renderer(mesh, supersample=supersample, grey=grey)
+        poses = [appearance.head_pose(m) for m in motions]
     lights = (illumination_track(T, seed, light0, amplitude=illumination, fps=fps)
               if illumination > 0 else [light0] * T)
+    if appearance is not None:
+        lights = [appearance.light_for(lt) for lt in lights]
     rng = np.random.default_rng([int(seed), 0x5E75])
     shp = (T, height, width) if grey else (T, height, width, 3)
     images = np.empty(shp, np.uint8)
@@ -446,7 +479,9 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
         "identity": {"shape": shape.as_dict() if shape is not None else None,
                      "identity_spread": float(identity_spread),
                      "resolution": getattr(mesh, "resolution", None),
-                     "texture": tparams.as_dict(), "texture_size": int(texture_size),
+                     "texture": (tparams.as_dict() if tparams is not None
+                                 else {"photo": appearance.source}),
+                     "texture_size": int(texture_size) if tparams is not None else None,
                      "mesh_vertices": int(len(rest))},
         "source": source,
         "head_motion": {"amplitude": float(head_motion), "out_of_plane": bool(out_of_plane),
