@@ -30,6 +30,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "faceanalysis analyze seq/video.mp4 -o res/\n"
         "  faceanalysis evaluate --truth seq/ --estimate res/\n"
         "  faceanalysis evaluate --suite standard -o suite/ --identities 10\n"
+        "  faceanalysis evaluate --suite standard --faces photos/ --tracker landmarks "
+        "-o suite/\n"
         "  faceanalysis evaluate --suite ceiling --identities 10")
     parser.add_argument("--truth", type=Path, metavar="DIR",
                         help="folder of a synthetic sequence (truth.csv)")
@@ -53,6 +55,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="identities in the suite (default 10)")
     parser.add_argument("--frames", type=positive_int, default=30,
                         help="frames per sequence (default 30)")
+    parser.add_argument("--faces", type=Path, metavar="DIR",
+                        help="with --suite standard: also render the suite on the people in "
+                             "a folder of frontal, neutral photographs (one per person) and "
+                             "report that photo suite beside the procedural one")
+    parser.add_argument("--tracker", choices=("snakes", "landmarks"), default=None,
+                        help="with --suite standard: the tracker of the analyses (default: "
+                             "the toolkit's, snakes)")
     parser.add_argument("--json", action="store_true", help="print only JSON")
     add_quiet_option(parser)
 
@@ -80,10 +89,14 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.own_response:
         raise ValueError("--own-response goes with --suite ceiling")
+    if (args.faces or args.tracker) and args.suite != "standard":
+        raise ValueError("--faces and --tracker go with --suite standard")
     if args.suite:
         if args.output is None:
             raise ValueError("--suite needs -o OUT")
-        config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
+        faces = suite.photographs(args.faces) if args.faces else ()
+        config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
+                                   faces=faces, tracker=args.tracker)
         report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
                                       progress=not args.quiet)
         if args.json:

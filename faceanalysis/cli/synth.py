@@ -57,12 +57,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "OUT/truth.csv (contractions, jaw, head frame and the 11 fiducials per frame, in "
         "the columns of contractions.csv), OUT/flow.npz (exact dense forward flow with "
         "occlusion masks, face masks, depth) and OUT/meta.json (camera, identity, seed, "
-        "versions).")
+        "versions). With --face PHOTO the face is a real person's: the model is fitted to "
+        "a frontal, neutral photograph (the landmark model finds the face) and textured "
+        "with it, so the rest frame is the photograph and the script moves their own skin; "
+        "--size then frames the face like the procedural ones (default: the photograph's "
+        "own size and framing).")
     parser.epilog = ("examples:\n"
                      "  faceanalysis synth --expression surprise --frames 60 --size 256 "
                      "--seed 3 -o out/surprise\n"
                      "  faceanalysis synth --au 12:0.8,6:0.5 --head-motion --noise -o out/smile\n"
-                     "  faceanalysis synth --contractions contractions.csv -o out/resynth")
+                     "  faceanalysis synth --contractions contractions.csv -o out/resynth\n"
+                     "  faceanalysis synth --face me.jpg --expression happiness -o out/me")
     src = parser.add_mutually_exclusive_group()
     src.add_argument("--expression", type=_expression, metavar="NAME",
                      help="primary expression (happiness, sadness, surprise, fear, anger, "
@@ -74,8 +79,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None,
                         help="number of frames (default 60; a CSV gives its own)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
-    parser.add_argument("--size", type=_size, default=256, metavar="N|WxH",
-                        help="image size in px (default 256)")
+    parser.add_argument("--face", metavar="PHOTO",
+                        help="a frontal, neutral photograph of a real face to animate "
+                             "instead of a procedural face")
+    parser.add_argument("--size", type=_size, default=None, metavar="N|WxH",
+                        help="image size in px (default 256; with --face the photograph's)")
     parser.add_argument("--seed", type=int, default=0,
                         help="identity (face shape, texture) and random motion/noise seed")
     parser.add_argument("--intensity", type=float, default=1.0,
@@ -109,19 +117,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from synth.render.sequence import render_sequence
-
     frames = args.frames if (args.frames is not None or args.contractions) else 60
-    out = render_sequence(
-        args.output, overwrite=args.overwrite,
-        flow_dtype="float16" if args.flow_float16 else "float32",
+    options = dict(
+        overwrite=args.overwrite, flow_dtype="float16" if args.flow_float16 else "float32",
         expression=args.expression, au=args.au,
         contractions=args.contractions, frames=frames, fps=args.fps, size=args.size,
         seed=args.seed, head_motion=args.head_motion,
         out_of_plane=not args.in_plane_only, illumination=args.illumination,
-        noise=args.noise, blur=args.blur, camera=args.camera,
-        supersample=args.supersample, grey=args.grey, flow=not args.no_flow,
-        intensity=args.intensity, resolution=args.resolution, progress=not args.quiet)
+        noise=args.noise, blur=args.blur, supersample=args.supersample, grey=args.grey,
+        flow=not args.no_flow, intensity=args.intensity, progress=not args.quiet)
+    if args.face is not None:
+        from faceanalysis.resynthesis.photo import render_face
+
+        if args.camera != "orthographic":
+            raise ValueError("--face renders through the photograph's own orthographic "
+                             "camera; --camera perspective is for procedural faces")
+        if args.resolution is not None:
+            raise ValueError("--resolution is for procedural faces; --face fits the "
+                             "default model")
+        out = render_face(args.face, args.output, **options)
+    else:
+        from synth.render.sequence import render_sequence
+
+        out = render_sequence(args.output, camera=args.camera, resolution=args.resolution,
+                              **options)
     if out.get("note"):
         log.warning("%s", out["note"])
     log.info("wrote %s, %s, %s, %s", out["video"], out["truth"], out["flow"], out["meta"])

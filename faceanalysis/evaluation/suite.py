@@ -5,6 +5,12 @@ analysis estimates them back; :mod:`faceanalysis.evaluation.scores` compares the
 :func:`run_suite` renders the standard suite (the six primary expressions and mixed
 action-unit scripts over several identities, with head motion, sensor noise and
 illumination change), analyses every sequence with each estimator and pools the scores.
+
+With ``faces`` (a folder of frontal, neutral photographs) it also renders the same scripts
+on each photographed person (:mod:`faceanalysis.resynthesis.photo`: the model fitted to the
+photograph and textured with it) and reports that photo suite beside the procedural one,
+scored the same way with the same estimators: the procedural faces are drawn for the
+trackers, the photographed ones look like the video a user brings.
 """
 
 from __future__ import annotations
@@ -63,10 +69,77 @@ class SuiteConfig:
     illumination: float = 0.3
     sequences: tuple[tuple[str, str], ...] = STANDARD_SEQUENCES
     seed_start: int = SUITE_SEEDS_START
+    #: Photographs of the photo suite (empty: none); see :func:`photographs`.
+    faces: tuple[str, ...] = ()
+    #: Tracker of the analyses (None: the toolkit's default).
+    tracker: str | None = None
 
     def __post_init__(self):
         if self.identities < 1 or self.frames < 3 or self.size < 64:
             raise ValueError("the suite needs identities >= 1, frames >= 3 and size >= 64")
+
+
+def photographs(folder: str | os.PathLike, *, limit: int | None = None) -> tuple[str, ...]:
+    """The image files in ``folder`` (sorted by name; the first ``limit``): one frontal,
+    neutral photograph per person for the photo suite.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such folder.
+    ValueError
+        It holds no image.
+    """
+    from faceanalysis.io.video import IMAGE_SUFFIXES
+
+    path = Path(folder)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: no such folder of photographs")
+    found = sorted(str(p) for p in path.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not found:
+        raise ValueError(f"{path}: no photographs in it ({', '.join(IMAGE_SUFFIXES)})")
+    return tuple(found[:limit] if limit else found)
+
+
+def _label(kind: str, spec: str) -> str:
+    return spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(",", "_")
+
+
+def _identities(config: SuiteConfig) -> list[tuple[str, dict, object]]:
+    """(suite, identity entry, render function(folder, seed, **script)) per identity."""
+    from synth.render.sequence import render_sequence
+
+    common = dict(frames=config.frames, head_motion=config.head_motion, noise=config.noise,
+                  illumination=config.illumination, flow=False, overwrite=True)
+    out = []
+    for i in range(config.identities):
+        seed = config.seed_start + i
+
+        def procedural(d, seed=seed, **script):
+            return render_sequence(d, size=config.size, seed=seed, **common, **script)
+
+        out.append(("procedural", {"identity": seed, "name": f"id{seed:03d}"}, procedural))
+    for i, photo in enumerate(config.faces):
+        from faceanalysis.resynthesis.photo import photo_face
+
+        # fitted up front: a photograph without a usable face stops the suite before
+        # anything is rendered, naming the file
+        face = photo_face(photo, size=config.size)
+        name = "photo_" + Path(photo).stem
+        out.append(("photo", {"identity": Path(photo).name, "name": name},
+                    _photo_renderer(face, config.seed_start + i, common)))
+    return out
+
+
+def _photo_renderer(face, seed: int, common: dict):
+    """Render function of one photographed person."""
+    def render(d, **script):
+        from faceanalysis.resynthesis.photo import render_face
+
+        return render_face(face, d, seed=seed, **common, **script)
+
+    return render
 
 
 def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
@@ -84,13 +157,13 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
         The report: per estimator, pooled scores; per sequence, the joint scores.
     """
     from faceanalysis.analysis.pipeline import analyze, reestimate
-    from synth.render.sequence import render_sequence
 
     with output_dir(output, overwrite=overwrite) as out:
         seq_dir = out / "sequences"
-        per_est: dict[str, list[dict]] = {e: [] for e in estimators}
-        sequences = []
-        jobs = [(i, kind, spec) for i in range(config.identities)
+        suites = ("procedural", "photo") if config.faces else ("procedural",)
+        per_est = {su: {e: [] for e in estimators} for su in suites}
+        sequences = {su: [] for su in suites}
+        jobs = [(su, ident, render, kind, spec) for su, ident, render in _identities(config)
                 for kind, spec in config.sequences]
         bar = None
         if progress:
@@ -99,22 +172,17 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
             bar = tqdm(total=len(jobs), desc="suite", unit="seq", file=sys.stderr, leave=False)
         t0 = time.perf_counter()
         failures = []
-        for i, kind, spec in jobs:
-            seed = config.seed_start + i
-            label = spec if kind == "expression" else "au_" + spec.replace(":", "-").replace(
-                ",", "_")
-            d = seq_dir / f"id{seed:03d}_{label}"
-            kwargs = script_kwargs(kind, spec)
-            render_sequence(d, overwrite=True, frames=config.frames, size=config.size, seed=seed,
-                            head_motion=config.head_motion, noise=config.noise,
-                            illumination=config.illumination, flow=False, **kwargs)
+        for su, ident, render, kind, spec in jobs:
+            d = seq_dir / f"{ident['name']}_{_label(kind, spec)}"
+            entry = {"sequence": d.name, "identity": ident["identity"], "kind": kind,
+                     "spec": spec}
+            render(d, **script_kwargs(kind, spec))
             video = next(p for p in d.iterdir() if p.stem == "video")
             truth = pd.read_csv(d / "truth.csv")
-            entry = {"sequence": d.name, "identity": seed, "kind": kind, "spec": spec}
             try:
-                base = analyze(video)
+                base = analyze(video, tracker=config.tracker)
             except (ValueError, RuntimeError) as exc:
-                failures.append({**entry, "error": str(exc)})
+                failures.append({**entry, "suite": su, "error": str(exc)})
                 log.warning("suite: %s failed: %s", d.name, exc)
                 if bar is not None:
                     bar.update(1)
@@ -133,37 +201,55 @@ def run_suite(output: str | os.PathLike, *, config: SuiteConfig = SuiteConfig(),
 
                     write_contractions(a.table, d / f"contractions_{est}.csv")
                 rep = compare(truth, a.table)
-                per_est[est].append(rep)
+                per_est[su][est].append(rep)
                 entry[est] = {k: v for k, v in public(rep).items() if k != "controls"}
-            sequences.append(entry)
+            sequences[su].append(entry)
             if not keep_videos:
                 video.unlink()
             if bar is not None:
                 bar.update(1)
         if bar is not None:
             bar.close()
-        if not any(per_est.values()):
+        if not any(r for su in suites for r in per_est[su].values()):
             raise RuntimeError("every sequence of the suite failed; see the log")
-        pooled = {e: pool(r) for e, r in per_est.items() if r}
+        pooled = {su: {e: pool(r) for e, r in per_est[su].items() if r} for su in suites}
         report = {
-            "suite": {**{k: v for k, v in config.__dict__.items() if k != "sequences"},
+            "suite": {**{k: v for k, v in config.__dict__.items()
+                         if k not in ("sequences", "faces")},
                       "sequences": [list(s) for s in config.sequences]},
-            "estimators": {e: public(p) for e, p in pooled.items()},
-            "sequences": sequences,
+            "estimators": {e: public(p) for e, p in pooled["procedural"].items()},
+            "sequences": sequences["procedural"],
             "failures": failures,
-            "elapsed_s": time.perf_counter() - t0,
         }
+        md = "# Closed-loop evaluation\n\n"
+        if config.faces:
+            report["photo"] = {"faces": list(config.faces),
+                               "estimators": {e: public(p)
+                                              for e, p in pooled["photo"].items()},
+                               "sequences": sequences["photo"]}
+            md += "## Procedural faces\n\n"
+        if pooled["procedural"]:
+            md += format_table(pooled["procedural"]) + "\n"
+        if config.faces:
+            md += (f"\n## Photographed faces ({len(config.faces)} people)\n\n"
+                   + (format_table(pooled["photo"]) if pooled["photo"]
+                      else "every sequence failed") + "\n")
+        report["elapsed_s"] = time.perf_counter() - t0
         write_text_atomic(out / REPORT_JSON, json.dumps(report, indent=1) + "\n")
-        write_text_atomic(out / REPORT_MD, "# Closed-loop evaluation\n\n"
-                          + format_table(pooled) + "\n")
-        plot_report(pooled, out / REPORT_PNG)
+        write_text_atomic(out / REPORT_MD, md)
+        plot_report(pooled["procedural"] or pooled.get("photo"), out / REPORT_PNG,
+                    photo=pooled.get("photo") if pooled["procedural"] else None)
         return report
 
 
-def plot_report(pooled: dict[str, dict], path) -> Path:
-    """Bar chart of per-control RMSE and r for each estimator."""
+def plot_report(pooled: dict[str, dict], path, *, photo: dict[str, dict] | None = None
+                ) -> Path:
+    """Bar chart of per-control RMSE and r for each estimator (and each estimator on the
+    photographed faces, hatched, when ``photo`` is given)."""
     from matplotlib.figure import Figure
 
+    if photo:
+        pooled = {**pooled, **{f"{n} (photo)": p for n, p in photo.items()}}
     names = list(pooled)
     controls = [c for c in pooled[names[0]]["controls"]
                 if (pooled[names[0]]["controls"][c].get("truth_max") or 0) > 1e-6]
@@ -174,8 +260,9 @@ def plot_report(pooled: dict[str, dict], path) -> Path:
     for k, n in enumerate(names):
         rm = [pooled[n]["controls"][c]["rmse"] or 0 for c in controls]
         rr = [pooled[n]["controls"][c]["r"] or 0 for c in controls]
-        axes[0].bar(x + k * width, rm, width, label=n)
-        axes[1].bar(x + k * width, rr, width, label=n)
+        hatch = "//" if n.endswith("(photo)") else None
+        axes[0].bar(x + k * width, rm, width, label=n, hatch=hatch)
+        axes[1].bar(x + k * width, rr, width, label=n, hatch=hatch)
     axes[0].axhline(0.05, color="k", lw=0.8, ls="--")
     axes[1].axhline(0.95, color="k", lw=0.8, ls="--")
     axes[0].set_ylabel("RMSE")

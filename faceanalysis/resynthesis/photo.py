@@ -146,11 +146,15 @@ def photo_face(photo, *, size=None, model=None, fill: float = 0.75,
     ValueError
         Not an image, no face found, or the face cannot be fitted.
     """
+    from faceanalysis.io.video import IMAGE_SUFFIXES
     from synth.render.appearance import photo_appearance
 
     path = Path(photo)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such photograph")
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise ValueError(f"{path}: not a photograph; give an image file "
+                         f"({', '.join(IMAGE_SUFFIXES)})")
     if not 0 < fill <= 2:
         raise ValueError(f"fill={fill} must be in (0, 2]")
     if model is None:

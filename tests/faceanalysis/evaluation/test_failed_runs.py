@@ -39,3 +39,17 @@ def test_failed_templates_leave_no_folder(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="no face"):
         templates.write_template_set(tmp_path / "tpl")
     assert not (tmp_path / "tpl").exists()
+
+
+def test_a_folder_of_photographs_must_hold_some(tmp_path):
+    from faceanalysis.evaluation.suite import photographs
+
+    with pytest.raises(FileNotFoundError, match="no such folder"):
+        photographs(tmp_path / "missing")
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(ValueError, match="no photographs"):
+        photographs(tmp_path)
+    for name in ("b.JPG", "a.png"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.rsplit("/", 1)[-1] for p in photographs(tmp_path)] == ["a.png", "b.JPG"]
+    assert len(photographs(tmp_path, limit=1)) == 1
