@@ -17,8 +17,11 @@ What the photograph cannot show is filled in:
   lids move over them;
 - the mouth cavity and teeth are the mesh's flat-coloured inner parts, seen when the jaw
   opens;
-- the background behind the head is the photograph with the face region inpainted, static
-  (its true flow is zero), seen where the face moves away from where it was.
+- the background is the photograph with the face region inpainted, seen where the face
+  moves away from where it was. Hair, ears and neck are in it, so when the head moves the
+  whole background follows the head's motion in the image (the similarity that best maps
+  the rest head onto the moved one, :meth:`PhotoAppearance.scene_motion`); the ground-truth
+  flow of the background is that similarity's.
 
 :func:`photo_appearance` builds a :class:`PhotoAppearance` from a photograph, the cameras and
 the fitted mesh; :func:`synth.render.sequence.synthesize` renders it with ``appearance=``.
@@ -37,7 +40,7 @@ from synth.render.raster import _normals_kernel
 from synth.render.renderer import Renderer, Surface
 from synth.render.shading import Light
 
-__all__ = ["PhotoAppearance", "photo_appearance"]
+__all__ = ["PhotoAppearance", "photo_appearance", "background_flow"]
 
 #: Ring (px) of the photograph kept around the face when the background is inpainted: the
 #: face's anti-aliased outline blends into the photograph itself, not into the fill.
@@ -104,9 +107,49 @@ class PhotoAppearance:
                         pitch=self.pose.pitch + motion.pitch,
                         translation=tuple(float(v) for v in shift), centre=motion.centre)
 
+    def scene_motion(self, vertices, pose: HeadPose) -> np.ndarray:
+        """2x3 similarity of output pixels that best carries the rest head (``vertices``
+        under :attr:`pose`) onto the head under ``pose`` (least squares over the vertices)."""
+        a = project(vertices, self.camera, self.pose)[0]
+        b = project(vertices, self.camera, pose)[0]
+        return _similarity(a, b)
+
+    def scene(self, motion: np.ndarray) -> np.ndarray:
+        """The background moved by the 2x3 ``motion`` (:meth:`scene_motion`)."""
+        if np.allclose(motion, [[1, 0, 0], [0, 1, 0]]):
+            return self.background
+        return cv2.warpAffine(self.background, np.asarray(motion, np.float64),
+                              (self.camera.width, self.camera.height),
+                              flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
     def light_for(self, light: Light) -> Light:
         """``light`` without its highlights (the photograph holds them)."""
         return replace(light, specular_scale=0.0)
+
+
+def _similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """2x3 least-squares similarity (scale, rotation, translation) taking points a to b."""
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    pa, pb = a - ma, b - mb
+    za = pa[:, 0] + 1j * pa[:, 1]
+    zb = pb[:, 0] + 1j * pb[:, 1]
+    den = float(np.vdot(za, za).real)
+    k = np.vdot(za, zb) / den if den > 0 else 1.0 + 0j
+    R = np.array([[k.real, -k.imag], [k.imag, k.real]])
+    return np.c_[R, mb - R @ ma]
+
+
+def background_flow(motion_t: np.ndarray, motion_t1: np.ndarray, width: int, height: int
+                    ) -> np.ndarray:
+    """Flow (H, W, 2) of a background moved by ``motion_t`` at frame t and ``motion_t1`` at
+    t+1 (2x3 similarities of the rest scene, :meth:`PhotoAppearance.scene_motion`)."""
+    A0 = np.vstack([motion_t, [0.0, 0.0, 1.0]])
+    A1 = np.vstack([motion_t1, [0.0, 0.0, 1.0]])
+    M = (A1 @ np.linalg.inv(A0))[:2]
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    fx = M[0, 0] * x + M[0, 1] * y + M[0, 2] - x
+    fy = M[1, 0] * x + M[1, 1] * y + M[1, 2] - y
+    return np.stack([fx, fy], axis=-1).astype(np.float32)
 
 
 def _check_photo(photo) -> np.ndarray:

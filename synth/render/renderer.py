@@ -163,6 +163,19 @@ class Renderer:
         self.supersample = int(supersample)
         self.grey = bool(grey)
         self._bg_image = None
+        self._bg_cache: dict = {}
+        self.set_background(background)
+        if texture is None:
+            texture = np.full((4, 4, 3), (0.78, 0.60, 0.50))
+        self.set_texture(texture)
+        et = eye_texture() if eye_tex is None else np.asarray(eye_tex)
+        self.eye_tex = np.ascontiguousarray(
+            et.astype(np.float32) / (255.0 if et.dtype == np.uint8 else 1.0))
+        self._uv_area = None
+
+    def set_background(self, background) -> None:
+        """Replace the background: an RGB colour in [0, 1] (a soft vertical gradient) or an
+        image of the camera's size (uint8, or float in [0, 1])."""
         if np.ndim(background) == 3:
             bg = np.asarray(background)
             if bg.shape[2] != 3 or bg.shape[:2] != (self.camera.height, self.camera.width):
@@ -172,15 +185,9 @@ class Renderer:
                 bg.astype(np.float32) / (255.0 if bg.dtype == np.uint8 else 1.0))
             self.background = tuple(float(v) for v in self._bg_image.mean(axis=(0, 1)))
         else:
+            self._bg_image = None
             self.background = tuple(float(v) for v in background)
-        if texture is None:
-            texture = np.full((4, 4, 3), (0.78, 0.60, 0.50))
-        self.set_texture(texture)
-        et = eye_texture() if eye_tex is None else np.asarray(eye_tex)
-        self.eye_tex = np.ascontiguousarray(
-            et.astype(np.float32) / (255.0 if et.dtype == np.uint8 else 1.0))
-        self._bg_cache: dict = {}
-        self._uv_area = None
+        self._bg_cache = {}
 
     # ---------------------------------------------------------------- texture
     def set_texture(self, texture) -> None:

@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from synth.files import prepare_output_dir, write_bytes_atomic, write_text_atomic
+from synth.render.appearance import background_flow
 from synth.render.camera import HeadPose, default_camera
 from synth.render.groundtruth import FIDUCIALS, flow_and_occlusion, head_frame, project_landmarks
 from synth.render.renderer import Renderer
@@ -416,6 +417,9 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
     rows = []
     px_per_cm = []
     rest = np.asarray(mesh.vertices)
+    # a photographed head's background (hair, ears, neck) moves with the head
+    scene_motion = (np.empty((T, 2, 3)) if appearance is not None and head_motion > 0
+                    else None)
     prev = None
     bar = _progress_bar(T) if progress is True else None
     try:
@@ -425,6 +429,9 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
             model.set_contractions(values, jaw_rotation=float(row["jaw_rotation"]))
             skin = np.asarray(model.equilibrate(), dtype=np.float64)
             inner = np.asarray(model.inner_vertices(), dtype=np.float64)
+            if scene_motion is not None:
+                scene_motion[t] = appearance.scene_motion(rest, poses[t])
+                renderer.set_background(appearance.scene(scene_motion[t]))
             res = renderer.render(skin, inner, pose=poses[t], light=lights[t])
             img = res.image.astype(np.float32)
             clean[t] = res.image
@@ -439,6 +446,10 @@ def synthesize(*, model=None, expression: str | None = None, au=None, contractio
             depth[t] = res.depth
             if flow and prev is not None:
                 flows[t - 1], occ[t - 1], dis[t - 1] = flow_and_occlusion(renderer, prev, res)
+                if scene_motion is not None:
+                    scene = background_flow(scene_motion[t - 1], scene_motion[t], width,
+                                            height)
+                    flows[t - 1][~prev.mask] = scene[~prev.mask]
             prev = res
             lm = _landmark_positions(model, mesh, skin)
             fids = project_landmarks({k: lm[k] for k in FIDUCIALS if k in lm}, renderer, res)

@@ -86,14 +86,25 @@ def test_a_smile_moves_the_photographed_mouth_with_exact_truth(face):
     assert seq.meta["identity"]["photo"]["photo"].endswith("person.png")
 
 
-def test_head_motion_moves_the_head_and_its_truth(face):
+def test_head_motion_moves_the_head_its_background_and_their_truth(face):
     from faceanalysis.resynthesis.photo import synthesize_face
+    from synth.render import warp_backward
 
-    seq = synthesize_face(face, frames=12, flow=False, head_motion=1.0, seed=2)
+    seq = synthesize_face(face, frames=12, flow=True, head_motion=1.5, seed=2)
     heads = seq.truth[["head_x", "head_y"]].to_numpy()
     assert np.ptp(heads, axis=0).max() > 2.0
     fids = seq.truth[[f"fid_{n}_x" for n in FIDUCIALS]].to_numpy()
     assert np.isfinite(fids).all()
+    # hair, ears and the scene move with the head, and the true flow says how: frame t
+    # comes back from frame t+1 warped by it, on the background as on the face
+    t = int(np.argmax(np.abs(seq.flow[:, ~seq.mask[0]]).mean(axis=(1, 2))))
+    bg = ~seq.mask[t] & ~seq.mask[t + 1] & ~seq.occluded[t]
+    bg[:8] = bg[-8:] = False
+    bg[:, :8] = bg[:, -8:] = False
+    assert np.abs(seq.flow[t][bg]).max() > 0.3
+    a, b = _grey(seq.images[t]), _grey(seq.images[t + 1])
+    back = warp_backward(b, seq.flow[t])
+    assert np.abs(back - a)[bg].mean() < 0.5 * np.abs(b - a)[bg].mean()
 
 
 def test_size_frames_the_face_like_the_procedural_faces(photo):
