@@ -16,7 +16,8 @@ What the photograph cannot show is filled in:
 - the eyeballs are textured from the photograph's own eyes, projected like the skin, so the
   lids move over them;
 - the mouth cavity and teeth are the mesh's flat-coloured inner parts, seen when the jaw
-  opens;
+  opens, darkened with the photograph's exposure (the median brightness of its face
+  against the procedural faces') and by the mouth's own shadow;
 - the background is the photograph with the face region inpainted, seen where the face
   moves away from where it was. Hair, ears and neck are in it, so when the head moves the
   whole background follows the head's motion in the image (the similarity that best maps
@@ -30,7 +31,7 @@ the fitted mesh; :func:`synth.render.sequence.synthesize` renders it with ``appe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -38,9 +39,9 @@ import numpy as np
 from synth.render.camera import Camera, HeadPose, apply_pose, project
 from synth.render.raster import _normals_kernel
 from synth.render.renderer import Renderer, Surface
-from synth.render.shading import Light
+from synth.render.shading import FLAT_COLOURS, Light
 
-__all__ = ["PhotoAppearance", "photo_appearance", "background_flow"]
+__all__ = ["PhotoAppearance", "photo_appearance", "background_flow", "fill_hole"]
 
 #: Ring (px) of the photograph kept around the face when the background is inpainted: the
 #: face's anti-aliased outline blends into the photograph itself, not into the fill.
@@ -65,6 +66,8 @@ class PhotoAppearance:
         Pose of the rest head in that camera (the photograph's in-plane roll).
     background : (H, W, 3) uint8
         The output-size scene behind the head.
+    flat_colours : (K, 3) float64
+        Albedo of the mouth cavity and teeth (rows by material id).
     light : Light
         The reference light the texture was divided by (no specular).
     source : str
@@ -78,6 +81,7 @@ class PhotoAppearance:
     pose: HeadPose
     background: np.ndarray
     light: Light
+    flat_colours: np.ndarray = field(default_factory=lambda: FLAT_COLOURS.copy())
     source: str = ""
 
     def surface(self, mesh) -> Surface:
@@ -91,7 +95,8 @@ class PhotoAppearance:
         """A :class:`Renderer` of ``mesh`` with this appearance."""
         return Renderer(self.surface(mesh), texture=self.texture, eye_tex=self.texture,
                         camera=self.camera, light=self.light, supersample=supersample,
-                        grey=grey, background=self.background)
+                        grey=grey, flat_colours=self.flat_colours,
+                        background=self.background)
 
     def head_pose(self, motion: HeadPose | None = None) -> HeadPose:
         """The head pose that moves the rest head by ``motion`` (about ``motion.centre``).
@@ -271,6 +276,54 @@ def photo_appearance(mesh, photo, photo_camera: Camera, *, pose: HeadPose | None
     ring = max(1, int(math.ceil(_KEEP_RING_PX * max(1.0, camera.scale / photo_camera.scale))))
     hole = cv2.erode(out_face.astype(np.uint8), np.ones((2 * ring + 1,) * 2, np.uint8))
     if hole.any():
-        radius = max(3, int(round(0.01 * max(camera.width, camera.height))))
-        scene = cv2.inpaint(scene, hole, radius, cv2.INPAINT_TELEA)
-    return replace(look, texture=np.ascontiguousarray(texture), background=scene)
+        scene = fill_hole(scene, hole > 0)
+    return replace(look, texture=np.ascontiguousarray(texture), background=scene,
+                   flat_colours=_inner_colours(img, face))
+
+
+#: Luminance of the procedural faces' skin, the exposure the flat colours are made for.
+_PROCEDURAL_SKIN_LUMA = 0.72
+#: How much darker the inside of the mouth is than a surface in the open.
+_MOUTH_SHADOW = 0.75
+
+
+def _inner_colours(photo: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """Flat colours of the mouth cavity and teeth at the photograph's exposure."""
+    luma = cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY)[face]
+    gain = (np.median(luma) / 255.0 / _PROCEDURAL_SKIN_LUMA) if luma.size else 1.0
+    out = FLAT_COLOURS.copy()
+    out[2:] *= float(np.clip(gain, 0.3, 1.2)) * _MOUTH_SHADOW
+    return out
+
+
+def fill_hole(image: np.ndarray, hole: np.ndarray) -> np.ndarray:
+    """``image`` with the pixels under ``hole`` filled smoothly from around it (push-pull:
+    the known pixels are averaged down a Gaussian pyramid until the hole closes, then the
+    coarse averages are blended back up), so that a large hole gets the soft colours of
+    its surroundings rather than the streaks of a diffusion inpainting.
+
+    Examples
+    --------
+    >>> img = np.zeros((32, 32, 3), np.uint8); img[:, 16:] = 200
+    >>> hole = np.zeros((32, 32), bool); hole[8:24, 8:24] = True
+    >>> out = fill_hole(img, hole)
+    >>> int(out[16, 9, 0]) < 100 < int(out[16, 22, 0]), (out[~hole] == img[~hole]).all()
+    (True, np.True_)
+    """
+    hole = np.asarray(hole, dtype=bool)
+    if not hole.any() or hole.all():
+        return image.copy()
+    known = (~hole).astype(np.float32)
+    levels = [(image.astype(np.float32) * known[..., None], known)]
+    while levels[-1][1].min() <= 0 and min(levels[-1][1].shape) > 2:
+        iw, w = levels[-1]
+        levels.append((cv2.pyrDown(iw), cv2.pyrDown(w)))
+    iw, w = levels[-1]
+    fill = iw / np.maximum(w, 1e-6)[..., None]
+    for iw, w in reversed(levels[:-1]):
+        up = cv2.pyrUp(fill, dstsize=(w.shape[1], w.shape[0]))
+        alpha = np.clip(w, 0.0, 1.0)[..., None]
+        fill = alpha * (iw / np.maximum(w, 1e-6)[..., None]) + (1.0 - alpha) * up
+    out = image.copy()
+    out[hole] = np.clip(fill[hole] + 0.5, 0, 255).astype(image.dtype)
+    return out

@@ -109,6 +109,9 @@ class Renderer:
         Return single-channel images.
     eye_tex : (h, w, 3) array, optional
         Texture of the eyeballs (default :func:`synth.render.shading.eye_texture`).
+    flat_colours : (K, 3) array, optional
+        Albedo of the flat-coloured inner materials by material id (default
+        :data:`synth.render.shading.FLAT_COLOURS`: mouth cavity and teeth).
     background : tuple of 3 floats, or (H, W, 3) array
         Background colour (RGB in [0, 1]) drawn as a soft vertical gradient, or a
         background image of the camera's size (uint8, or float in [0, 1]), e.g. the scene
@@ -126,7 +129,7 @@ class Renderer:
 
     def __init__(self, mesh, *, texture=None, camera: Camera | None = None,
                  light: Light | None = None, supersample: int = 1, grey: bool = False,
-                 eye_tex=None, background=(0.42, 0.45, 0.50)):
+                 eye_tex=None, flat_colours=None, background=(0.42, 0.45, 0.50)):
         tris = np.asarray(mesh.triangles, dtype=np.int32)
         if tris.ndim != 2 or tris.shape[1] != 3:
             raise ValueError(f"mesh.triangles must have shape (M, 3), got {tris.shape}")
@@ -162,6 +165,11 @@ class Renderer:
             raise ValueError(f"supersample={supersample} must be an integer in 1..8")
         self.supersample = int(supersample)
         self.grey = bool(grey)
+        fc = np.asarray(FLAT_COLOURS if flat_colours is None else flat_colours, np.float64)
+        if fc.shape != FLAT_COLOURS.shape:
+            raise ValueError(f"flat_colours must have shape {FLAT_COLOURS.shape}, got "
+                             f"{fc.shape}")
+        self.flat_colours = np.ascontiguousarray(fc)
         self._bg_image = None
         self._bg_cache: dict = {}
         self.set_background(background)
@@ -285,7 +293,7 @@ class Renderer:
         tex = self._mips[self._mip_level(xy)]
         eye_pos = np.array([cam.look_at[0], cam.look_at[1], cam.look_at[2] + cam.distance])
         _shade_kernel(tri_id, bary, self.triangles, self.material, self.uv, normals, world,
-                      tex, self.eye_tex, FLAT_COLOURS, light.unit_direction,
+                      tex, self.eye_tex, self.flat_colours, light.unit_direction,
                       np.asarray(light.colour, dtype=np.float64), float(light.ambient),
                       SPECULAR * light.specular_scale, float(light.shininess),
                       cam.perspective, eye_pos, image, scale, offset, top)
