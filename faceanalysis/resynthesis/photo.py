@@ -46,6 +46,11 @@ MESH_LANDMARKS: dict[str, int] = {
 }
 
 
+#: Fiducials a photograph may lack (a contour the tracker could not hold, e.g. a faint
+#: furrow) and still be fitted: the face-mesh landmarks hold the rest of the face.
+MAX_MISSING_FIDUCIALS = 3
+
+
 @dataclass(eq=False)
 class PhotoFace:
     """The face model fitted to a photograph, with the photograph's look.
@@ -92,10 +97,12 @@ def _tracked_points(path: Path) -> tuple[np.ndarray, dict]:
     if len(tracks) == 0 or not tracks.success[0] or tracks.landmarks[0] is None:
         raise ValueError(f"{path}: no face found in the photograph")
     fid = tracks.fiducials[0]
-    if not np.isfinite(fid).all():
-        missing = [n for n, p in zip(FIDUCIALS, fid) if not np.isfinite(p).all()]
+    points = {n: fid[i] for i, n in enumerate(FIDUCIALS) if np.isfinite(fid[i]).all()}
+    missing = [n for n in FIDUCIALS if n not in points]
+    if len(missing) > MAX_MISSING_FIDUCIALS:
         raise ValueError(f"{path}: the face's {', '.join(missing)} could not be placed")
-    points = {n: fid[i] for i, n in enumerate(FIDUCIALS)}
+    if missing:
+        log.info("%s: fitted without %s (its contour was not held)", path, ", ".join(missing))
     mesh = np.asarray(tracks.landmarks[0], dtype=float)
     points.update({name: mesh[i, :2] for name, i in MESH_LANDMARKS.items()})
     return np.asarray(tracks.heads[0], dtype=float), points
