@@ -16,8 +16,8 @@ What the photograph cannot show is filled in:
 - the eyeballs are textured from the photograph's own eyes, projected like the skin, so the
   lids move over them;
 - the mouth cavity and teeth are the mesh's flat-coloured inner parts, seen when the jaw
-  opens, darkened with the photograph's exposure (the median brightness of its face
-  against the procedural faces') and by the mouth's own shadow;
+  opens, at the photograph's exposure (the median brightness of its face against the
+  procedural faces'; teeth somewhat brighter than the skin);
 - the background is the photograph with the face region inpainted, seen where the face
   moves away from where it was. Hair, ears and neck are in it, so when the head moves the
   whole background follows the head's motion in the image (the similarity that best maps
@@ -283,16 +283,18 @@ def photo_appearance(mesh, photo, photo_camera: Camera, *, pose: HeadPose | None
 
 #: Luminance of the procedural faces' skin, the exposure the flat colours are made for.
 _PROCEDURAL_SKIN_LUMA = 0.72
-#: How much darker the inside of the mouth is than a surface in the open.
-_MOUTH_SHADOW = 0.75
+#: Teeth are brighter than skin: their brightness relative to the face's median.
+_TEETH_OVER_SKIN = 1.4
 
 
 def _inner_colours(photo: np.ndarray, face: np.ndarray) -> np.ndarray:
     """Flat colours of the mouth cavity and teeth at the photograph's exposure."""
     luma = cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY)[face]
-    gain = (np.median(luma) / 255.0 / _PROCEDURAL_SKIN_LUMA) if luma.size else 1.0
+    gain = float(np.clip(np.median(luma) / 255.0 / _PROCEDURAL_SKIN_LUMA, 0.3, 1.2)
+                 if luma.size else 1.0)
     out = FLAT_COLOURS.copy()
-    out[2:] *= float(np.clip(gain, 0.3, 1.2)) * _MOUTH_SHADOW
+    out[2] *= gain
+    out[3] *= min(1.0, gain * _TEETH_OVER_SKIN)
     return out
 
 
