@@ -33,7 +33,8 @@ from faceanalysis.resynthesis.personalize import _read_frame, fit_to_points
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MESH_LANDMARKS", "PhotoFace", "photo_face", "synthesize_face", "render_face"]
+__all__ = ["MESH_LANDMARKS", "OPTIONAL_FIDUCIALS", "PhotoFace", "photo_face", "synthesize_face",
+           "render_face"]
 
 #: Model landmarks (:data:`synth.face_mesh.LANDMARK_NAMES`) placed on the face-mesh point of
 #: the landmark tracker (MediaPipe's 468-point topology) when a photograph is fitted,
@@ -45,10 +46,10 @@ MESH_LANDMARKS: dict[str, int] = {
     "nose_tip": 1, "subnasale": 2, "lip_upper_centre": 0, "lip_lower_centre": 17,
 }
 
-
-#: Fiducials a photograph may lack (a contour the tracker could not hold, e.g. a faint
-#: furrow) and still be fitted: the face-mesh landmarks hold the rest of the face.
-MAX_MISSING_FIDUCIALS = 3
+#: Fiducials a photograph may lack: the top of the nasolabial furrow often shows no edge on
+#: a neutral face and the tracker marks its contour lost; the fit then goes without it (the
+#: subnasale, nose tip and mouth corners around it still hold the warp).
+OPTIONAL_FIDUCIALS: frozenset[str] = frozenset({"furrow_top_l", "furrow_top_r"})
 
 
 @dataclass(eq=False)
@@ -97,12 +98,14 @@ def _tracked_points(path: Path) -> tuple[np.ndarray, dict]:
     if len(tracks) == 0 or not tracks.success[0] or tracks.landmarks[0] is None:
         raise ValueError(f"{path}: no face found in the photograph")
     fid = tracks.fiducials[0]
-    points = {n: fid[i] for i, n in enumerate(FIDUCIALS) if np.isfinite(fid[i]).all()}
-    missing = [n for n in FIDUCIALS if n not in points]
-    if len(missing) > MAX_MISSING_FIDUCIALS:
-        raise ValueError(f"{path}: the face's {', '.join(missing)} could not be placed")
+    missing = [n for n, p in zip(FIDUCIALS, fid) if not np.isfinite(p).all()]
+    required = [n for n in missing if n not in OPTIONAL_FIDUCIALS]
+    if required:
+        raise ValueError(f"{path}: the face's {', '.join(required)} could not be placed")
     if missing:
-        log.info("%s: fitted without %s (its contour was not held)", path, ", ".join(missing))
+        log.warning("%s: the face's %s could not be placed (no furrow on the neutral "
+                    "face?); fitted without", path, ", ".join(missing))
+    points = {n: fid[i] for i, n in enumerate(FIDUCIALS) if n not in missing}
     mesh = np.asarray(tracks.landmarks[0], dtype=float)
     points.update({name: mesh[i, :2] for name, i in MESH_LANDMARKS.items()})
     return np.asarray(tracks.heads[0], dtype=float), points
