@@ -1,9 +1,11 @@
-"""Renderer: frames/s at 256x256 and 640x480 (one core) and optical-flow EPE vs exact flow.
+"""Renderer: frames/s at 256x256 and 640x480 (one core; procedural, photo-textured), flow EPE.
 
 Frames per second of the headless renderer on the default model's face mesh (and on the
 finer resolution-1 mesh), shaded and textured, with and without anti-aliasing, with and
 without the exact flow ground truth, measured as medians on one core (Numba kernels are
-serial; OpenCV is set to one thread). Then a rendered sequence (surprise with head motion
+serial; OpenCV is set to one thread); and of the photo-textured renderer, the face model
+fitted to a photograph (an IMM photograph when ``../shared/data`` holds one, else a
+procedural face rendered as the photograph). Then a rendered sequence (surprise with head motion
 through the physics model when ``synth.model`` is available, else the rest mesh moved by
 head motion and jaw rotation only) is given to OpenCV's DIS, Farneback and TV-L1 optical
 flow, whose end-point error against the renderer's exact flow is reported on non-occluded
@@ -76,6 +78,67 @@ def _fps_figures(quick: bool) -> list[Figure]:
                           extra={"supersample": ss,
                                  "note": "render + next-frame buffers + forward flow + "
                                          "disocclusion"}))
+    return out
+
+
+def _photograph(tmp) -> tuple[str, str]:
+    """A frontal neutral photograph to fit: an IMM photograph (person 21, type 1) when
+    ``../shared/data`` holds one, else a procedural face rendered at 640x480 and written
+    as a png (the figure then measures the same photo-textured renderer on another
+    texture). Returns (path, what it is)."""
+    import os
+    from pathlib import Path
+
+    data = Path(os.environ.get("FACEANALYSIS_REAL_DATA", Path(__file__).resolve().parents[2]
+                               / "shared" / "data" / "real")).parent
+    imm = sorted((data / "annotated" / "imm_dev").glob("21-1?.jpg"))
+    if imm:
+        return str(imm[0]), f"IMM photograph {imm[0].name}"
+    from synth.render.sequence import synthesize
+
+    seq = synthesize(frames=1, size=(640, 480), seed=1, flow=False)
+    path = Path(tmp) / "procedural_face.png"
+    cv2.imwrite(str(path), cv2.cvtColor(seq.images[0], cv2.COLOR_RGB2BGR))
+    return str(path), "procedural face (seed 1) rendered at 640x480 as the photograph"
+
+
+def _photo_fps_figures(quick: bool) -> list[Figure]:
+    """Frames/s of the photo-textured renderer (:mod:`synth.render.appearance`): the face
+    model fitted to a photograph (``photo_face``) and framed like the procedural faces at
+    each size, rendered at its equilibrated rest (rendering alone, no physics)."""
+    import tempfile
+
+    try:
+        from faceanalysis.resynthesis.photo import photo_face
+    except ImportError as e:
+        print(f"# photo faces unavailable ({e}): photo-textured figures skipped")
+        return []
+    out = []
+    repeat = 5 if quick else 15
+    number = 3 if quick else 10
+    with tempfile.TemporaryDirectory() as tmp:
+        path, source = _photograph(tmp)
+        for size in ((256, 256), (640, 480)):
+            try:
+                face = photo_face(path, size=size)
+            except ValueError as e:
+                print(f"# {source}: no photo face ({e}): photo-textured figure skipped")
+                return out
+            model = face.model
+            model.reset()
+            model.set_contractions(None)
+            v = np.asarray(model.equilibrate(), dtype=np.float64)
+            iv = np.asarray(model.inner_vertices(), dtype=np.float64)
+            pose = face.appearance.pose
+            r = face.appearance.renderer(model.mesh, supersample=1)
+            t = median_time(lambda r=r, v=v, iv=iv, pose=pose: r.render(v, iv, pose=pose),
+                            repeat=repeat, number=number)
+            target = {(256, 256): 200.0, (640, 480): 50.0}[size]
+            out.append(Figure(NAME, f"photo-textured {size[0]}x{size[1]}",
+                              "frames per second", 1.0 / t, "frames/s", True, target=target,
+                              extra={"photograph": source, "supersample": 1,
+                                     "triangles": int(len(r.triangles)),
+                                     "texture": list(face.appearance.texture.shape[:2])}))
     return out
 
 
@@ -160,4 +223,4 @@ def _epe_figures(quick: bool) -> list[Figure]:
 
 def run(quick: bool = False) -> list[Figure]:
     cv2.setNumThreads(1)
-    return _fps_figures(quick) + _epe_figures(quick)
+    return _fps_figures(quick) + _photo_fps_figures(quick) + _epe_figures(quick)
