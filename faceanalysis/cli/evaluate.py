@@ -74,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
                          "--truth/--estimate")
     if args.suite and args.allow_partial:
         raise ValueError("--allow-partial goes with --truth/--estimate")
+    if (args.faces or args.tracker) and args.suite != "standard":
+        raise ValueError("--faces and --tracker go with --suite standard")
     if args.suite == "ceiling":
         from faceanalysis.evaluation.ceiling import measurement_ceiling
 
@@ -89,8 +91,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.own_response:
         raise ValueError("--own-response goes with --suite ceiling")
-    if (args.faces or args.tracker) and args.suite != "standard":
-        raise ValueError("--faces and --tracker go with --suite standard")
     if args.suite:
         if args.output is None:
             raise ValueError("--suite needs -o OUT")

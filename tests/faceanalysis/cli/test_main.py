@@ -98,3 +98,14 @@ def test_a_signal_wrapped_by_compiled_code_still_ends_the_run_as_a_signal(monkey
     monkeypatch.setattr(info, "run", wrapped)
     assert main.main(["info"]) == 143
     assert "terminated" in capsys.readouterr().err
+
+
+def test_evaluate_faces_goes_with_the_standard_suite(run_cli, tmp_path):
+    code, _, err = run_cli("evaluate", "--suite", "ceiling", "--faces", tmp_path, "-q")
+    assert code == 1
+    assert "--faces and --tracker go with --suite standard" in err, err
+    code, _, err = run_cli("evaluate", "--suite", "standard", "--faces", tmp_path / "none",
+                           "-o", tmp_path / "out", "-q")
+    assert code == 1
+    assert f"{tmp_path / 'none'}: no such folder of photographs" in err, err
+    assert not (tmp_path / "out").exists()
