@@ -503,18 +503,50 @@ def muscle_force_basis(muscles: MuscleSet, mesh, lattice) -> tuple[np.ndarray, n
     a = v_area[nodes - fascia[0]]
     basis = np.zeros((len(muscles), len(nodes), 3))
     for k, m in enumerate(muscles.muscles):
-        w, direction = _WEIGHTS[m.type](m, mesh, lattice, x, fascia_depth)
-        w = np.clip(np.nan_to_num(w), 0.0, None)
-        direction = np.array(direction, dtype=np.float64)
-        direction -= np.einsum("ij,ij->i", direction, normal)[:, None] * normal
-        norm = np.linalg.norm(direction, axis=1)
-        ok = norm > 1e-9
-        unit = np.zeros_like(direction)
-        unit[ok] = direction[ok] / norm[ok, None]
-        wa = w * a * ok
-        total = wa.sum()
+        for widen in range(_MAX_WIDENINGS + 1):
+            w, direction = _WEIGHTS[m.type](_widened(m, widen), mesh, lattice, x,
+                                             fascia_depth)
+            w = np.clip(np.nan_to_num(w), 0.0, None)
+            direction = np.array(direction, dtype=np.float64)
+            direction -= np.einsum("ij,ij->i", direction, normal)[:, None] * normal
+            norm = np.linalg.norm(direction, axis=1)
+            ok = norm > 1e-9
+            unit = np.zeros_like(direction)
+            unit[ok] = direction[ok] / norm[ok, None]
+            wa = w * a * ok
+            total = wa.sum()
+            if total > 0 or m.type != "linear" or not _on_face(m):
+                break
         if total <= 0:
             raise ValueError(f"muscle {m.name!r} acts on no free fascia node: check its uv "
                              "geometry in the muscle file")
         basis[k] = (m.force * wa / total)[:, None] * unit
     return nodes, basis
+
+
+#: How many times a linear muscle's zone may be widened (by :data:`_WIDEN_FACTOR` each)
+#: when it holds no free fascia node.
+_MAX_WIDENINGS = 4
+_WIDEN_FACTOR = 1.4
+
+
+def _on_face(m: Muscle) -> bool:
+    """Whether a linear muscle's head and tail lie in the canonical uv square."""
+    return all(0.0 <= c <= 1.0 for key in ("head", "tail") for c in m.params[key])
+
+
+def _widened(m: Muscle, times: int) -> Muscle:
+    """``m`` with its zone of influence widened ``times`` times: a short linear muscle on
+    a mesh stretched by a landmark warp (a subject's brows higher above the eyes than the
+    generic face's) can have its narrow cone fall between the fascia nodes; it then acts on
+    the nodes nearest its axis instead of none. An unwidened muscle is returned as is."""
+    if times == 0 or m.type != "linear":
+        return m
+    p = dict(m.params)
+    f = _WIDEN_FACTOR ** times
+    if p.get("falloff") == "radial":
+        p["radius"] = p["radius"] * f
+    else:
+        p["zone_angle"] = min(p["zone_angle"] * f, 89.0)
+        p["fall_finish"] = p["fall_finish"] * f
+    return Muscle(m.name, m.type, m.force, m.depth, p)

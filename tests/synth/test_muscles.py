@@ -170,3 +170,27 @@ def test_muscle_off_the_face_raises(tmp_path, face):
         "tail = [0.65, 0.78]", "tail = [5.1, 5.1]")
     with pytest.raises(ValueError, match="zyg_l"):
         muscle_force_basis(load_muscles(_write(tmp_path, text)), mesh, lat)
+
+
+def test_a_muscle_whose_narrow_zone_holds_no_node_acts_on_the_nodes_nearest_its_axis(
+        tmp_path, face, monkeypatch):
+    # a short muscle with a narrow cone falls between the fascia nodes (as a corrugator
+    # does on a mesh a landmark warp has stretched): its zone is widened until it reaches
+    # some, and it still pulls toward its head with its whole force
+    import synth.muscles
+
+    mesh, lat = face
+    text = GOOD.replace("head = [0.8, 0.5]", "head = [0.70, 0.60]").replace(
+        "tail = [0.65, 0.78]", "tail = [0.66, 0.64]") + "zone_angle = 10.0\n"
+    ms = load_muscles(_write(tmp_path, text))
+    nodes, b = muscle_force_basis(ms, mesh, lat)
+    pull = b[0]
+    acting = np.linalg.norm(pull, axis=1) > 0
+    assert 0 < acting.sum() < 10
+    np.testing.assert_allclose(np.linalg.norm(pull, axis=1).sum(), 10.0, rtol=1e-9)
+    head = uv_to_surface(mesh, np.array([[0.70, 0.60]]))[0]
+    towards = np.einsum("ij,ij->i", pull[acting], head - lat.rest[nodes[acting]])
+    assert (towards > 0).all()
+    monkeypatch.setattr(synth.muscles, "_MAX_WIDENINGS", 0)      # the case needs widening
+    with pytest.raises(ValueError, match="zyg_l"):
+        muscle_force_basis(ms, mesh, lat)
