@@ -6,20 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.faceanalysis._photos import rendered_photograph
+
 
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory):
-    from trackers.landmarks import ensure_models
-
-    try:
-        ensure_models()
-    except (RuntimeError, FileNotFoundError) as exc:
-        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
-    from synth.render.sequence import synthesize
-
     folder = tmp_path_factory.mktemp("photos")
-    img = synthesize(frames=1, size=240, seed=7, flow=False, texture_size=512).images[0]
-    cv2.imwrite(str(folder / "person7.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    rendered_photograph(folder / "person7.png", seed=7, size=240)
     return folder
 
 

@@ -12,23 +12,13 @@ import pandas as pd
 import pytest
 
 from faceanalysis.io.table import FIDUCIALS
+from tests.faceanalysis._photos import rendered_photograph
 
 
 @pytest.fixture(scope="module")
 def photo(tmp_path_factory):
-    from trackers.landmarks import ensure_models
-
-    try:
-        ensure_models()
-    except (RuntimeError, FileNotFoundError) as exc:
-        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
-    from synth.render.sequence import synthesize
-
-    img = synthesize(frames=1, size=(288, 320), seed=5, flow=False, texture_size=512
-                     ).images[0]
-    path = tmp_path_factory.mktemp("photo") / "person.png"
-    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    return path
+    return rendered_photograph(tmp_path_factory.mktemp("photo") / "person.png", seed=5,
+                               size=(288, 320))
 
 
 @pytest.fixture(scope="module")
