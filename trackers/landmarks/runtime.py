@@ -1,7 +1,9 @@
 """Running a ``.tflite`` network: OpenCV's dnn module (no extra dependency) or LiteRT (faster).
 
 Both take the same float32 NHWC input and return the outputs sorted by their tensor names,
-so the callers do not depend on the runtime.
+so the callers do not depend on the runtime. Each network also lends a reusable input
+array (``input_buffer``), laid out so that its runtime takes it without a copy: the
+trackers fill it in place every frame instead of allocating a new batch.
 """
 
 from __future__ import annotations
@@ -45,6 +47,16 @@ class _OpenCVNet:
             kwargs["engine"] = cv2.dnn.ENGINE_CLASSIC
         self._net = cv2.dnn.readNetFromTFLite(str(path), **kwargs)
         self._names = sorted(self._net.getUnconnectedOutLayersNames())
+        self._buffers: dict[tuple, np.ndarray] = {}
+
+    def input_buffer(self, shape) -> np.ndarray:
+        """A reusable float32 NHWC array of ``shape``: a view of an NCHW array, which
+        :meth:`run` then hands to OpenCV as it is."""
+        n, h, w, c = shape
+        buf = self._buffers.get((n, h, w, c))
+        if buf is None:
+            buf = self._buffers[n, h, w, c] = np.empty((n, c, h, w), np.float32)
+        return buf.transpose(0, 2, 3, 1)
 
     def run(self, x: np.ndarray) -> list[np.ndarray]:
         self._net.setInput(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32))
@@ -61,6 +73,16 @@ class _LiteRTNet:
         self._input = self._it.get_input_details()[0]["index"]
         out = sorted(self._it.get_output_details(), key=lambda d: d["name"])
         self._outputs = [d["index"] for d in out]
+        self._buffers: dict[tuple, np.ndarray] = {}
+
+    def input_buffer(self, shape) -> np.ndarray:
+        """A reusable float32 NHWC array of ``shape`` (copied into the interpreter by
+        :meth:`run`: a view of its own input tensor may not be held across ``invoke``)."""
+        shape = tuple(shape)
+        buf = self._buffers.get(shape)
+        if buf is None:
+            buf = self._buffers[shape] = np.empty(shape, np.float32)
+        return buf
 
     def run(self, x: np.ndarray) -> list[np.ndarray]:
         self._it.set_tensor(self._input, np.ascontiguousarray(x, dtype=np.float32))
@@ -83,7 +105,9 @@ def load_network(path: str | os.PathLike, *, runtime: str = "auto"):
     -------
     object
         With ``run(x) -> list[np.ndarray]``: ``x`` a float32 NHWC batch, the outputs sorted by
-        tensor name. Networks are shared per (file, runtime) within a thread.
+        tensor name; and ``input_buffer(shape) -> np.ndarray``: a float32 NHWC array of that
+        shape that the network keeps, for callers that write each batch in place.
+        Networks are shared per (file, runtime) within a thread, and so are their buffers.
     """
     runtime = check_runtime(runtime)
     cache = _local.__dict__.setdefault("nets", {})

@@ -27,3 +27,17 @@ def test_litert_and_opencv_agree(models):
     assert [o.size for o in a] == [o.size for o in b] == [1404, 1]
     for u, v in zip(a, b):
         np.testing.assert_allclose(u.ravel(), v.ravel(), atol=0.05 * max(1, np.abs(u).max()))
+
+
+@pytest.mark.parametrize("runtime", [r for r in RUNTIMES[1:]
+                                     if r != "litert" or litert_available()])
+def test_input_buffer_runs_like_a_new_batch(models, runtime):
+    net = load_network(models["face_landmark"], runtime=runtime)
+    x = np.random.default_rng(1).random((1, 192, 192, 3), dtype=np.float32)
+    expected = net.run(x.copy())
+    buf = net.input_buffer(x.shape)
+    assert buf.shape == x.shape and buf.dtype == np.float32
+    buf[...] = x
+    for got, want in zip(net.run(buf), expected):
+        np.testing.assert_array_equal(got, want)
+    assert np.shares_memory(net.input_buffer(x.shape), buf)   # reused, not reallocated
