@@ -488,6 +488,9 @@ def potentials_in_boxes(gray, specs, boxes):
             if sigma not in blurred:
                 blurred[sigma] = _blur(gray, sigma)
             g = blurred[sigma][y0:y1, x0:x1]
+        # the kernels run on a contiguous copy: on a strided view Numba's loops do not
+        # vectorise (2.5x slower on a contour's box, where the copy costs a tenth of that)
+        g = np.ascontiguousarray(g)
         P = np.empty((y1 - y0, x1 - x0), np.float32)
         if kind == "edge":
             _edge_nb(g, P)
