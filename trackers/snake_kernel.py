@@ -76,6 +76,20 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
                 R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1 + zc[i, 2] * h2
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _first_outside(X, fidx, fgeom):
+    """The first node outside its field (``fgeom`` rows: x, y of the field's [0, 0],
+    its height and width), or -1: the test of ``ContourSystem.outside_fields`` without
+    its temporary arrays."""
+    for i in range(X.shape[0]):
+        k = fidx[i]
+        x = X[i, 0] - fgeom[k, 0]
+        y = X[i, 1] - fgeom[k, 1]
+        if x < 0 or y < 0 or x > fgeom[k, 3] - 1 or y > fgeom[k, 2] - 1:
+            return i
+    return -1
+
+
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _pgrad(P, k, y, x, h, w):
     """-grad P at pixel (y, x) of field k: central differences, one-sided at borders."""

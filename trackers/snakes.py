@@ -53,7 +53,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
 
-from trackers.snake_kernel import _relax_kernel, _solve_inplace
+from trackers.snake_kernel import _first_outside, _relax_kernel, _solve_inplace
 from trackers.snake_types import Contour, RelaxResult, SnakeParams, _per_node
 
 __all__ = [
@@ -253,6 +253,7 @@ class ContourSystem:
             raise ValueError("all contours of one system must share gamma and dt "
                              "(they are integrated together)")
         self._factor()
+        self._field_block = np.empty(0, np.float32)   # see relax()
 
     # ------------------------------------------------------------------ setup
     @staticmethod
@@ -488,6 +489,7 @@ class ContourSystem:
         """
         if (forces is None) == (potentials is None):
             raise ValueError("give exactly one of forces or potentials")
+        checked = False
         if forces is not None:
             F = np.asarray(forces)
             if F.ndim == 3:
@@ -515,11 +517,23 @@ class ContourSystem:
                                             else np.asarray(plist[0])[None],
                                             dtype=np.float32)
             else:
+                # one (K, hm, wm) block with each field in its corner: the kernel reads
+                # field k only inside its own shape (fgeom), so the rest is left as it
+                # is. The block lives in an array the system keeps (a tracker passes
+                # fields of new shapes every frame; a fresh block each call cost more
+                # than its copy), and each field is checked before it is copied in
                 hm = max(sh[0] for sh in shapes)
                 wm = max(sh[1] for sh in shapes)
-                data = np.zeros((len(plist), hm, wm), np.float32)
+                for q in plist:
+                    if not np.isfinite(q).all():
+                        raise ValueError("forces / potentials contain NaN or infinite values")
+                size = len(plist) * hm * wm
+                if self._field_block.size < size:
+                    self._field_block = np.empty(size, np.float32)
+                data = self._field_block[:size].reshape(len(plist), hm, wm)
                 for k, q in enumerate(plist):
                     data[k, :q.shape[0], :q.shape[1]] = q
+                checked = True
             from_potential = True
         K = len(shapes)
         need = int(self.fidx.max()) + 1
@@ -534,11 +548,10 @@ class ContourSystem:
         fgeom = np.empty((K, 4))
         fgeom[:, :2] = org
         fgeom[:, 2:] = np.asarray(shapes, dtype=np.float64)
-        if not np.isfinite(data).all():
+        if not checked and not np.isfinite(data).all():
             raise ValueError("forces / potentials contain NaN or infinite values")
-        bad = self.outside_fields(shapes, org)
-        if bad.any():
-            i = int(np.argmax(bad))
+        i = _first_outside(self.X, self.fidx, fgeom)
+        if i >= 0:
             k = int(self.node_contour[i])
             ox, oy, Hk, Wk = fgeom[self.fidx[i]]
             raise ValueError(f"node {i - int(self.starts[k])} of contour {self.names[k]!r} "

@@ -279,3 +279,44 @@ def test_targets_are_checked():
         s.set_targets(0, np.zeros((4, 2)))
     with pytest.raises(ValueError, match="spring"):
         ContourSystem([Contour(np.c_[np.arange(5.0), np.zeros(5)], spring=-1.0)])
+
+
+def _two_field_system():
+    a = Contour(np.c_[np.linspace(8, 30, 8), np.full(8, 12.0)], field=0, name="a")
+    b = Contour(np.c_[np.full(8, 20.0), np.linspace(10, 40, 8)], field=1, name="b")
+    return ContourSystem([a, b], SnakeParams(p=0.05))
+
+
+def test_fields_of_different_shapes_give_the_same_relaxation_on_every_call():
+    # potentials of different shapes share one block that the system keeps: what an
+    # earlier call left in it must not change a later relaxation
+    rng = np.random.default_rng(3)
+    small = [-(rng.random((30, 40)) * 50).astype(np.float32),
+             -(rng.random((50, 35)) * 50).astype(np.float32)]
+    large = [-(rng.random((70, 80)) * 50).astype(np.float32),
+             -(rng.random((60, 90)) * 50).astype(np.float32)]
+    fresh = _two_field_system()
+    fresh.relax(potentials=small, tol=0.0, max_iter=20)
+    reused = _two_field_system()
+    reused.relax(potentials=large, tol=0.0, max_iter=1)
+    reused.X[:] = _two_field_system().X
+    reused.rest[:] = _two_field_system().rest
+    reused.relax(potentials=small, tol=0.0, max_iter=20)
+    np.testing.assert_array_equal(reused.X, fresh.X)
+
+
+def test_non_finite_or_outside_fields_of_different_shapes_are_refused():
+    s = _two_field_system()
+    bad = [np.zeros((30, 40), np.float32), np.zeros((50, 35), np.float32)]
+    bad[1][49, 34] = np.nan          # outside contour b's reach, still refused
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        s.relax(potentials=bad)
+    with pytest.raises(ValueError, match="contour 'b'.*outside the image"):
+        s.relax(potentials=[np.zeros((30, 40)), np.zeros((30, 35))])   # b reaches y=40
+    # a refused call leaves nothing behind
+    good = [-np.ones((30, 40), np.float32), -np.ones((50, 35), np.float32)]
+    good[0][:, 15:] = -3.0
+    fresh = _two_field_system()
+    fresh.relax(potentials=good, tol=0.0, max_iter=5)
+    s.relax(potentials=good, tol=0.0, max_iter=5)
+    np.testing.assert_array_equal(s.X, fresh.X)
