@@ -76,6 +76,8 @@ LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
 #: in inter-ocular distances, is lost.
 MAX_DISAGREEMENT = 0.12
 
+_RIGID_INDEX = np.array(RIGID_POINTS, np.intp)
+
 
 def rigid_similarity(src, dst):
     """Least-squares similarity ``z -> a z + b`` (complex numbers) from ``src`` to ``dst``.
@@ -219,10 +221,11 @@ class AnchoredTracker:
         if lm is None:
             self._gap = True
             return None
-        curves = landmark_curves(lm.points)
-        rigid = lm.points[list(RIGID_POINTS)]
-        rigid3 = np.c_[rigid, lm.z[list(RIGID_POINTS)]]
-        iod = float(np.hypot(*np.subtract(*eye_centres(lm.points))))
+        eyes = eye_centres(lm.points)
+        curves = landmark_curves(lm.points, eyes=eyes)
+        rigid = lm.points[_RIGID_INDEX]
+        rigid3 = np.c_[rigid, lm.z[_RIGID_INDEX]]
+        iod = float(np.hypot(*np.subtract(*eyes)))
         if self.tracker is None:
             h, w = frame.shape[:2]
             layout = layout_from_landmarks(lm.points, (w, h))
@@ -262,11 +265,12 @@ class AnchoredTracker:
                 res = self.tracker.track(frame, targets=targets, fallback_head=head)
         self._gap = False
         quality = dict(res.quality)
+        system = self.tracker.system
+        # each node's distance from its spring's target, for all contours at once
+        dist = np.hypot(*(system.X - system.anchor).T)
         for name in targets:
             k = self.tracker.names.index(name)
-            nodes = self.tracker.system.contour_points(k)
-            placed = self.tracker.system.anchor[self.tracker.system.contour_slice(k)]
-            gap = float(np.mean(np.hypot(*(nodes - placed).T))) / max(iod, 1e-9)
+            gap = float(np.mean(dist[system.contour_slice(k)])) / max(iod, 1e-9)
             if gap > self.max_disagreement:
                 quality[name] = replace(quality[name], lost=True)
         if self.occlusion and all(not quality[n].lost and quality[n].depth > d
@@ -297,8 +301,7 @@ class AnchoredTracker:
                                     closed=t.layout.contours[name].closed)
             off = self._offsets.get(name)
             if off is not None:
-                z = a * off
-                pts = pts + np.c_[z.real, z.imag]
+                pts = pts + (a * off).view(np.float64).reshape(-1, 2)   # (real, imag) rows
             out[name] = pts
         return out
 

@@ -88,19 +88,33 @@ def _check(points):
     return p[:, :2]
 
 
+# the point lists above as index arrays, gathered once per frame by the tracker
+_EYE_INDEX = np.array(EYE_POINTS, np.intp)
+_BROW_INDEX = {name: (np.array(up, np.intp), np.array(lo, np.intp))
+               for name, (up, lo) in _BROW_EDGES.items()}
+_LIP_INDEX = tuple(np.array(idx, np.intp) for idx in _LIP_INNER)
+_CURVE_INDEX = {name: np.array(idx, np.intp) for name, idx in MESH_CURVES.items()}
+# the chin boss's ellipse in inter-ocular distances, before it is turned and placed
+_t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+_CHIN_ELLIPSE = np.c_[_CHIN_AXES[0] * np.cos(_t), _CHIN_AXES[1] * np.sin(_t)]
+del _t
+
+
 def eye_centres(points) -> np.ndarray:
     """(2, 2) eye centres from the mesh: row 0 subject's right (image left)."""
     p = _check(points)
-    return np.array([p[list(idx)].mean(axis=0) for idx in EYE_POINTS])
+    return p[_EYE_INDEX].mean(axis=1)
 
 
-def landmark_curves(points) -> dict[str, np.ndarray]:
+def landmark_curves(points, *, eyes=None) -> dict[str, np.ndarray]:
     """The eight mesh-traced contours (all but the hairline) in image pixels.
 
     Parameters
     ----------
     points : array_like, shape (468, 2) or (468, 3)
         Face-mesh landmarks in image pixels.
+    eyes : ndarray, shape (2, 2), optional
+        ``eye_centres(points)``, when the caller has it already.
 
     Returns
     -------
@@ -113,9 +127,10 @@ def landmark_curves(points) -> dict[str, np.ndarray]:
     ['brow_l', 'brow_r', 'chin_boss']
     """
     p = _check(points)
-    out = {name: 0.5 * (p[list(up)] + p[list(lo)]) for name, (up, lo) in _BROW_EDGES.items()}
-    upper, lower = (p[list(idx)] for idx in _LIP_INNER)
-    eyes = eye_centres(p)
+    out = {name: 0.5 * (p[up] + p[lo]) for name, (up, lo) in _BROW_INDEX.items()}
+    upper, lower = (p[idx] for idx in _LIP_INDEX)
+    if eyes is None:
+        eyes = eye_centres(p)
     d = eyes[1] - eyes[0]
     iod = float(np.hypot(*d))
     ex = d / max(iod, 1e-9)
@@ -124,11 +139,10 @@ def landmark_curves(points) -> dict[str, np.ndarray]:
     corner_r = p[61] + iod * (-out_ * ex + down * ey)
     corner_l = p[291] + iod * (out_ * ex + down * ey)
     out["upper_lip"] = np.vstack([corner_r, 0.5 * (upper + lower), corner_l])
-    for name, idx in MESH_CURVES.items():
-        out[name] = p[list(idx)]
+    for name, idx in _CURVE_INDEX.items():
+        out[name] = p[idx]
     c, s = ex
-    t = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
-    local = np.c_[_CHIN_AXES[0] * np.cos(t), _CHIN_AXES[1] * np.sin(t)] * iod
+    local = _CHIN_ELLIPSE * iod
     centre = p[17] + CHIN_CENTRE * (p[152] - p[17])
     out["chin_boss"] = centre + local @ np.array([[c, s], [-s, c]])
     return out

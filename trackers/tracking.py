@@ -493,8 +493,8 @@ class Tracker(HeadFrameSearch, ContourFields):
             pts = X[st[k]:st[k + 1]]
             closed = self.layout.contours[name].closed
             depth = depths[name] / max(self.ref_depth.get(name, depths[name]), 1e-9)
-            stretch = _polyline_length(pts, closed) / max(self.ref_length.get(
-                name, _polyline_length(pts, closed)), 1e-9)
+            length = _polyline_length(pts, closed)
+            stretch = length / max(self.ref_length.get(name, length), 1e-9)
             shape = _shape_change(pts, self.ref_shape[name], closed) \
                 if name in self.ref_shape else 0.0
             lost = (not np.isfinite(pts).all() or depth < self.lost_depth
