@@ -23,6 +23,7 @@ from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
 from faceanalysis.estimation.estimators import fit_residual
+from faceanalysis.estimation.identifiability import assess
 from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_points_3d
 from faceanalysis.estimation.registry import ESTIMATORS, Observations, run_estimator
 from faceanalysis.estimation.response import FiducialResponse
@@ -190,9 +191,16 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     "other features or motion beyond the model's. Their confidence is "
                     "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"],
                     int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"])
+    ident = assess(response, disp)
+    if ident["not_identifiable"]:
+        log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
+                    "%s from the other controls: their values lean on the prior that "
+                    "muscles rest (analysis.json: identifiability)", video, ident["noise_cm"],
+                    ident["noise_source"], ", ".join(ident["not_identifiable"]))
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
-                                 extra={"calibration": calib, "model_fit": fit})
+                                 extra={"calibration": calib, "model_fit": fit,
+                                        "identifiability": ident})
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
                "total_s": elapsed, "frames": len(tracks)}
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,

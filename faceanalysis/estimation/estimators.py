@@ -166,7 +166,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         L1 penalty is linear, so it sets muscles that the points barely call for to
         exactly zero and moves the active ones by a constant instead of a fraction,
         and breaks ties between muscles the points cannot tell apart (see
-        :func:`faceanalysis.evaluation.ceiling.identifiability`) in favour of fewer. Default
+        :func:`faceanalysis.estimation.identifiability.identifiability`) in favour of fewer. Default
         :data:`SPARSITY`; 0 for a plain bounded least-squares fit.
     outer_iterations, inner_iterations : int, keyword-only
         Gauss-Newton and projected-gradient iterations (each reweighting round runs

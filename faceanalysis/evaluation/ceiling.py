@@ -31,7 +31,7 @@ from faceanalysis.evaluation.scores import pool, public
 from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
 from faceanalysis.io.table import JAW, MUSCLES
 
-__all__ = ["perfect_measurements", "measurement_ceiling", "identifiability"]
+__all__ = ["perfect_measurements", "measurement_ceiling"]
 
 
 def perfect_measurements(model, contractions: pd.DataFrame, points) -> np.ndarray:
@@ -176,77 +176,3 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         out[est] = public(pool(reps))
         out[est].update(points=list(response.fiducials), own_response=bool(own_response))
     return out
-
-
-def identifiability(response: FiducialResponse, *, level: float = 0.0) -> pd.DataFrame:
-    """How far the response's measurement points tell each control from the others.
-
-    The response is linearised at every control at ``level`` of its range. A control's
-    *signature* is the motion of all the points over its full range; the *independent*
-    share is the part of that signature that no combination of the other controls'
-    signatures reproduces (1: only this control moves the points so; 0: others can
-    stand in for it); the *standard error* is that of an unregularised least-squares fit
-    of all the controls at once per centimetre of measurement noise on each coordinate
-    (the diagonal of ``(J^T J)^-1``, square-rooted, in the control's own units). The
-    regularisation and the bounds of :func:`~faceanalysis.estimation.estimators.estimate_joint`
-    keep real estimates far below it, but only by leaning on the prior that muscles
-    rest: a control with a small independent share is read from the points only
-    together with the others.
-
-    Parameters
-    ----------
-    response : FiducialResponse
-    level : float, keyword-only
-        Where to linearise, as a fraction of each control's range, in [0, 1).
-
-    Returns
-    -------
-    DataFrame
-        Indexed by control: ``signature`` (cm), ``independent`` (0..1) and
-        ``standard_error`` (contraction units, radians for the jaw, per cm of noise),
-        best first.
-
-    Raises
-    ------
-    ValueError
-        If ``level`` is outside [0, 1).
-
-    Examples
-    --------
-    Two points moved by three controls, the third nearly the sum of the other two:
-
-    >>> full = np.array([[[1.0, 0.0], [0.0, 0.0]],             # a moves p right
-    ...                  [[0.0, 0.0], [1.0, 0.0]],             # b moves q right
-    ...                  [[1.0, 0.1], [1.0, 0.0]]])            # ab: both, p a little up
-    >>> disp = np.stack([np.zeros_like(full), full], axis=1)   # levels 0 and 1
-    >>> r = FiducialResponse(("a", "b", "ab"), ("p", "q"), np.zeros((2, 2)), disp,
-    ...                      np.ones(3), np.array([0.0, 1.0]))
-    >>> identifiability(r).round(2)  # doctest: +NORMALIZE_WHITESPACE
-             signature  independent  standard_error
-    control
-    ab            1.42         0.07           10.00
-    a             1.00         0.10           10.05
-    b             1.00         0.10           10.05
-
-    Each control is a tenth or less its own: 0.1 cm of noise on the points moves each
-    estimate by about 1 (its whole range) in a fit without a prior.
-    """
-    if not 0.0 <= level < 1.0:
-        raise ValueError(f"level must be in [0, 1), got {level}")
-    upper = np.asarray(response.upper, dtype=float)
-    jac = response.jacobian((level * upper)[None])[0] * upper           # (2P, M), cm
-    signature = np.linalg.norm(jac, axis=0)
-    # the part of each column the others leave unexplained; its norm is also
-    # 1 / sqrt((J^T J)^-1_mm), so the standard error needs no inverse of its own
-    own = np.empty(len(upper))
-    for m in range(len(upper)):
-        q, _ = np.linalg.qr(np.delete(jac, m, axis=1))
-        own[m] = np.linalg.norm(jac[:, m] - q @ (q.T @ jac[:, m]))
-    independent = np.divide(own, signature, out=np.zeros_like(own), where=signature > 0)
-    se = np.full(len(upper), np.inf)
-    told = independent > 1e-9
-    se[told] = upper[told] / own[told]
-    out = pd.DataFrame({"signature": signature, "independent": independent,
-                        "standard_error": se}, index=pd.Index(response.muscles, name="control"))
-    return out.sort_values("standard_error")
-

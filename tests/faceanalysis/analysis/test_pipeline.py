@@ -426,3 +426,14 @@ def test_one_image_is_analysed_and_said_to_have_no_expression(tmp_path, caplog):
         a = analyze(image)
     assert "one frame has no expression to measure" in caplog.text
     assert a.metadata["parameters"]["single_frame"] is True and len(a.table) == 1
+
+
+def test_analysis_says_which_controls_the_points_can_tell_apart(analysed):
+    ident = analysed.metadata["identifiability"]
+    assert ident["noise_source"] == "measured" and 0 < ident["noise_cm"] < 0.02
+    assert set(ident["controls"]) == set(analysed.response.muscles)
+    brows = [m for m in ident["controls"] if m.startswith(("frontalis", "corrugator"))]
+    assert all(ident["controls"][m]["identifiable"] for m in brows)
+    assert set(ident["not_identifiable"]) == {m for m, c in ident["controls"].items()
+                                             if not c["identifiable"]}
+    assert json.loads(json.dumps(ident, allow_nan=False)) == ident

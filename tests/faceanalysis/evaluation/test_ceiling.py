@@ -9,11 +9,7 @@ import pandas as pd
 import pytest
 
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS, model_response
-from faceanalysis.evaluation.ceiling import (
-    identifiability,
-    measurement_ceiling,
-    perfect_measurements,
-)
+from faceanalysis.evaluation.ceiling import measurement_ceiling, perfect_measurements
 from faceanalysis.evaluation.suite import SuiteConfig
 
 SMALL = SuiteConfig(identities=1, frames=6,
@@ -117,36 +113,3 @@ def test_own_response_tables_each_face():
     zyg_own, zyg_gen = (r["controls"]["zygomaticus_major_l"] for r in (own, generic))
     assert zyg_own["r"] > 0.95
     assert zyg_own["estimate_max"] != zyg_gen["estimate_max"]     # another table was used
-
-
-def test_identifiability_of_the_generic_face():
-    response = model_response()
-    t = identifiability(response)
-    assert sorted(t.index) == sorted(response.muscles)
-    assert ((t["independent"] >= 0) & (t["independent"] <= 1)).all()
-    assert (t["signature"] > 0).all()
-    # the brows are read off three points each; the zygomaticus and the levators move
-    # the mouth corners and furrows as combinations of the other lower-face muscles do
-    brows = t.loc[[m for m in t.index if m.startswith(("frontalis", "corrugator"))]]
-    mouth = t.loc[[m for m in t.index if m.startswith(("zygomaticus_major", "levator"))]]
-    assert brows["standard_error"].max() * 10 < mouth["standard_error"].min()
-    assert brows["independent"].min() > 5 * mouth["independent"].max()
-    assert list(t["standard_error"]) == sorted(t["standard_error"])
-    with pytest.raises(ValueError, match="level"):
-        identifiability(response, level=1.0)
-
-
-def test_a_control_that_another_duplicates_is_not_identifiable():
-    from faceanalysis.estimation.response import FiducialResponse
-
-    rng = np.random.default_rng(1)
-    full = rng.normal(size=(3, 4, 2))
-    full[2] = full[1]
-    disp = np.stack([np.zeros_like(full), full], axis=1)
-    r = FiducialResponse(("a", "b", "b_twin"), tuple("pqrs"), np.zeros((4, 2)), disp,
-                         np.ones(3), np.array([0.0, 1.0]))
-    t = identifiability(r)
-    assert t.loc["a", "independent"] > 0.3 and np.isfinite(t.loc["a", "standard_error"])
-    assert t.loc[["b", "b_twin"], "independent"].max() < 1e-9
-    assert np.isinf(t.loc[["b", "b_twin"], "standard_error"]).all()
-

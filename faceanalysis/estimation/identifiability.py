@@ -1,0 +1,258 @@
+"""Which controls the seen measurement points can tell apart, at the measured tracking noise.
+
+:func:`identifiability` linearises the model response and asks, for each control, how much of
+its motion of the points no combination of the other controls reproduces, and what that
+means for an unregularised fit: its standard error per centimetre of measurement noise.
+That bound is pessimistic for the ``joint`` estimator, whose bounds and prior that muscles
+rest carry it far below. :func:`estimator_errors` measures what the estimator itself does:
+it simulates frames in which each control is active (with two others) through the model
+response, adds noise, and scores the ``joint`` fit. :func:`tracking_noise` measures a tracked
+video's noise from the frame-to-frame jitter of its points, and :func:`assess` puts them
+together for ``analysis.json``: a control is *identifiable* when the estimator's simulated
+error, at that noise and from the points seen, stays within :data:`IDENTIFIABLE_LIMIT` of the
+control's range.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from faceanalysis.estimation.response import FiducialResponse
+
+__all__ = ["identifiability", "estimator_errors", "tracking_noise", "assess",
+           "IDENTIFIABLE_LIMIT", "REFERENCE_NOISE_CM"]
+
+#: Largest simulated RMS error of the ``joint`` estimate (a fraction of the control's range)
+#: at which a control counts as identifiable.
+IDENTIFIABLE_LIMIT = 0.1
+#: Tracking noise assumed where a video is too short to measure its own (cm, per
+#: coordinate): the frame-to-frame jitter of the tracked points on the real
+#: clips in ``../shared/data/real`` (0.022-0.029 cm with either tracker).
+REFERENCE_NOISE_CM = 0.025
+#: Second differences needed to measure a video's noise.
+MIN_SAMPLES = 30
+
+
+def identifiability(response: FiducialResponse, *, level: float = 0.0,
+                    points=None) -> pd.DataFrame:
+    """How far the response's measurement points tell each control from the others.
+
+    The response is linearised at every control at ``level`` of its range. A control's
+    *signature* is the motion of all the points over its full range; the *independent*
+    share is the part of that signature that no combination of the other controls'
+    signatures reproduces (1: only this control moves the points so; 0: others can
+    stand in for it); the *standard error* is that of an unregularised least-squares fit
+    of all the controls at once per centimetre of measurement noise on each coordinate
+    (the diagonal of ``(J^T J)^-1``, square-rooted, in the control's own units). The
+    regularisation and the bounds of :func:`~faceanalysis.estimation.estimators.estimate_joint`
+    keep real estimates far below it, but only by leaning on the prior that muscles
+    rest: a control with a small independent share is read from the points only
+    together with the others.
+
+    Parameters
+    ----------
+    response : FiducialResponse
+    level : float, keyword-only
+        Where to linearise, as a fraction of each control's range, in [0, 1).
+    points : sequence of str, optional
+        The measurement points that are seen (default all of ``response.fiducials``).
+
+    Returns
+    -------
+    DataFrame
+        Indexed by control: ``signature`` (cm), ``independent`` (0..1) and
+        ``standard_error`` (contraction units, radians for the jaw, per cm of noise),
+        best first.
+
+    Raises
+    ------
+    ValueError
+        If ``level`` is outside [0, 1), or ``points`` names a point the response lacks.
+
+    Examples
+    --------
+    Two points moved by three controls, the third nearly the sum of the other two:
+
+    >>> full = np.array([[[1.0, 0.0], [0.0, 0.0]],             # a moves p right
+    ...                  [[0.0, 0.0], [1.0, 0.0]],             # b moves q right
+    ...                  [[1.0, 0.1], [1.0, 0.0]]])            # ab: both, p a little up
+    >>> disp = np.stack([np.zeros_like(full), full], axis=1)   # levels 0 and 1
+    >>> r = FiducialResponse(("a", "b", "ab"), ("p", "q"), np.zeros((2, 2)), disp,
+    ...                      np.ones(3), np.array([0.0, 1.0]))
+    >>> identifiability(r).round(2)  # doctest: +NORMALIZE_WHITESPACE
+             signature  independent  standard_error
+    control
+    ab            1.42         0.07           10.00
+    a             1.00         0.10           10.05
+    b             1.00         0.10           10.05
+
+    Each control is a tenth or less its own: 0.1 cm of noise on the points moves each
+    estimate by about 1 (its whole range) in a fit without a prior.
+    """
+    if not 0.0 <= level < 1.0:
+        raise ValueError(f"level must be in [0, 1), got {level}")
+    upper = np.asarray(response.upper, dtype=float)
+    jac = response.jacobian((level * upper)[None])[0] * upper           # (2P, M), cm
+    if points is not None:
+        unknown = sorted(set(points) - set(response.fiducials))
+        if unknown:
+            raise ValueError(f"unknown measurement point(s) {unknown}; the response has "
+                             f"{', '.join(response.fiducials)}")
+        rows = [2 * response.fiducials.index(p) + a for p in points for a in (0, 1)]
+        jac = jac[rows]
+    signature = np.linalg.norm(jac, axis=0)
+    # the part of each column the others leave unexplained; its norm is also
+    # 1 / sqrt((J^T J)^-1_mm), so the standard error needs no inverse of its own
+    own = np.empty(len(upper))
+    for m in range(len(upper)):
+        q, _ = np.linalg.qr(np.delete(jac, m, axis=1))
+        own[m] = np.linalg.norm(jac[:, m] - q @ (q.T @ jac[:, m]))
+    independent = np.divide(own, signature, out=np.zeros_like(own), where=signature > 0)
+    se = np.full(len(upper), np.inf)
+    told = independent > 1e-9
+    se[told] = upper[told] / own[told]
+    out = pd.DataFrame({"signature": signature, "independent": independent,
+                        "standard_error": se}, index=pd.Index(response.muscles, name="control"))
+    return out.sort_values("standard_error")
+
+
+def tracking_noise(displacements: np.ndarray) -> tuple[float | None, int]:
+    """Noise of tracked points per coordinate (cm) from their frame-to-frame jitter.
+
+    For white noise of standard deviation s on a smooth motion, the second difference
+    ``d[t+1] - 2 d[t] + d[t-1]`` has standard deviation ``sqrt(6) s``; its median absolute
+    deviation (robust to the motion's own bursts) gives s. Frames where a point is NaN
+    break its runs.
+
+    Parameters
+    ----------
+    displacements : ndarray, shape (T, P, 2)
+        Point displacements (cm) per frame; NaN where not measured.
+
+    Returns
+    -------
+    (float or None, int)
+        The noise (None with fewer than :data:`MIN_SAMPLES` second differences) and the
+        number of second differences it was measured on.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.linspace(0, 1, 400)[:, None, None]
+    >>> d = np.sin(3 * t) + rng.normal(0, 0.02, (400, 5, 2))
+    >>> round(tracking_noise(d)[0], 3)
+    0.02
+    """
+    d = np.asarray(displacements, dtype=float)
+    if d.ndim != 3 or d.shape[2] != 2:
+        raise ValueError(f"displacements must have shape (T, P, 2), got {d.shape}")
+    if d.shape[0] < 3:
+        return None, 0
+    second = (d[2:] - 2.0 * d[1:-1] + d[:-2]).reshape(-1)
+    second = second[np.isfinite(second)]
+    if second.size < MIN_SAMPLES:
+        return None, int(second.size)
+    mad = np.median(np.abs(second - np.median(second)))
+    return float(1.4826 * mad / np.sqrt(6.0)), int(second.size)
+
+
+def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
+                     draws: int = 24, seed: int = 0) -> pd.Series:
+    """RMS error of the ``joint`` estimate of each control, simulated at ``noise``.
+
+    For each control, ``draws`` frames in which it is at a uniform level in [0.2, 0.8] of its
+    range and two other controls, drawn at random, in [0, 0.6]; their displacements through
+    the response, with Gaussian noise of ``noise`` cm on each coordinate and the points not in
+    ``points`` missing, are fitted by
+    :func:`~faceanalysis.estimation.estimators.estimate_joint`. Deterministic for a ``seed``.
+
+    Returns
+    -------
+    Series
+        Per control, the RMS error as a fraction of its range; NaN for a control no point
+        in ``points`` observes (the estimator leaves it empty).
+
+    Examples
+    --------
+    >>> from faceanalysis.estimation.model_response import model_response
+    >>> err = estimator_errors(model_response(), 0.006)
+    >>> bool(err["frontalis_inner_l"] < 0.1), bool(err["levator_labii_l"] > 0.1)
+    (True, True)
+    """
+    from faceanalysis.estimation.estimators import estimate_joint
+
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise={noise} must be a non-negative number of cm")
+    rng = np.random.default_rng(seed)
+    n, upper = len(response.muscles), np.asarray(response.upper, dtype=float)
+    c = np.zeros((n * draws, n))
+    for m in range(n):
+        rows = slice(m * draws, (m + 1) * draws)
+        c[rows, m] = rng.uniform(0.2, 0.8, draws)
+        others = [j for j in range(n) if j != m]
+        for k in range(draws):
+            c[m * draws + k, rng.choice(others, 2, replace=False)] = rng.uniform(0.0, 0.6, 2)
+    c *= upper
+    d = response.predict(c) + rng.normal(0.0, noise, (len(c), len(response.fiducials), 2))
+    if points is not None:
+        unknown = sorted(set(points) - set(response.fiducials))
+        if unknown:
+            raise ValueError(f"unknown measurement point(s) {unknown}")
+        d[:, [i for i, p in enumerate(response.fiducials) if p not in set(points)]] = np.nan
+    est = estimate_joint(d, response)
+    err = np.sqrt(np.mean(((est - c) ** 2).reshape(n, draws, n), axis=1))      # (m, control)
+    return pd.Series(np.diag(err) / upper, index=pd.Index(response.muscles, name="control"))
+
+
+def assess(response: FiducialResponse, displacements: np.ndarray, *,
+           min_seen: float = 0.5) -> dict:
+    """Identifiability of every control from the points seen in a video, for
+    ``analysis.json``.
+
+    Parameters
+    ----------
+    response : FiducialResponse
+    displacements : ndarray, shape (T, P, 2)
+        The calibrated displacements of ``response.fiducials`` (cm; NaN where not measured).
+    min_seen : float, keyword-only
+        Fraction of the frames with any measurement on which a point must be measured to
+        count as seen.
+
+    Returns
+    -------
+    dict
+        ``noise_cm``, ``noise_source`` ('measured' or 'reference'), ``noise_samples``,
+        ``limit``, ``points_seen``, ``controls`` (name -> ``rmse``: the ``joint``
+        estimator's simulated error at that noise from those points, as a fraction of the
+        range, None where no seen point observes the control; ``independent``: the share
+        of its motion of the points no other control reproduces; ``identifiable``) and
+        ``not_identifiable`` (names).
+    """
+    d = np.asarray(displacements, dtype=float)
+    if d.ndim != 3 or d.shape[1:] != (len(response.fiducials), 2):
+        raise ValueError(f"displacements must have shape (T, {len(response.fiducials)}, 2), "
+                         f"got {d.shape}")
+    measured = np.isfinite(d).all(axis=2)                        # (T, P)
+    frames = measured.any(axis=1)
+    share = measured[frames].mean(axis=0) if frames.any() else np.zeros(d.shape[1])
+    seen = [p for p, s in zip(response.fiducials, share) if s >= min_seen]
+    noise, samples = tracking_noise(d[:, [response.fiducials.index(p) for p in seen]])
+    source = "measured"
+    if noise is None:
+        noise, source = REFERENCE_NOISE_CM, "reference"
+    if seen:
+        rmse = estimator_errors(response, noise, points=seen)
+        independent = identifiability(response, points=seen)["independent"]
+        controls = {name: {"rmse": (round(float(rmse[name]), 4) if np.isfinite(rmse[name])
+                                    else None),
+                           "independent": round(float(independent[name]), 4),
+                           "identifiable": bool(rmse[name] <= IDENTIFIABLE_LIMIT)}
+                    for name in response.muscles}
+    else:
+        controls = {name: {"rmse": None, "independent": 0.0, "identifiable": False}
+                    for name in response.muscles}
+    return {"noise_cm": round(float(noise), 5), "noise_source": source,
+            "noise_samples": samples, "limit": IDENTIFIABLE_LIMIT, "points_seen": seen,
+            "controls": controls,
+            "not_identifiable": [n for n in response.muscles if not controls[n]["identifiable"]]}

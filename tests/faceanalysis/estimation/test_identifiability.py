@@ -1,0 +1,115 @@
+"""Which controls the seen points can tell apart (faceanalysis.estimation.identifiability)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from faceanalysis.estimation.identifiability import (
+    IDENTIFIABLE_LIMIT,
+    REFERENCE_NOISE_CM,
+    assess,
+    estimator_errors,
+    identifiability,
+    tracking_noise,
+)
+from faceanalysis.estimation.model_response import model_response
+
+
+def test_identifiability_of_the_generic_face():
+    response = model_response()
+    t = identifiability(response)
+    assert sorted(t.index) == sorted(response.muscles)
+    assert ((t["independent"] >= 0) & (t["independent"] <= 1)).all()
+    assert (t["signature"] > 0).all()
+    # the brows are read off three points each; the zygomaticus and the levators move
+    # the mouth corners and furrows as combinations of the other lower-face muscles do
+    brows = t.loc[[m for m in t.index if m.startswith(("frontalis", "corrugator"))]]
+    mouth = t.loc[[m for m in t.index if m.startswith(("zygomaticus_major", "levator"))]]
+    assert brows["standard_error"].max() * 10 < mouth["standard_error"].min()
+    assert brows["independent"].min() > 5 * mouth["independent"].max()
+    assert list(t["standard_error"]) == sorted(t["standard_error"])
+    with pytest.raises(ValueError, match="level"):
+        identifiability(response, level=1.0)
+
+
+def test_a_control_that_another_duplicates_is_not_identifiable():
+    from faceanalysis.estimation.response import FiducialResponse
+
+    rng = np.random.default_rng(1)
+    full = rng.normal(size=(3, 4, 2))
+    full[2] = full[1]
+    disp = np.stack([np.zeros_like(full), full], axis=1)
+    r = FiducialResponse(("a", "b", "b_twin"), tuple("pqrs"), np.zeros((4, 2)), disp,
+                         np.ones(3), np.array([0.0, 1.0]))
+    t = identifiability(r)
+    assert t.loc["a", "independent"] > 0.3 and np.isfinite(t.loc["a", "standard_error"])
+    assert t.loc[["b", "b_twin"], "independent"].max() < 1e-9
+    assert np.isinf(t.loc[["b", "b_twin"], "standard_error"]).all()
+
+
+
+
+def test_fewer_points_tell_fewer_controls_apart():
+    response = model_response()
+    full = identifiability(response)
+    brows = [p for p in response.fiducials if p.startswith("brow")]
+    few = identifiability(response, points=brows)
+    lower = [m for m in response.muscles if m.startswith(("zygomaticus", "depressor"))]
+    assert np.isinf(few.loc[lower, "standard_error"]).all()
+    assert np.isfinite(full.loc[lower, "standard_error"]).all()
+    with pytest.raises(ValueError, match="unknown measurement point"):
+        identifiability(response, points=["nose"])
+
+
+def test_tracking_noise_is_measured_from_jitter_not_motion():
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 4.0, 300)[:, None, None]
+    motion = 0.8 * np.sin(2.0 * t) * np.ones((1, 6, 2))
+    for s in (0.005, 0.02, 0.05):
+        d = motion + rng.normal(0.0, s, motion.shape)
+        d[40:60, 2] = np.nan                                   # a point lost for a while
+        noise, n = tracking_noise(d)
+        assert abs(noise - s) < 0.15 * s and n > 1000
+    assert tracking_noise(motion[:2]) == (None, 0)
+
+
+def test_assess_marks_what_the_noise_hides():
+    response = model_response()
+    rng = np.random.default_rng(4)
+    shape = (200, len(response.fiducials), 2)
+    quiet = assess(response, rng.normal(0.0, 0.001, shape))
+    loud = assess(response, rng.normal(0.0, 0.05, shape))
+    assert quiet["noise_source"] == "measured" and abs(quiet["noise_cm"] - 0.001) < 2e-4
+    assert len(quiet["not_identifiable"]) < len(loud["not_identifiable"])
+    assert set(quiet["not_identifiable"]) <= set(loud["not_identifiable"])
+    for c in loud["controls"].values():
+        assert c["identifiable"] == (c["rmse"] is not None and c["rmse"] <= IDENTIFIABLE_LIMIT)
+        assert 0.0 <= c["independent"] <= 1.0
+    # one frame: no noise to measure, the reference is used
+    one = assess(response, np.zeros((1,) + shape[1:]))
+    assert one["noise_source"] == "reference" and one["noise_cm"] == REFERENCE_NOISE_CM
+    # points never measured are not counted as seen
+    d = rng.normal(0.0, 0.001, shape)
+    d[:, [i for i, p in enumerate(response.fiducials) if p.startswith("mouth")]] = np.nan
+    part = assess(response, d)
+    assert not any(p.startswith("mouth") for p in part["points_seen"])
+    with pytest.raises(ValueError, match="shape"):
+        assess(response, np.zeros((5, 3, 2)))
+
+
+def test_the_estimator_tells_the_brows_apart_and_not_the_levators():
+    response = model_response()
+    quiet = estimator_errors(response, 0.006)
+    loud = estimator_errors(response, 0.05)
+    brows = [m for m in response.muscles if m.startswith(("frontalis", "corrugator"))]
+    assert (quiet[brows] < 0.05).all()
+    assert (quiet[["levator_labii_l", "levator_labii_r"]] > IDENTIFIABLE_LIMIT).all()
+    assert (loud > quiet - 0.01).all()                        # more noise, larger errors
+    np.testing.assert_array_equal(estimator_errors(response, 0.006), quiet)
+    # without the brow points the brow muscles are lost
+    no_brows = [p for p in response.fiducials if not p.startswith("brow")]
+    blind = estimator_errors(response, 0.006, points=no_brows)
+    assert not (blind[brows] <= IDENTIFIABLE_LIMIT).any()     # unobserved: NaN
+    with pytest.raises(ValueError, match="noise"):
+        estimator_errors(response, -1.0)
