@@ -97,7 +97,9 @@ class Analysis:
         return self.table.set_index("frame")[[*MUSCLES, JAW]]
 
     def plot(self, path: str | os.PathLike | None = None, **kwargs):
-        """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given."""
+        """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given. Controls
+        the points cannot tell apart are drawn faded."""
+        kwargs.setdefault("not_identifiable", _not_identifiable(self.metadata))
         return plot_contractions(self.table, path, **kwargs)
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
@@ -212,7 +214,8 @@ class OutputFolder:
         """
         paths = {"contractions": write_contractions(table, self.contractions_csv)}
         if plot:
-            fig = plot_contractions(table, self.contractions_png, title=title)
+            fig = plot_contractions(table, self.contractions_png, title=title,
+                                    not_identifiable=_not_identifiable(metadata))
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)
@@ -228,3 +231,9 @@ def _identity(path: Path) -> tuple | None:
     if not stat.S_ISREG(st.st_mode):
         return None                  # a link or a folder of the user's: never removed
     return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _not_identifiable(metadata: Mapping) -> tuple[str, ...]:
+    """The controls ``analysis.json`` says the points cannot tell apart."""
+    ident = metadata.get("identifiability") if isinstance(metadata, Mapping) else None
+    return tuple(ident.get("not_identifiable", ())) if isinstance(ident, Mapping) else ()

@@ -86,9 +86,14 @@ def _choose_muscles(df: pd.DataFrame, muscles: Sequence[str] | None) -> list[str
     return list(muscles)
 
 
+#: Opacity of the controls the points cannot tell apart.
+_FADED = 0.35
+
+
 def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
                       muscles: Sequence[str] | None = None, title: str | None = None,
-                      layout: str = "auto", dpi: int = 150) -> Figure:
+                      layout: str = "auto", dpi: int = 150,
+                      not_identifiable: Sequence[str] = ()) -> Figure:
     """Plot muscle contractions over time, one line per muscle.
 
     Left and right muscles of a pair share a colour: solid for the subject's
@@ -116,6 +121,10 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         are drawn.
     dpi : int, keyword-only
         Resolution of the saved file (150 by default).
+    not_identifiable : sequence of str, keyword-only
+        Controls the tracked points cannot tell apart (``analysis.json``
+        ``identifiability``): drawn faded, and the legend says so, so that a reader does
+        not take them for measurements as good as the others.
 
     Returns
     -------
@@ -143,6 +152,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
     if "timestamp" not in df and "frame" not in df:
         raise ValueError("table has neither a 'frame' nor a 'timestamp' column")
     chosen = _choose_muscles(df, muscles)
+    faded = set(not_identifiable)
 
     timestamps = (pd.to_numeric(df["timestamp"], errors="coerce").to_numpy(float)
                   if "timestamp" in df else None)
@@ -184,7 +194,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         ax = muscle_axes[base]
         colour = _COLOURS.get(base, "#333333")
         ax.plot(x, values, color=colour, lw=1.4 if stacked else 1.6,
-                ls="--" if side == "r" else "-", label=m)
+                ls="--" if side == "r" else "-", label=m,
+                alpha=_FADED if m in faded else 1.0)
         if np.isfinite(values).any():
             top[id(ax)] = max(top.get(id(ax), 0.0), float(np.nanmax(values)))
     for base in ([] if stacked else bases):  # stacked panels carry their own labels
@@ -234,6 +245,9 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
             lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
             ax.set_xlim(lo, hi if hi > lo else lo + 1)
     axes[-1].set_xlabel(xlabel)
+    if faded & set(chosen):
+        handles.append(Line2D([], [], color="#555555", lw=1.6, alpha=_FADED,
+                              label="faded: not identifiable"))
     if chosen:
         handles.append(Line2D([], [], color="#555555", lw=1.6, label="left (_l)"))
         handles.append(Line2D([], [], color="#555555", lw=1.6, ls="--", label="right (_r)"))

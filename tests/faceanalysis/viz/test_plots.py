@@ -119,3 +119,14 @@ def test_isolated_lost_frames_are_visible(table):
     assert len(bars.get_paths()) == 2
     widths = [np.ptp(p.vertices[:, 0]) for p in bars.get_paths()]
     np.testing.assert_allclose(widths, 1 / 30, rtol=1e-6)  # one frame wide
+
+
+def test_controls_the_points_cannot_tell_apart_are_drawn_faded(table):
+    fig = plot_contractions(table, not_identifiable=["zygomaticus_major_l"])
+    alpha = {line.get_label(): line.get_alpha() for line in fig.axes[0].lines}
+    assert alpha["zygomaticus_major_l"] < 0.5
+    assert alpha["zygomaticus_major_r"] in (None, 1.0)
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "faded: not identifiable" in labels
+    plain = plot_contractions(table)
+    assert "faded: not identifiable" not in [t.get_text() for t in plain.legends[0].get_texts()]
