@@ -66,10 +66,10 @@ class PhotoAppearance:
         Pose of the rest head in that camera (the photograph's in-plane roll).
     background : (H, W, 3) uint8
         The output-size scene behind the head.
-    flat_colours : (K, 3) float64
-        Albedo of the mouth cavity and teeth (rows by material id).
     light : Light
         The reference light the texture was divided by (no specular).
+    flat_colours : (K, 3) float64
+        Albedo of the mouth cavity and teeth (rows by material id).
     source : str
         Where the photograph came from (for the metadata).
     """
