@@ -18,11 +18,14 @@ What the photograph cannot show is filled in:
 - the mouth cavity and teeth are the mesh's flat-coloured inner parts, seen when the jaw
   opens, at the photograph's exposure (the median brightness of its face against the
   procedural faces'; teeth somewhat brighter than the skin);
-- the background is the photograph with the face region inpainted, seen where the face
-  moves away from where it was. Hair, ears and neck are in it, so when the head moves the
-  whole background follows the head's motion in the image (the similarity that best maps
-  the rest head onto the moved one, :meth:`PhotoAppearance.scene_motion`); the ground-truth
-  flow of the background is that similarity's.
+- the background is the photograph with the face region (and anything beyond the
+  photograph's edges) filled in from around it, seen where the face moves away from where it
+  was. Hair, ears and neck are in it, so when the head moves the whole background follows
+  the head's motion in the image (the similarity that best maps the rest head onto the
+  moved one, :meth:`PhotoAppearance.scene_motion`); the ground-truth flow of the background
+  is that similarity's;
+- skin beyond the photograph's edges (a forehead the frame cut off) takes the photograph
+  mirrored at the edge.
 
 :func:`photo_appearance` builds a :class:`PhotoAppearance` from a photograph, the cameras and
 the fitted mesh; :func:`synth.render.sequence.synthesize` renders it with ``appearance=``.
@@ -46,6 +49,9 @@ __all__ = ["PhotoAppearance", "photo_appearance", "background_flow", "fill_hole"
 #: Ring (px) of the photograph kept around the face when the background is inpainted: the
 #: face's anti-aliased outline blends into the photograph itself, not into the fill.
 _KEEP_RING_PX = 3
+#: Margin (a fraction of the photograph's larger side) by which the photograph is mirrored
+#: beyond its edges for the texture.
+_MIRROR_MARGIN = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,29 +262,38 @@ def photo_appearance(mesh, photo, photo_camera: Camera, *, pose: HeadPose | None
     iv = np.asarray(mesh.inner_vertices if inner_vertices is None else inner_vertices,
                     dtype=np.float64).reshape(-1, 3)
     H, W = img.shape[:2]
-    size = np.array([W, H], dtype=np.float64)
-    uv = (project(v, photo_camera, pose)[0] + 0.5) / size
-    inner_uv = ((project(iv, photo_camera, pose)[0] + 0.5) / size if len(iv)
+    # the photograph mirrored beyond its edges, so that skin or scene the frame cut off
+    # (a forehead above the top edge) gets plausible texture instead of smeared edge pixels
+    pad = int(math.ceil(_MIRROR_MARGIN * max(H, W)))
+    padded = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REFLECT_101)
+    padded_camera = replace(photo_camera, width=W + 2 * pad, height=H + 2 * pad)
+    size = np.array([W + 2 * pad, H + 2 * pad], dtype=np.float64)
+    uv = (project(v, padded_camera, pose)[0] + 0.5) / size
+    inner_uv = ((project(iv, padded_camera, pose)[0] + 0.5) / size if len(iv)
                 else np.zeros((0, 2)))
     look = PhotoAppearance(texture=np.zeros((1, 1, 3), np.float32), uv=uv, inner_uv=inner_uv,
                            camera=camera, pose=pose, background=np.zeros((1, 1, 3), np.uint8),
                            light=light, source=str(source))
     surface = look.surface(mesh)
-    shade, face = _rest_shading(surface, v, iv, photo_camera, pose, light)
+    shade, face = _rest_shading(surface, v, iv, padded_camera, pose, light)
     shade = _fill_outside(np.maximum(shade, 1e-3), face)
-    texture = img.astype(np.float32) / 255.0 / shade[..., None]
+    texture = padded.astype(np.float32) / 255.0 / shade[..., None]
     # the scene behind the head, in the output camera: the photograph with the face
-    # (less an outline ring) inpainted
+    # (less an outline ring) and whatever lies beyond the photograph's edges filled in
     M = _photo_to_output(photo_camera, camera)
-    scene = cv2.warpAffine(img, M, (camera.width, camera.height), flags=cv2.INTER_LINEAR,
+    out_size = (camera.width, camera.height)
+    scene = cv2.warpAffine(img, M, out_size, flags=cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_REPLICATE)
+    beyond = cv2.warpAffine(np.ones((H, W), np.uint8), M, out_size, flags=cv2.INTER_NEAREST,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0) == 0
     _, out_face = _rest_shading(surface, v, iv, camera, pose, light)
     ring = max(1, int(math.ceil(_KEEP_RING_PX * max(1.0, camera.scale / photo_camera.scale))))
-    hole = cv2.erode(out_face.astype(np.uint8), np.ones((2 * ring + 1,) * 2, np.uint8))
-    if hole.any():
-        scene = fill_hole(scene, hole > 0)
+    hole = cv2.erode(out_face.astype(np.uint8), np.ones((2 * ring + 1,) * 2, np.uint8)) > 0
+    if (hole | beyond).any():
+        scene = fill_hole(scene, hole | beyond)
+    inside = face[pad:pad + H, pad:pad + W]
     return replace(look, texture=np.ascontiguousarray(texture), background=scene,
-                   flat_colours=_inner_colours(img, face))
+                   flat_colours=_inner_colours(img, inside))
 
 
 #: Luminance of the procedural faces' skin, the exposure the flat colours are made for.

@@ -124,3 +124,22 @@ def test_renderer_background_image_must_fit_the_camera():
     r = Renderer(ball, camera=default_camera(96, 96), background=bg, supersample=3)
     res = r.render(ball.vertices + [100.0, 0.0, 0.0])   # out of view: nothing covers it
     np.testing.assert_array_equal(res.image, bg)
+
+
+def test_what_the_photograph_cut_off_is_mirrored_not_smeared(ball):
+    from dataclasses import replace
+
+    # rows of the photograph are distinct: a smear of the top row would be constant
+    photo = np.repeat(np.repeat(np.arange(96, dtype=np.uint8)[:, None, None] * 2, 96, 1), 3, 2)
+    # the photograph's camera looks low: the ball's top 20 px lie above the photograph
+    cam = replace(default_camera(96, 96), look_at=(0.0, -14.0, 0.0))
+    shifted = replace(cam, look_at=(0.0, -8.0, 0.0))
+    look = photo_appearance(ball, photo, cam, camera=shifted)
+    res = look.renderer(ball, supersample=1).render(ball.vertices, pose=look.pose)
+    # 6 cm up at 4 px/cm: output row r shows photograph row r - 24
+    above = res.image[5:20, 48, 0].astype(int)               # photograph rows -19 .. -5
+    expected = 2 * (24 - np.arange(5, 20))                   # mirrored: rows 19 .. 5
+    assert res.mask[5:20, 48].all()
+    assert np.abs(above - expected).max() <= 3
+    inside = res.image[28:40, 48, 0].astype(int)             # photograph rows 4 .. 15
+    assert np.abs(inside - 2 * (np.arange(28, 40) - 24)).max() <= 3
