@@ -213,8 +213,9 @@ def synthesize_face(face, **kwargs):
 
     if not isinstance(face, PhotoFace):
         face = photo_face(face, size=kwargs.pop("size", None), fill=kwargs.pop("fill", 0.75))
-    else:
-        kwargs.pop("fill", None)
+    elif "fill" in kwargs:
+        raise ValueError("fill frames a photograph when it is fitted; this face is fitted "
+                         "already (give photo_face(..., fill=) instead)")
     face.model.reset()
     seq = synthesize(model=face.model, appearance=face.appearance, **kwargs)
     seq.meta["identity"]["photo"] = face.report()

@@ -286,7 +286,7 @@ def photo_appearance(mesh, photo, photo_camera: Camera, *, pose: HeadPose | None
                            borderMode=cv2.BORDER_REPLICATE)
     beyond = cv2.warpAffine(np.ones((H, W), np.uint8), M, out_size, flags=cv2.INTER_NEAREST,
                             borderMode=cv2.BORDER_CONSTANT, borderValue=0) == 0
-    _, out_face = _rest_shading(surface, v, iv, camera, pose, light)
+    out_face = Renderer(surface, camera=camera).render(v, iv, pose=pose, shade=False).mask
     ring = max(1, int(math.ceil(_KEEP_RING_PX * max(1.0, camera.scale / photo_camera.scale))))
     hole = cv2.erode(out_face.astype(np.uint8), np.ones((2 * ring + 1,) * 2, np.uint8)) > 0
     if (hole | beyond).any():

@@ -165,3 +165,12 @@ def test_a_photograph_without_a_face_is_refused(tmp_path):
     cv2.imwrite(str(path), np.full((200, 200, 3), 128, np.uint8))
     with pytest.raises(ValueError, match="no face"):
         photo_face(path)
+
+
+def test_a_fitted_face_refuses_a_framing_it_cannot_take(face):
+    from faceanalysis.resynthesis.photo import synthesize_face
+
+    with pytest.raises(ValueError, match="fill frames a photograph"):
+        synthesize_face(face, fill=0.5, frames=1, flow=False)
+    with pytest.raises(ValueError, match="differs from the appearance"):
+        synthesize_face(face, size=64, frames=1, flow=False)
