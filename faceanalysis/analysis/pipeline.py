@@ -67,9 +67,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ----------
     video : path-like
         Video file, folder of images, or a single image.
-    estimator : {'joint', 'tw93', 'flow'}, keyword-only
+    estimator : {'joint', 'mesh', 'tw93', 'flow'}, keyword-only
         ``joint`` (default): bounded least squares of all contractions through the
-        model's fiducial response; ``tw93``: the paper's per-muscle inversion;
+        model's fiducial response; ``mesh``: the same on the contour points and the
+        landmark tracker's face mesh (implies ``tracker='landmarks'``); ``tw93``: the
+        paper's per-muscle inversion;
         ``flow``: bounded least squares of the dense face flow on the model's flow
         templates (a second pass over the video). See
         :mod:`faceanalysis.estimation.registry`.
@@ -139,6 +141,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     if refine and estimator != "joint":
         raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
+    if estimator == "mesh":
+        # the mesh estimator reads the landmark tracker's face mesh
+        if tracker not in (None, "landmarks"):
+            raise ValueError(f"the mesh estimator reads the landmark tracker's face mesh; "
+                             f"it does not work with tracker={tracker!r}")
+        tracker = "landmarks"
     try:
         check_backend(backend, device)
     except ImportError as exc:
@@ -166,8 +174,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     disp = cal.model_displacements(meas, tracks.heads)
     disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
-                       options={"fps": fps, "start": start, "end": end})
-    values = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
+                       options={"fps": fps, "start": start, "end": end}, calibration=cal)
+    est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
     t_estimate = time.perf_counter() - t0
 
     parameters = {
@@ -182,8 +190,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         "pose_correction": pose_applied,
     }
     table = _tracking_table(tracks)
-    table, residual, fit = _contractions(table, values, disp, response, tracks.confidence,
-                                         parameters)
+    parameters["measurement_points"] = list(est.response.fiducials)
+    table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
+                                         tracks.confidence, parameters)
     if fit["frames_over_limit"] > 0.1 * max(int(tracks.success.sum()), 1):
         log.warning("%s: on %d of %d tracked frames the face model does not explain the "
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "
@@ -191,7 +200,7 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     "other features or motion beyond the model's. Their confidence is "
                     "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"],
                     int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"])
-    ident = assess(response, disp)
+    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     if ident["not_identifiable"]:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
                     "%s from the other controls: their values lean on the prior that "
@@ -436,17 +445,21 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
             disp, _ = _correct_pose(disp, table[list(POSE_COLUMNS)].to_numpy(float),
                                     int(rows[0]), analysis.response, True)
     obs = Observations(tracks=tracks, response=analysis.response, displacements=disp,
-                       neutral=k, options={n: params.get(n) for n in ("fps", "start", "end")})
-    values = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
+                       neutral=k, options={n: params.get(n) for n in ("fps", "start", "end")},
+                       calibration=analysis.calibration)
+    est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
     track_conf = analysis.track_confidence
     if track_conf is None:
         track_conf = table["confidence"].to_numpy(float)
-    parameters = {**params, "estimator": estimator, "refine": bool(refine)}
-    table, residual, fit = _contractions(table, values, disp, analysis.response, track_conf,
-                                         parameters)
+    parameters = {**params, "estimator": estimator, "refine": bool(refine),
+                  "measurement_points": list(est.response.fiducials)}
+    table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
+                                         track_conf, parameters)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = parameters
     metadata["model_fit"] = fit
+    metadata["identifiability"] = assess(est.response, est.displacements,
+                                         fit_options=est.fit_options)
     if "quality" in metadata:
         # the confidence changed with the estimate: so do its mean and minimum
         q = quality_summary(table, frames_missing=metadata["quality"].get("frames_missing", 0))

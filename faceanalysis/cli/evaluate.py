@@ -47,6 +47,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--own-response", action="store_true",
                         help="with --suite ceiling: invert each face's own response table "
                              "(about 10 s per identity) instead of the generic face's")
+    parser.add_argument("--mesh", action="store_true",
+                        help="with --suite ceiling: also the mesh estimator, on the exact "
+                             "skin points under the face-mesh landmarks (needs the landmark "
+                             "model)")
     parser.add_argument("-o", "--output", type=Path, metavar="OUT",
                         help="output folder of the suite")
     parser.add_argument("--overwrite", action="store_true",
@@ -83,22 +87,27 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--suite ceiling writes nothing; it prints its table "
                              "(use --json for JSON)")
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
-        reports = measurement_ceiling(config, own_response=args.own_response,
-                                      progress=not args.quiet)
+        reports = measurement_ceiling(
+            config, own_response=args.own_response, progress=not args.quiet,
+            estimators=("joint", "mesh", "tw93") if args.mesh else ("joint", "tw93"))
         if not args.json:
             print(scores.format_table(reports))
         print(json.dumps(reports))
         return 0
-    if args.own_response:
-        raise ValueError("--own-response goes with --suite ceiling")
+    if args.own_response or args.mesh:
+        raise ValueError(f"{'--own-response' if args.own_response else '--mesh'} goes with "
+                         "--suite ceiling")
     if args.suite:
         if args.output is None:
             raise ValueError("--suite needs -o OUT")
         faces = suite.photographs(args.faces) if args.faces else ()
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
                                    faces=faces, tracker=args.tracker)
+        # the mesh estimator reads the landmark tracker's face mesh
+        estimators = (("joint", "mesh", "tw93", "flow") if args.tracker == "landmarks"
+                      else ("joint", "tw93", "flow"))
         report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
-                                      progress=not args.quiet)
+                                 estimators=estimators, progress=not args.quiet)
         if args.json:
             print(json.dumps(report["estimators"]))
         else:

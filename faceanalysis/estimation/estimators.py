@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -133,13 +134,21 @@ def estimate_tw93(displacements: np.ndarray, response: FiducialResponse) -> np.n
 #: on a frame (a furrow end that stops short) does not drag every control with it.
 ROBUST = 0.05
 
+# Largest Jacobian (frames x point coordinates x controls) the joint fit builds at once.
+_CHUNK_ELEMENTS = 2_000_000
+
+#: With ``noise`` given, how many noise standard deviations a control's projection of the
+#: displacements must exceed for it to leave rest (see :func:`estimate_joint`).
+NOISE_THRESHOLD = 3.0
+
 
 def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    weights: np.ndarray | None = None, regularization: float = 0.0,
                    sparsity: float = SPARSITY, outer_iterations: int = 4,
                    inner_iterations: int = 120,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
-                   robust_rounds: int = 2) -> np.ndarray:
+                   robust_rounds: int = 2, noise: float | None = None,
+                   threshold: float = NOISE_THRESHOLD, debias: bool = False) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -182,6 +191,18 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         less. None: plain least squares.
     robust_rounds : int, keyword-only
         Reweighting rounds.
+    noise : float, keyword-only, optional
+        The tracking noise (cm per coordinate). When given, the sparsity prior is set by
+        it instead of ``sparsity``: control ``m`` moves off rest only when the
+        displacements project on its full response ``D_m(upper)`` by more than
+        ``threshold * noise * |D_m(upper)|``, so that noise alone, however many points
+        carry it, leaves the face at rest.
+    threshold : float, keyword-only
+        That projection in noise standard deviations (default :data:`NOISE_THRESHOLD`).
+    debias : bool, keyword-only
+        Refit, on each frame, the controls the sparse fit left off rest without the
+        sparsity prior (the others held at rest; a relaxed lasso): the prior then only
+        chooses which muscles act, and does not also shrink how much.
 
     Returns
     -------
@@ -212,31 +233,67 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     """
     if robust is not None and not (np.isfinite(robust) and robust > 0):
         raise ValueError(f"robust must be a positive threshold or None, got {robust}")
+    d_all = _check_displacements(displacements, response)
+    n_t = d_all.shape[0]
+    # frames are independent problems: in chunks, the Jacobians of many points stay small
+    chunk = max(1, _CHUNK_ELEMENTS // (d_all.shape[1] * 2 * len(response.muscles)))
+    if n_t > chunk:
+        init = (None if initial is None else
+                np.broadcast_to(np.asarray(initial, dtype=float), (n_t, len(response.muscles))))
+        return np.concatenate([
+            estimate_joint(d_all[a:a + chunk], response, weights=weights,
+                           regularization=regularization, sparsity=sparsity,
+                           outer_iterations=outer_iterations, inner_iterations=inner_iterations,
+                           initial=None if init is None else init[a:a + chunk], robust=robust,
+                           robust_rounds=robust_rounds, noise=noise, threshold=threshold,
+                           debias=debias)
+            for a in range(0, n_t, chunk)])
     if robust_rounds < 0:
         raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
     with _one_blas_thread():
+        if noise is not None and not (np.isfinite(noise) and noise >= 0):
+            raise ValueError(f"noise must be a non-negative number of cm, got {noise}")
+        if noise is not None:
+            sparsity = _NoiseThreshold(noise * threshold)
         c = _estimate_joint(displacements, response, weights, regularization, sparsity,
                             outer_iterations, inner_iterations, initial)
-        if robust is None:
-            return c
         d = np.asarray(displacements, dtype=float)
-        for _ in range(robust_rounds):
-            # Huber weights from each point's residual on each frame
-            r = np.linalg.norm(d - response.predict(np.nan_to_num(c)), axis=2)    # (T, F)
-            fw = np.minimum(1.0, robust / np.maximum(np.nan_to_num(r, nan=0.0), 1e-12))
+        fw = None
+        for _ in range(robust_rounds if robust is not None else 0):
+            fw = _huber_weights(d, response, c, robust)
             c = np.where(np.isfinite(c), _estimate_joint(
                 d, response, weights, regularization, sparsity,
                 max(1, outer_iterations // 2),
                 inner_iterations, np.nan_to_num(c), fw), c)
+        if debias:
+            if robust is not None:
+                fw = _huber_weights(d, response, c, robust)
+            c = np.where(np.isfinite(c), _estimate_joint(
+                d, response, weights, regularization, 0.0, max(1, outer_iterations // 2),
+                inner_iterations, np.nan_to_num(c), fw, support=np.nan_to_num(c) > 0), c)
         return c
 
 
+def _huber_weights(d, response, c, robust):
+    """Per point and frame, ``min(1, robust / residual)`` of the fit ``c``."""
+    r = np.linalg.norm(d - response.predict(np.nan_to_num(c)), axis=2)    # (T, F)
+    return np.minimum(1.0, robust / np.maximum(np.nan_to_num(r, nan=0.0), 1e-12))
+
+
+@dataclass(frozen=True)
+class _NoiseThreshold:
+    """The sparsity prior given as a projection in cm (``threshold * noise``)."""
+
+    cm: float
+
+
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
-                    outer_iterations, inner_iterations, initial, frame_weights=None):
+                    outer_iterations, inner_iterations, initial, frame_weights=None,
+                    support=None):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
-    if not sparsity >= 0:
+    if not isinstance(sparsity, _NoiseThreshold) and not sparsity >= 0:
         raise ValueError(f"sparsity must be >= 0, got {sparsity}")
     if outer_iterations < 1 or inner_iterations < 1:
         raise ValueError("outer_iterations and inner_iterations must be >= 1")
@@ -259,17 +316,25 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
     full = response.displacement[:, -1].reshape(n_m, -1)               # (M, K)
     scale = np.mean((full * np.repeat(np.sqrt(w), 2)) ** 2) * n_f * 2
     lam = regularization * scale / upper**2               # per control
-    mu = sparsity * scale / upper
+    if isinstance(sparsity, _NoiseThreshold):
+        # the full response's weighted length: its projection of white noise has
+        # standard deviation noise * that length
+        mu = sparsity.cm * np.linalg.norm(full * np.repeat(np.sqrt(w), 2), axis=1) / upper
+    else:
+        mu = sparsity * scale / upper
     # A control none of whose motion falls on the seen points is not observed there.
     sw_prior = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)
     seen_norm = np.sqrt((sw_prior**2) @ (full**2).T)                    # (T, M)
     observed = seen_norm >= 0.25 * np.linalg.norm(full * np.repeat(np.sqrt(w), 2), axis=1)
 
+    # per frame upper bounds: a control outside the support is held at rest
+    hi = (np.broadcast_to(upper, (dv.shape[0], n_m)) if support is None
+          else np.where(support[valid], upper, 0.0))
     if initial is None:
         c = np.zeros((dv.shape[0], n_m))
     else:
         c = np.broadcast_to(np.asarray(initial, dtype=float), (n_t, n_m))[valid].copy()
-        c = np.clip(c, 0.0, upper)                         # a start point, not a result
+        c = np.clip(c, 0.0, hi)                            # a start point, not a result
 
     def objective(cc):
         r = dv - response.predict(cc).reshape(-1, n_f * 2) * sw
@@ -282,13 +347,13 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         jt = jac.transpose(0, 2, 1)                        # (T, M, K)
         hess = np.matmul(jt, jac) + np.diag(lam)
         grad0 = np.matmul(jt, res[:, :, None])[:, :, 0] - lam * c - mu
-        step = box_qp(hess, grad0, -c, upper - c, iterations=inner_iterations)
+        step = box_qp(hess, grad0, -c, hi - c, iterations=inner_iterations)
         # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
         # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of
         # the step that lowers the objective (the box is convex: all stay feasible).
         best, best_val = c, current
         for frac in (0.25, 0.5, 1.0):
-            trial = np.clip(c + frac * step, 0.0, upper)    # rounding only
+            trial = np.clip(c + frac * step, 0.0, hi)       # rounding only
             val = objective(trial)
             better = val < best_val
             best = np.where(better[:, None], trial, best)

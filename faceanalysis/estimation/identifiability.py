@@ -30,6 +30,8 @@ IDENTIFIABLE_LIMIT = 0.1
 #: coordinate): the frame-to-frame jitter of the tracked points on the real
 #: clips in ``../shared/data/real`` (0.022-0.029 cm with either tracker).
 REFERENCE_NOISE_CM = 0.025
+#: Above this many points seen, :func:`assess` simulates half as many frames per control.
+MANY_POINTS = 32
 #: Second differences needed to measure a video's noise.
 MIN_SAMPLES = 30
 
@@ -158,14 +160,15 @@ def tracking_noise(displacements: np.ndarray) -> tuple[float | None, int]:
 
 
 def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
-                     draws: int = 24, seed: int = 0) -> pd.Series:
+                     draws: int = 24, seed: int = 0, **fit_options) -> pd.Series:
     """RMS error of the ``joint`` estimate of each control, simulated at ``noise``.
 
     For each control, ``draws`` frames in which it is at a uniform level in [0.2, 0.8] of its
     range and two other controls, drawn at random, in [0, 0.6]; their displacements through
     the response, with Gaussian noise of ``noise`` cm on each coordinate and the points not in
     ``points`` missing, are fitted by
-    :func:`~faceanalysis.estimation.estimators.estimate_joint`. Deterministic for a ``seed``.
+    :func:`~faceanalysis.estimation.estimators.estimate_joint` (with ``fit_options``, e.g. the
+    ``sparsity`` and point ``weights`` an estimator used). Deterministic for a ``seed``.
 
     Returns
     -------
@@ -200,13 +203,13 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
         if unknown:
             raise ValueError(f"unknown measurement point(s) {unknown}")
         d[:, [i for i, p in enumerate(response.fiducials) if p not in set(points)]] = np.nan
-    est = estimate_joint(d, response)
+    est = estimate_joint(d, response, **fit_options)
     err = np.sqrt(np.mean(((est - c) ** 2).reshape(n, draws, n), axis=1))      # (m, control)
     return pd.Series(np.diag(err) / upper, index=pd.Index(response.muscles, name="control"))
 
 
 def assess(response: FiducialResponse, displacements: np.ndarray, *,
-           min_seen: float = 0.5) -> dict:
+           min_seen: float = 0.5, fit_options: dict | None = None) -> dict:
     """Identifiability of every control from the points seen in a video, for
     ``analysis.json``.
 
@@ -218,6 +221,8 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     min_seen : float, keyword-only
         Fraction of the frames with any measurement on which a point must be measured to
         count as seen.
+    fit_options : dict, optional
+        Options of the fit whose errors are simulated (see :func:`estimator_errors`).
 
     Returns
     -------
@@ -242,7 +247,11 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     if noise is None:
         noise, source = REFERENCE_NOISE_CM, "reference"
     if seen:
-        rmse = estimator_errors(response, noise, points=seen)
+        # a response of hundreds of points costs each simulated frame as much as its
+        # points: half the draws there
+        rmse = estimator_errors(response, noise, points=seen,
+                                draws=24 if len(seen) <= MANY_POINTS else 12,
+                                **(fit_options or {}))
         independent = identifiability(response, points=seen)["independent"]
         controls = {name: {"rmse": (round(float(rmse[name]), 4) if np.isfinite(rmse[name])
                                     else None),

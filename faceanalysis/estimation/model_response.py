@@ -12,6 +12,7 @@ import logging
 import numpy as np
 
 from faceanalysis._version import __version__
+from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX, surface_points
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.cache import cache_dir, digest_of, source_digest
 from faceanalysis.io.outputs import atomic_path
@@ -41,17 +42,18 @@ JAW_MAX = 0.35
 
 
 def _model_key(model, controls: tuple[str, ...], n_levels: int, jaw_max: float,
-               n_samples: int) -> str:
+               n_samples: int, points: tuple[str, ...] = ()) -> str:
     return digest_of([
         __version__.encode(),
         np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
         np.ascontiguousarray(model.mesh.triangles).tobytes(),
         repr(getattr(model, "parameters_digest", lambda: "")()).encode(),
-        repr((controls, n_levels, jaw_max, n_samples, MEASUREMENT_POINTS,
+        repr((controls, n_levels, jaw_max, n_samples, points or MEASUREMENT_POINTS,
               sorted(CURVE_POINTS.items()))).encode(),
         # the physics code: a solver change makes the table stale
         source_digest(("synth",), ("faceanalysis.estimation.model_response",
-                                    "faceanalysis.estimation.response")).encode(),
+                                    "faceanalysis.estimation.response",
+                                    "faceanalysis.estimation.mesh_points")).encode(),
     ])
 
 
@@ -64,8 +66,9 @@ MEASUREMENT_POINTS: tuple[str, ...] = (*FIDUCIALS, "lip_lower_centre", *CURVE_PO
 
 def model_points(model, vertices: np.ndarray, points=MEASUREMENT_POINTS) -> np.ndarray:
     """Orthographic x-y (cm) of the measurement ``points`` on the skin ``vertices`` of
-    ``model`` (landmarks of its mesh, or :data:`CURVE_POINTS` on its feature curves),
-    shape (P, 2)."""
+    ``model`` (landmarks of its mesh, :data:`CURVE_POINTS` on its feature curves, or
+    face-mesh landmarks ``mesh_<i>`` on the skin point under them,
+    :func:`~faceanalysis.estimation.mesh_points.surface_points`), shape (P, 2)."""
     from trackers.fiducials import arc_point
 
     mesh = model.mesh
@@ -74,8 +77,14 @@ def model_points(model, vertices: np.ndarray, points=MEASUREMENT_POINTS) -> np.n
         raise ValueError(f"vertices must have shape {np.shape(mesh.vertices)}, got {v.shape}")
     out = np.empty((len(points), 2))
     curves: dict[str, np.ndarray] = {}                 # each curve once per call
+    surface = None
     for j, name in enumerate(points):
-        if name in CURVE_POINTS:
+        if name.startswith(MESH_POINT_PREFIX):
+            if surface is None:
+                surface = surface_points([p for p in points if p.startswith(MESH_POINT_PREFIX)])
+            verts, bary = surface[name]
+            out[j] = bary @ v[verts, :2]
+        elif name in CURVE_POINTS:
             curve, fraction = CURVE_POINTS[name]
             if curve not in curves:
                 curves[curve] = mesh.curve_positions(curve, v)[:, :2]
@@ -107,7 +116,8 @@ def _interaction_pairs(main: np.ndarray, threshold: float) -> np.ndarray:
 
 def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
                       n_levels: int = 6, jaw_max: float = JAW_MAX,
-                      n_samples: int = 480, seed: int = 0) -> FiducialResponse:
+                      n_samples: int = 480, seed: int = 0,
+                      points: tuple[str, ...] = MEASUREMENT_POINTS) -> FiducialResponse:
     """Equilibrate ``model`` with one control at a time and record fiducial motion.
 
     Parameters
@@ -125,6 +135,9 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
         the pairwise interaction terms (0: additive table only).
     seed : int, keyword-only
         Seed of those combinations.
+    points : tuple of str, keyword-only
+        The measurement points (default :data:`MEASUREMENT_POINTS`; see
+        :func:`model_points`).
 
     Returns
     -------
@@ -137,13 +150,13 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
         raise ValueError(f"unknown muscles {unknown}; the model has {list(model.muscle_names)}")
     levels = np.linspace(0.0, 1.0, n_levels)
     model.reset()
-    rest = equilibrium_points(model, (), ())
-    disp = np.zeros((len(controls), n_levels, len(MEASUREMENT_POINTS), 2))
+    rest = equilibrium_points(model, (), (), points)
+    disp = np.zeros((len(controls), n_levels, len(points), 2))
     upper = np.array([jaw_max if c == "jaw_rotation" else 1.0 for c in controls])
     for m, name in enumerate(controls):
         for k, level in enumerate(levels[1:], start=1):
-            disp[m, k] = equilibrium_points(model, (name,), (level * upper[m],)) - rest
-    additive = FiducialResponse(tuple(controls), MEASUREMENT_POINTS, rest, disp, upper, levels)
+            disp[m, k] = equilibrium_points(model, (name,), (level * upper[m],), points) - rest
+    additive = FiducialResponse(tuple(controls), tuple(points), rest, disp, upper, levels)
     if n_samples <= 0:
         model.reset()
         return additive
@@ -155,10 +168,10 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
     rng = np.random.default_rng(seed)
     active = rng.random((n_samples, len(controls))) < 0.35
     c = np.where(active, rng.random((n_samples, len(controls))), 0.0) * upper
-    observed = np.empty((n_samples, len(MEASUREMENT_POINTS), 2))
+    observed = np.empty((n_samples, len(points), 2))
     model.reset()
     for i in range(n_samples):
-        observed[i] = equilibrium_points(model, controls, c[i]) - rest
+        observed[i] = equilibrium_points(model, controls, c[i], points) - rest
     model.reset()
     residual = (observed - additive.predict(c)).reshape(n_samples, -1)
     u = c / upper
@@ -166,12 +179,13 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
     ridge = 1e-3 * n_samples
     gram = features.T @ features + ridge * np.eye(len(pairs))
     weights = np.linalg.solve(gram, features.T @ residual)         # (P, F*2)
-    return FiducialResponse(tuple(controls), MEASUREMENT_POINTS, rest, disp, upper, levels, pairs,
-                            weights.reshape(len(pairs), len(MEASUREMENT_POINTS), 2))
+    return FiducialResponse(tuple(controls), tuple(points), rest, disp, upper, levels, pairs,
+                            weights.reshape(len(pairs), len(points), 2))
 
 
 def model_response(model=None, controls: tuple[str, ...] | None = None, *,
                    n_levels: int = 6, jaw_max: float = JAW_MAX, n_samples: int = 480,
+                   points: tuple[str, ...] = MEASUREMENT_POINTS,
                    use_cache: bool = True) -> FiducialResponse:
     """The fiducial response of ``model`` (default: the generic face), cached on disk.
 
@@ -185,7 +199,7 @@ def model_response(model=None, controls: tuple[str, ...] | None = None, *,
     if controls is None:
         controls = tuple(c for c in OBSERVED_CONTROLS
                          if c == "jaw_rotation" or c in model.muscle_names)
-    key = _model_key(model, tuple(controls), n_levels, jaw_max, n_samples)
+    key = _model_key(model, tuple(controls), n_levels, jaw_max, n_samples, tuple(points))
     path = cache_dir() / f"response-{key}.npz"
     if use_cache and path.is_file():
         try:
@@ -193,7 +207,7 @@ def model_response(model=None, controls: tuple[str, ...] | None = None, *,
         except (OSError, ValueError, KeyError) as exc:   # a damaged cache is rebuilt
             log.warning("ignoring unreadable response cache %s (%s)", path, exc)
     response = tabulate_response(model, tuple(controls), n_levels=n_levels, jaw_max=jaw_max,
-                                 n_samples=n_samples)
+                                 n_samples=n_samples, points=tuple(points))
     if use_cache:
         try:
             with atomic_path(path) as tmp:

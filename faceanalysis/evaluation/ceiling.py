@@ -26,6 +26,8 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
+from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
+from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.evaluation.scores import pool, public
 from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
@@ -69,15 +71,30 @@ def perfect_measurements(model, contractions: pd.DataFrame, points) -> np.ndarra
         model.reset()
 
 
-def _displacements(points: np.ndarray, response: FiducialResponse) -> np.ndarray:
+def _displacements(points: np.ndarray, response: FiducialResponse,
+                   calibrate_on: int | None = None) -> np.ndarray:
     """Calibrate as an analysis does (first frame = neutral) and return model-space
     displacements. The points go in as an image would (y down, one pixel per cm,
     head frame at the origin): the calibration's affine map then absorbs the
-    difference between this face and the generic one exactly as on a video."""
+    difference between this face and the generic one exactly as on a video. With
+    ``calibrate_on``, only the first that many points are calibrated on (the contour
+    points, as an analysis with face-mesh points does) and the map applied to all."""
     image = points * np.array([1.0, -1.0])
     heads = np.tile([0.0, 0.0, 1.0, 0.0], (len(points), 1))
-    cal = calibrate(image[0], heads[0], response.rest)
-    return cal.model_displacements(image, heads)
+    n = len(response.fiducials) if calibrate_on is None else calibrate_on
+    cal = calibrate(image[0, :n], heads[0], response.rest[:n])
+    return (image - image[0]) @ np.linalg.inv(cal.matrix).T
+
+
+def _mesh_fit(disp: np.ndarray, table: FiducialResponse) -> np.ndarray:
+    """The ``mesh`` estimator's fit (:func:`faceanalysis.estimation.registry.estimate_mesh`)
+    on displacements of ``table``'s points."""
+    from faceanalysis.estimation.estimators import estimate_joint
+    from faceanalysis.estimation.registry import CONTOUR_WEIGHT, MESH_FIT
+
+    w = np.where([n.startswith(MESH_POINT_PREFIX) for n in table.fiducials], 1.0,
+                 CONTOUR_WEIGHT)
+    return estimate_joint(disp, table, weights=w, **MESH_FIT)
 
 
 def measurement_ceiling(config: SuiteConfig | None = None, *,
@@ -91,7 +108,10 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     config : SuiteConfig, optional
         Identities, frames and sequences (default: the standard suite's; rendering
         options are not used).
-    estimators : sequence of {'joint', 'tw93'}, keyword-only
+    estimators : sequence of {'joint', 'mesh', 'tw93'}, keyword-only
+        ``mesh`` reads the 16 contour points and the skin under the face-mesh landmarks
+        (:func:`~faceanalysis.estimation.registry.mesh_response`), calibrated on the 16 as
+        an analysis is: the ceiling of that observation set.
     response : FiducialResponse, optional
         Response table to invert (default: the generic face's, as an analysis uses).
     own_response : bool, keyword-only
@@ -131,7 +151,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     from synth.render.sequence import contraction_timeline
 
     estimators = tuple(estimators)
-    choices = POINT_ESTIMATORS
+    choices = (*POINT_ESTIMATORS, "mesh")
     bad = [e for e in estimators if e not in choices]
     if bad or not estimators:
         raise ValueError(f"unknown estimators {bad} for the ceiling; choose from "
@@ -140,6 +160,11 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         config = SuiteConfig()
     if response is None:
         response = model_response()
+    mesh_table = None
+    if "mesh" in estimators:
+        from faceanalysis.estimation.registry import mesh_response
+
+        mesh_table = mesh_response()
     bar = None
     if progress:
         from tqdm import tqdm
@@ -151,17 +176,28 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         for i in range(config.identities):
             seed = config.seed_start + i
             model = FaceModel.build(FaceShape.random(seed))
-            table = response
+            table, mtable = response, mesh_table
             if own_response:
                 table = tabulate_response(model, response.muscles,
                                           n_levels=len(response.levels))
+                if mesh_table is not None:
+                    mtable = tabulate_response(model, mesh_table.muscles,
+                                               n_levels=len(mesh_table.levels),
+                                               points=mesh_table.fiducials)
             for kind, spec in config.sequences:
                 truth = contraction_timeline(list(model.muscle_names), frames=config.frames,
                                              **script_kwargs(kind, spec))
-                disp = _displacements(perfect_measurements(model, truth, table.fiducials),
-                                      table)
+                exact = perfect_measurements(model, truth, table.fiducials)
+                disp = _displacements(exact, table)
+                if mtable is not None:
+                    mdisp = _displacements(perfect_measurements(model, truth, mtable.fiducials),
+                                           mtable, calibrate_on=len(MEASUREMENT_POINTS))
                 for est in estimators:
-                    values = dict(zip(table.muscles, estimate(disp, table, estimator=est).T))
+                    if est == "mesh":
+                        values = dict(zip(mtable.muscles, _mesh_fit(mdisp, mtable).T))
+                    else:
+                        values = dict(zip(table.muscles,
+                                          estimate(disp, table, estimator=est).T))
                     pairs = {c: (truth[c].to_numpy(float), np.nan_to_num(values[c]))
                              for c in (*MUSCLES, JAW) if c in truth and c in values}
                     reports[est].append({"_pairs": pairs, "frames": len(truth),
@@ -174,5 +210,6 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     out = {}
     for est, reps in reports.items():
         out[est] = public(pool(reps))
-        out[est].update(points=list(response.fiducials), own_response=bool(own_response))
+        points = mesh_table.fiducials if est == "mesh" else response.fiducials
+        out[est].update(points=list(points), own_response=bool(own_response))
     return out

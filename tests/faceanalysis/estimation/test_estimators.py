@@ -298,3 +298,41 @@ def test_point_residuals_and_suspect_points(rng):
     assert np.sum(one_fit > 0.08) > 2             # one fit drags good points off too
     np.testing.assert_array_equal(np.flatnonzero(find_suspect(image, head, rest, valid=seen)),
                                   [2, 7])
+
+
+def test_debias_keeps_the_prior_choice_and_drops_its_shrinkage(rng):
+    resp = _response(rng)
+    c = np.array([[0.0, 0.0, 0.5, 0.0]])
+    d = resp.predict(c)
+    shrunk = estimate_joint(d, resp, sparsity=0.05, robust=None)
+    relaxed = estimate_joint(d, resp, sparsity=0.05, robust=None, debias=True)
+    assert shrunk[0, 2] < 0.45                       # the prior lowers what it keeps
+    assert relaxed[0, 2] == pytest.approx(0.5, abs=0.02)
+    np.testing.assert_array_equal(relaxed[0, [0, 1, 3]], shrunk[0, [0, 1, 3]])
+    assert (relaxed[0, [0, 1, 3]] == 0).all()
+
+
+def test_noise_threshold_rests_noise_and_keeps_motion_above_it(rng):
+    resp = _response(rng)
+    noise = 0.01
+    frames = 200
+    d = rng.normal(0.0, noise, (frames, len(FIDS), 2))
+    at_rest = estimate_joint(d, resp, noise=noise, robust=None)
+    assert np.mean(at_rest == 0) > 0.95
+    c = np.array([[0.0, 0.0, 0.4, 0.0]])
+    moved = estimate_joint(resp.predict(c) + d[:1], resp, noise=noise, robust=None)
+    assert moved[0, 2] == pytest.approx(0.4, abs=0.08)
+    with pytest.raises(ValueError, match="noise"):
+        estimate_joint(d, resp, noise=-1.0)
+
+
+def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
+    import faceanalysis.estimation.estimators as est
+
+    resp = _response(rng)
+    c = rng.uniform(0, 0.6, (40, 4)) * resp.upper
+    d = resp.predict(c) + rng.normal(0, 0.01, (40, len(FIDS), 2))
+    whole = estimate_joint(d, resp)
+    monkeypatch.setattr(est, "_CHUNK_ELEMENTS", 4 * 8 * 7)       # 7 frames a chunk
+    # (a batch stops iterating when none of its frames gains: a chunk may stop sooner)
+    np.testing.assert_allclose(estimate_joint(d, resp), whole, atol=1e-6)

@@ -81,7 +81,7 @@ def test_joint_beats_tw93_on_exact_points(ceiling_reports):
 
 @pytest.mark.parametrize("estimators", [("flow",), ("joint", "nope"), ()])
 def test_ceiling_refuses_other_estimators(estimators):
-    with pytest.raises(ValueError, match="choose from joint, tw93"):
+    with pytest.raises(ValueError, match="choose from joint, tw93, mesh"):
         measurement_ceiling(SMALL, estimators=estimators)
 
 
@@ -113,3 +113,20 @@ def test_own_response_tables_each_face():
     zyg_own, zyg_gen = (r["controls"]["zygomaticus_major_l"] for r in (own, generic))
     assert zyg_own["r"] > 0.95
     assert zyg_own["estimate_max"] != zyg_gen["estimate_max"]     # another table was used
+
+
+def test_ceiling_of_the_mesh_observation_set():
+    try:
+        from trackers.landmarks import ensure_models
+
+        ensure_models()
+    except (RuntimeError, FileNotFoundError) as exc:
+        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    rep = measurement_ceiling(SMALL, estimators=("joint", "mesh"))
+    mesh = rep["mesh"]
+    assert mesh["points"][:len(MEASUREMENT_POINTS)] == list(MEASUREMENT_POINTS)
+    assert len(mesh["points"]) > 250 and mesh["frames"] == rep["joint"]["frames"]
+    act = _active(mesh)
+    assert mesh["jaw_rmse_deg"] < 1.0
+    for name in ("frontalis_outer_l", "frontalis_outer_r"):
+        assert act[name]["r"] > 0.95 and act[name]["rmse"] < 0.1

@@ -1,0 +1,361 @@
+"""The landmark tracker's face-mesh points as measurement points of the face model.
+
+The landmark tracker (MediaPipe's 468-point face mesh) puts points all over the face:
+along the brows, the nose, both borders of both lips, the cheeks and the chin. Read
+through the face model, they tell apart muscles that the 16 contour points cannot (the
+levators, risorius and zygomaticus pull the cheek and the upper lip differently), and
+they do not move with the light as an edge does.
+
+Two things make them measurement points:
+
+* **where each one is on the model** (:func:`mesh_correspondence`): the generic face is
+  rendered at rest, the landmark model is run on the render, and each landmark takes the
+  skin point under it (a triangle and barycentric weights). Landmarks on the face's
+  silhouette, on the eyelids (the model has no blink), in the mouth's opening or within
+  :data:`SEAM_MARGIN` of the mouth line (where the upper and lower lip part, so that a
+  point on the wrong side would read a jaw) are left out. The result is cached on disk.
+* **how each one moved** (:func:`mesh_displacements`): the frame's landmarks are carried
+  back onto the neutral frame's by the 3-D similarity that best superposes the rigid
+  points (eye corners and nose bridge), so that a turned or bowed head leaves only the
+  face's own motion, which is then taken into model units by the calibration.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+
+import numpy as np
+
+from faceanalysis._version import __version__
+from faceanalysis.io.cache import cache_dir, digest_of, source_digest
+from faceanalysis.io.outputs import atomic_path
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MESH_POINT_PREFIX", "NAMED_POINTS", "SEAM_MARGIN", "head_alignment",
+           "mesh_correspondence", "mesh_displacements", "mesh_indices", "mesh_point_names",
+           "similarity_3d", "surface_points", "to_model_units"]
+
+#: Name of face-mesh landmark ``i`` as a measurement point: ``f"mesh_{i}"``.
+MESH_POINT_PREFIX = "mesh_"
+
+#: Landmarks closer than this to the model's mouth line (cm) are not used: the mouth
+#: parts there, and a landmark put on the other lip would read the jaw backwards.
+SEAM_MARGIN = 0.15
+
+# MediaPipe's face oval (the silhouette: it slides over the surface as the head turns)
+# and the eyelid contours (the face model does not blink).
+_FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378,
+              400, 377, 152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21,
+              54, 103, 67, 109)
+_EYELIDS = (263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,
+            33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173)
+_OFF_SILHOUETTE = np.setdiff1d(np.arange(468), _FACE_OVAL)
+#: The rigid points of the 3-D alignment: eye corners and the nose's bridge.
+RIGID_3D = (33, 133, 362, 263, 168, 6, 197, 195, 5, 4)
+
+#: Landmarks put on a named landmark of the model instead of the skin under them: the
+#: mouth corners, which end the mouth line and so lie within :data:`SEAM_MARGIN` of it,
+#: but move with neither lip alone. ``_l`` is the subject's left.
+NAMED_POINTS = {61: "mouth_corner_r", 291: "mouth_corner_l"}
+
+#: Reweighting rounds of the robust head alignment (:func:`head_alignment`; 0: the rigid
+#: points alone).
+ALIGN_ROUNDS = 4
+#: Residual (a fraction of the face's RMS radius in the image) at which a landmark's
+#: weight in the head alignment has halved.
+ALIGN_SCALE = 0.02
+
+#: Smallest |normal z| of a skin triangle a landmark may sit on (facing the camera).
+_MIN_FACING = 0.5
+_RENDER_SIZE = 640
+
+
+def mesh_point_names(indices) -> tuple[str, ...]:
+    """Measurement-point names of face-mesh landmarks ``indices``."""
+    return tuple(f"{MESH_POINT_PREFIX}{int(i)}" for i in indices)
+
+
+def _key(model) -> str:
+    from trackers.landmarks.models import MODEL_FILES
+
+    return digest_of([
+        __version__.encode(),
+        np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
+        np.ascontiguousarray(model.mesh.triangles).tobytes(),
+        repr(sorted(MODEL_FILES.items()) if isinstance(MODEL_FILES, dict) else MODEL_FILES)
+        .encode(),
+        repr((SEAM_MARGIN, _FACE_OVAL, _EYELIDS, _MIN_FACING, _RENDER_SIZE, NAMED_POINTS))
+        .encode(),
+        source_digest(("synth", "trackers"), ("faceanalysis.estimation.mesh_points",)).encode(),
+    ])
+
+
+def _renderer(model):
+    from synth.render.camera import default_camera
+    from synth.render.renderer import Renderer
+    from synth.render.texture import paint_skin_texture
+
+    mesh = model.mesh
+    cam = default_camera(_RENDER_SIZE, _RENDER_SIZE)
+    return Renderer(mesh, texture=paint_skin_texture(mesh, 0, size=1024), camera=cam)
+
+
+def _compute_correspondence(model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    from trackers.landmarks import LandmarkTracker
+
+    mesh = model.mesh
+    renderer = _renderer(model)
+    rest = np.asarray(mesh.vertices, dtype=float)
+    frame = renderer.render(rest)
+    lm = LandmarkTracker(channel_order="rgb").track(frame.image)
+    if lm is None:
+        raise RuntimeError("the landmark model found no face on the rendered generic face")
+    tris = np.asarray(mesh.triangles)
+    v = rest[tris]                                                 # (M, 3, 3)
+    normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    facing = np.abs(normal[:, 2]) / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)
+    mouth = np.asarray(mesh.curve_positions("mouth_line", rest))[:, :2]
+    excluded = set(_FACE_OVAL) | set(_EYELIDS)
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {
+        i: (np.full(3, mesh.landmarks[name], dtype=np.intp), np.array([1.0, 0.0, 0.0]))
+        for i, name in NAMED_POINTS.items()}
+    h, w = frame.triangle_id.shape
+    for i, (x, y) in enumerate(np.asarray(lm.points, dtype=float)):
+        if i in excluded or i in out:
+            continue
+        col, row = int(round(x)), int(round(y))
+        if not (0 <= row < h and 0 <= col < w) or not frame.skin_mask[row, col]:
+            continue
+        t = int(frame.triangle_id[row, col])
+        if facing[t] < _MIN_FACING:
+            continue
+        # barycentric weights of the landmark itself (not the pixel centre) in the
+        # triangle's projection
+        xy = frame.xy[tris[t]]
+        a = np.column_stack([xy[1] - xy[0], xy[2] - xy[0]])
+        try:
+            uv = np.linalg.solve(a, np.array([x, y]) - xy[0])
+        except np.linalg.LinAlgError:
+            continue
+        bary = np.clip(np.array([1.0 - uv.sum(), uv[0], uv[1]]), 0.0, 1.0)
+        bary /= bary.sum()
+        point = bary @ v[t]
+        seam = np.min(np.hypot(*(mouth - point[:2]).T))
+        if seam < SEAM_MARGIN:
+            continue
+        out[i] = (tris[t].astype(np.intp), bary)
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _cached(key: str, model_id: int, model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    path = cache_dir() / f"mesh-points-{key}.npz"
+    if path.is_file():
+        try:
+            with np.load(path) as z:
+                return {int(i): (t, b) for i, t, b in zip(z["index"], z["vertices"], z["bary"])}
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("ignoring unreadable mesh-point cache %s (%s)", path, exc)
+    corr = _compute_correspondence(model)
+    try:
+        idx = np.array(sorted(corr), dtype=np.intp)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, index=idx, vertices=np.array([corr[i][0] for i in idx]),
+                     bary=np.array([corr[i][1] for i in idx]))
+    except OSError as exc:                                # read-only home: run uncached
+        log.debug("could not cache the mesh points: %s", exc)
+    return corr
+
+
+def mesh_correspondence(model=None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Where each usable face-mesh landmark lies on ``model``'s skin (default: the generic
+    face), cached on disk.
+
+    Returns
+    -------
+    dict
+        Landmark index -> (vertex indices, shape (3,); barycentric weights, shape (3,)) of
+        the skin point under it on the rendered rest face.
+
+    Raises
+    ------
+    RuntimeError
+        When the landmark model finds no face on the render.
+    """
+    if model is None:
+        from synth import FaceModel
+
+        model = FaceModel.default()
+    return _cached(_key(model), id(model), model)
+
+
+@functools.lru_cache(maxsize=1)
+def _default_correspondence() -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    # once per process: building the generic model and hashing it costs 60 ms, and a
+    # response table reads the points at every one of its ~600 equilibria
+    return mesh_correspondence()
+
+
+def surface_points(names) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The skin point of each face-mesh measurement point ``mesh_<i>`` in ``names``: vertex
+    indices and barycentric weights on the generic face (:func:`mesh_correspondence`),
+    which hold on any model of the same topology (a personalised one).
+
+    Raises
+    ------
+    ValueError
+        For a name that is not a usable face-mesh landmark (the message says which).
+    """
+    corr = _default_correspondence()
+    out = {}
+    for name in names:
+        try:
+            i = int(str(name).removeprefix(MESH_POINT_PREFIX))
+        except ValueError:
+            raise ValueError(f"{name!r} is not a face-mesh point ({MESH_POINT_PREFIX}<index>)"
+                             ) from None
+        if i not in corr:
+            raise ValueError(f"face-mesh landmark {i} has no place on the face model (on the "
+                             "silhouette, an eyelid or the mouth line); usable ones: "
+                             "mesh_correspondence()")
+        out[name] = corr[i]
+    return out
+
+
+def similarity_3d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``x -> s R x + t`` carrying 3-D ``src`` onto ``dst``
+    (Umeyama 1991).
+
+    Examples
+    --------
+    >>> p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    >>> s, R, t = similarity_3d(p, 2 * p + 1)
+    >>> round(s, 6), np.allclose(R, np.eye(3)), t.round(6).tolist()
+    (2.0, True, [1.0, 1.0, 1.0])
+    """
+    a = np.asarray(src, dtype=float)
+    b = np.asarray(dst, dtype=float)
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    a0, b0 = a - ma, b - mb
+    var = float(np.mean(np.sum(a0**2, axis=1)))
+    if var < 1e-12:
+        raise ValueError("the source points coincide")
+    u, sv, vt = np.linalg.svd(b0.T @ a0 / len(a))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ d @ vt
+    s = float(np.trace(np.diag(sv) @ d) / var)
+    return s, rot, mb - s * rot @ ma
+
+
+def _weighted_similarity(src, dst, w):
+    """:func:`similarity_3d` of ``src`` onto each of the ``dst`` with weights ``w``, for a
+    stack of frames: ``dst`` (T, N, 3), ``w`` (T, N); returns scales (T,), rotations
+    (T, 3, 3) and translations (T, 3)."""
+    w = w / np.sum(w, axis=1, keepdims=True)
+    ma = w @ src                                               # (T, 3)
+    mb = np.einsum("tn,tnk->tk", w, dst)
+    a0 = src[None] - ma[:, None]
+    b0 = dst - mb[:, None]
+    var = np.einsum("tn,tnk,tnk->t", w, a0, a0)
+    u, sv, vt = np.linalg.svd(np.einsum("tn,tni,tnj->tij", w, b0, a0))
+    sign = np.sign(np.linalg.det(u @ vt))
+    d = np.ones((len(w), 3))
+    d[:, 2] = sign
+    rot = u @ (d[:, :, None] * vt)
+    s = np.sum(sv * d, axis=1) / np.maximum(var, 1e-12)
+    return s, rot, mb - s[:, None] * np.einsum("tij,tj->ti", rot, ma)
+
+
+def head_alignment(neutral, points, *, rigid=RIGID_3D, rounds: int = ALIGN_ROUNDS):
+    """The 3-D similarities carrying the neutral frame's face-mesh landmarks onto each frame's,
+    robust to the face's own motion.
+
+    Each starts from the ``rigid`` points and is refitted ``rounds`` times on every landmark
+    off the silhouette with Cauchy weights ``1 / (1 + (r / s)^2)`` of each landmark's
+    residual ``r``, ``s`` being :data:`ALIGN_SCALE` times the face's size: the landmarks
+    an expression moves (a jaw drops a third of the face) weigh little, and the many it
+    leaves still (forehead, temples, nose, upper cheeks) hold the head. The eye corners and
+    nose bridge alone move with a smile or an open jaw in the landmark model's output.
+
+    Parameters
+    ----------
+    neutral : ndarray, shape (468, 3)
+    points : ndarray, shape (T, 468, 3)
+        The frames' landmarks.
+
+    Returns
+    -------
+    (ndarray (T,), ndarray (T, 3, 3), ndarray (T, 3))
+        Scales, rotations and translations.
+    """
+    ref = np.asarray(neutral, dtype=float)
+    p = np.asarray(points, dtype=float)
+    rig = np.asarray(rigid, dtype=np.intp)
+    s, rot, tr = _weighted_similarity(ref[rig], p[:, rig], np.ones((len(p), len(rig))))
+    use = _OFF_SILHOUETTE
+    size = float(np.sqrt(np.mean(np.sum((ref[use, :2] - ref[use, :2].mean(0)) ** 2, axis=1))))
+    scale = ALIGN_SCALE * max(size, 1e-9)
+    for _ in range(rounds):
+        moved = s[:, None, None] * np.einsum("nk,tjk->tnj", ref[use], rot) + tr[:, None]
+        r = np.linalg.norm(moved - p[:, use], axis=2)
+        s, rot, tr = _weighted_similarity(ref[use], p[:, use], 1.0 / (1.0 + (r / scale) ** 2))
+    return s, rot, tr
+
+
+def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
+                       rounds: int = ALIGN_ROUNDS) -> np.ndarray:
+    """Motion of face-mesh landmarks since the neutral frame, with the head's taken out.
+
+    Each frame's 468 landmarks (x, y, z; pixels) are carried onto the neutral frame's by
+    the inverse of the 3-D similarity that carries the neutral frame's landmarks onto the
+    frame's (:func:`head_alignment`), so what is left is the face's own motion, expressed
+    in the neutral frame's image (pixels, x right, y down).
+
+    Parameters
+    ----------
+    landmarks : sequence of (468, 3) arrays or None
+        The landmark tracker's points per frame (``Tracks.landmarks``); None: lost.
+    neutral : int
+        Row of the neutral frame.
+    indices : sequence of int
+        Landmarks to return.
+    rigid, rounds
+        See :func:`head_alignment`.
+
+    Returns
+    -------
+    ndarray, shape (T, len(indices), 2)
+        Displacement in the neutral frame's pixels; NaN on frames without landmarks.
+    """
+    if landmarks[neutral] is None:
+        raise ValueError(f"the neutral frame (row {neutral}) has no face-mesh landmarks")
+    idx = np.asarray(indices, dtype=np.intp)
+    ref = np.asarray(landmarks[neutral], dtype=float)
+    out = np.full((len(landmarks), len(idx), 2), np.nan)
+    seen = [t for t, pts in enumerate(landmarks) if pts is not None]
+    p = np.stack([np.asarray(landmarks[t], dtype=float) for t in seen])
+    s, rot, tr = head_alignment(ref, p, rigid=rigid, rounds=rounds)
+    # into the neutral pose: R^T (p - t) / s
+    back = np.einsum("tnj,tjk->tnk", p[:, idx] - tr[:, None], rot) / s[:, None, None]
+    out[seen] = back[..., :2] - ref[idx, :2]
+    return out
+
+
+def mesh_indices() -> tuple[int, ...]:
+    """The face-mesh landmarks that are measurement points, in index order."""
+    return tuple(sorted(_default_correspondence()))
+
+
+def to_model_units(displacements: np.ndarray, reference: np.ndarray, head: np.ndarray,
+                   calibration) -> np.ndarray:
+    """Image displacements (pixels) of points at ``reference`` (pixels) on the neutral frame
+    whose head frame is ``head``, in model cm through ``calibration``
+    (:class:`~faceanalysis.estimation.calibration.Calibration`)."""
+    from faceanalysis.tracking import to_head_frame
+
+    q1 = to_head_frame(np.asarray(reference, float) + displacements, head)
+    q0 = to_head_frame(np.asarray(reference, float), head)
+    return (q1 - q0) @ np.linalg.inv(calibration.matrix).T
+
