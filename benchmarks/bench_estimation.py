@@ -12,7 +12,8 @@ tracker (``../shared/data``; each part skips cleanly when its data is absent):
   the ``mesh`` fit's settings were chosen on all 20.
 * ``real/``: on the three clips, the median fit residual and the share of tracked frames
   over the 0.5 cm limit (on the points each estimator reads), the largest muscle on the
-  first 10 frames, and the whole analysis's rate.
+  first 10 frames, the whole analysis's rate, and on WolfgangLanger how much more
+  zygomaticus major the laugh reads than the crying.
 """
 
 from __future__ import annotations
@@ -146,6 +147,14 @@ def clips(quick: bool = False) -> list[Figure]:
             figs.append(_fig(case, "controls not identifiable",
                              len(a.metadata["identifiability"]["not_identifiable"]), "of 26",
                              False))
+            if name.startswith("WolfgangLanger"):
+                t = a.table
+                z = t[["zygomaticus_major_l", "zygomaticus_major_r"]].mean(axis=1)
+                laugh = z[(t["frame"] >= 250) & (t["frame"] <= 470)].mean()
+                cry = z[t["frame"] <= 120].mean()
+                figs.append(_fig(case, "zygomaticus major, laughing (250-470) minus crying "
+                                 "(0-120)", laugh - cry, "", True, laughing=float(laugh),
+                                 crying=float(cry)))
     return figs
 
 

@@ -34,7 +34,8 @@ from faceanalysis.estimation.estimators import SPARSITY, estimate_joint, estimat
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import Tracks
 
-__all__ = ["ESTIMATORS", "Estimate", "Observations", "estimate_mesh", "run_estimator"]
+__all__ = ["ESTIMATORS", "REGIONS", "Estimate", "Observations", "estimate_mesh", "mesh_regions",
+           "regions_lost", "run_estimator"]
 
 
 @dataclass(frozen=True)
@@ -161,9 +162,58 @@ def mesh_observations(obs: Observations, response: FiducialResponse) -> np.ndarr
     px = mesh_displacements(landmarks, k, idx)
     ref = np.asarray(landmarks[k], dtype=float)[idx, :2]
     d[:, mesh] = to_model_units(px, ref, tracks.heads[k], obs.calibration)
+    # where the tracker lost a region (a brow under hair, the lower face under a hand),
+    # the mesh goes on drawing a face the landmark model imagines: its points there go too
+    lost = regions_lost(tracks)
+    region = mesh_regions(response)
+    for name, gone in lost.items():
+        cols = [j for j, r in zip(mesh, region) if r == name]
+        d[np.ix_(gone, cols)] = np.nan
     # a frame the tracker lost has no measurement, whatever the mesh still showed
     d[~np.asarray(tracks.success, bool)] = np.nan
     return d
+
+
+#: The face's regions by their contours: a region is lost on a frame where every one of
+#: its contours is (:func:`regions_lost`).
+REGIONS = {"brow_l": ("brow_l",), "brow_r": ("brow_r",),
+           "lower_face": ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")}
+
+
+def regions_lost(tracks: Tracks) -> dict[str, np.ndarray]:
+    """Per region of :data:`REGIONS`, the tracked frames on which none of its contours'
+    measurement points was measured, shape (T,) each."""
+    from faceanalysis.tracking import POINT_CONTOUR
+
+    measured = np.isfinite(np.asarray(tracks.points, dtype=float)).all(axis=2)   # (T, P)
+    tracked = np.asarray(tracks.success, bool)
+    out = {}
+    for name, contours in REGIONS.items():
+        cols = [j for j, p in enumerate(tracks.point_names) if POINT_CONTOUR.get(p) in contours]
+        if cols:
+            out[name] = tracked & ~measured[:, cols].any(axis=1)
+    return out
+
+
+def mesh_regions(response: FiducialResponse) -> list[str | None]:
+    """The region (:data:`REGIONS`) of each face-mesh point of ``response``: that of the
+    contour point nearest to it on the model at rest (None: no contour point)."""
+    from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
+    from faceanalysis.tracking import POINT_CONTOUR
+
+    of_contour = {c: r for r, cs in REGIONS.items() for c in cs}
+    names = response.fiducials
+    contour = [j for j, n in enumerate(names) if POINT_CONTOUR.get(n) in of_contour]
+    out: list[str | None] = []
+    for j, n in enumerate(names):
+        if not n.startswith(MESH_POINT_PREFIX):
+            continue
+        if not contour:
+            out.append(None)
+            continue
+        dist = np.hypot(*(response.rest[contour] - response.rest[j]).T)
+        out.append(of_contour[POINT_CONTOUR[names[contour[int(np.argmin(dist))]]]])
+    return out
 
 
 def estimate_mesh(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,

@@ -188,3 +188,35 @@ def test_mesh_estimator_with_the_snakes_tracker_is_refused_before_any_work(tmp_p
 
     with pytest.raises(ValueError, match="mesh estimator reads the landmark tracker"):
         analyze(tmp_path / "not_read.mp4", estimator="mesh", tracker="snakes")
+
+
+def test_a_region_the_tracker_lost_takes_its_face_mesh_points_with_it(jaw_and_smile):
+    from faceanalysis.estimation.registry import (
+        Observations,
+        mesh_observations,
+        mesh_regions,
+        mesh_response,
+        regions_lost,
+    )
+    from faceanalysis.tracking import POINT_CONTOUR, Tracks
+
+    _, a = jaw_and_smile
+    points = a.tracks.points.copy()
+    brow_l = [j for j, p in enumerate(a.tracks.point_names) if POINT_CONTOUR[p] == "brow_l"]
+    points[5, brow_l] = np.nan                              # the left brow lost on frame 5
+    tracks = Tracks(**{**a.tracks.__dict__, "points": points})
+    lost = regions_lost(tracks)
+    assert lost["brow_l"].tolist() == [t == 5 for t in range(len(tracks))]
+    assert not lost["brow_r"].any() and not lost["lower_face"].any()
+
+    response = mesh_response()
+    region = mesh_regions(response)
+    assert {"brow_l", "brow_r", "lower_face"} == set(region)
+    obs = Observations(tracks, a.response, np.zeros((len(tracks), len(a.response.fiducials), 2)),
+                       0, calibration=a.calibration)
+    d = mesh_observations(obs, response)
+    n_contour = len(response.fiducials) - len(region)
+    mesh_d = d[:, n_contour:]
+    in_brow = np.array([r == "brow_l" for r in region])
+    assert np.isnan(mesh_d[5, in_brow]).all() and np.isfinite(mesh_d[5, ~in_brow]).all()
+    assert np.isfinite(mesh_d[4]).all()
