@@ -20,8 +20,10 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("analysis")
     group.add_argument("--estimator", choices=tuple(ESTIMATORS), default="joint",
                        help="joint: bounded least squares through the face model (default); "
-                            "tw93: the paper's per-muscle inversion of eq. 5; flow: dense optical "
-                            "flow on the model's per-muscle flow templates")
+                            "mesh: the same on the contour points and the landmark tracker's "
+                            "face mesh (recommended for real faces; implies --tracker "
+                            "landmarks); tw93: the paper's per-muscle inversion of eq. 5; flow: "
+                            "dense optical flow on the model's per-muscle flow templates")
     group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first frame tracked)")
@@ -49,6 +51,17 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                        help="torch device with --backend torch: cpu (default), cuda, cuda:N")
 
 
+def check_analysis_options(args: argparse.Namespace) -> None:
+    """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
+    from faceanalysis.cli._common import UsageError
+
+    if args.estimator == "mesh" and args.tracker == "snakes":
+        raise UsageError("--estimator mesh reads the landmark tracker's face mesh; drop "
+                         "--tracker snakes")
+    if args.refine and args.estimator != "joint":
+        raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Track the nine facial contours of Terzopoulos & Waters (1993) through a video, "
@@ -71,6 +84,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from faceanalysis.analysis.pipeline import analyze_to_folder
 
+    check_analysis_options(args)
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,

@@ -8,7 +8,7 @@ import sys
 
 from faceanalysis.cli._common import positive_int
 from faceanalysis.cli._input import add_input_options
-from faceanalysis.cli.analyze import add_analysis_options
+from faceanalysis.cli.analyze import add_analysis_options, check_analysis_options
 
 HELP = "analyse many videos (files, folders, glob patterns) on a Dask cluster"
 
@@ -67,6 +67,7 @@ def _options(args: argparse.Namespace) -> dict:
 def run(args: argparse.Namespace) -> int:
     from faceanalysis import batch
 
+    check_analysis_options(args)
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
     verbose = getattr(args, "verbose", 0) > 0

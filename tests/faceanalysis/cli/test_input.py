@@ -51,3 +51,18 @@ def test_end_not_after_start_is_a_usage_error(run_cli, tmp_path, command, start,
     assert err.startswith(f"usage: faceanalysis {command}"), err
     assert f"--end {end} must be after --start {start}" in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ["analyze", "batch"])
+@pytest.mark.parametrize("options, message", [
+    (("--estimator", "mesh", "--tracker", "snakes"), "--estimator mesh reads the landmark"),
+    (("--estimator", "tw93", "--refine"), "--refine goes with --estimator joint"),
+])
+def test_analysis_options_that_cannot_go_together_are_usage_errors(run_cli, tmp_path, command,
+                                                                   options, message):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((80, 80), np.uint8))
+    code, out, err = run_cli(command, tmp_path / "f.png", "-o", tmp_path / "out", *options)
+    assert code == 2, err
+    assert err.startswith(f"usage: faceanalysis {command}"), err
+    assert message in err
+    assert not (tmp_path / "out").exists()
