@@ -10,6 +10,8 @@ tracker (``../shared/data``; each part skips cleanly when its data is absent):
   ``AU12_r`` higher on the smile than on the neutral frame, their AUC against the side-lit
   neutral's, and their mean on the smile. Also per half of the people (21-30, 31-40), since
   the ``mesh`` fit's settings were chosen on all 20.
+* the same photographs' hand-placed points: how far the side-lit neutral is from the neutral
+  at the mouth corners and brows (the check assumes it is at rest), beside the smile.
 * ``real/``: on the three clips, the median fit residual and the share of tracked frames
   over the 0.5 cm limit (on the points each estimator reads), the largest muscle on the
   first 10 frames, the whole analysis's rate, and on WolfgangLanger how much more
@@ -62,6 +64,27 @@ def _pair(folder: Path, person: int, second: int) -> Path:
     return d
 
 
+def _hand_shift(person: int, second: int) -> tuple[float, float]:
+    """Mouth-corner and brow shift (mean, IOD) between the hand-placed points of a person's
+    neutral photograph and those of type ``second``, after the similarity that superposes
+    their eyes and noses: how far the second photograph is from the first by hand."""
+    import cv2
+    from bench_landmark_tracking import _read_asf
+
+    def points(t):
+        img = next(IMM.glob(f"{person}-{t}?.jpg"))
+        return _read_asf(img.with_suffix(".asf"), cv2.imread(str(img)).shape)
+
+    first, other = points(1), points(second)
+    rigid = [*range(13, 29), *range(47, 58)]                  # eyes and nose
+    za, zb = (p[rigid, 0] + 1j * p[rigid, 1] for p in (other, first))
+    a = np.sum(np.conj(za - za.mean()) * (zb - zb.mean())) / np.sum(np.abs(za - za.mean()) ** 2)
+    moved = a * (other[:, 0] + 1j * other[:, 1] - za.mean()) + zb.mean()
+    d = np.abs(moved - (first[:, 0] + 1j * first[:, 1]))
+    iod = np.hypot(*(first[13:21].mean(0) - first[21:29].mean(0)))
+    return float(d[[39, 43]].mean() / iod), float(d[29:39].mean() / iod)
+
+
 def imm(quick: bool = False) -> list[Figure]:
     from faceanalysis.analysis.pipeline import analyze, reestimate
     from faceanalysis.io.table import MUSCLES
@@ -84,6 +107,12 @@ def imm(quick: bool = False) -> list[Figure]:
                                       .iloc[i] / 2) for i in (0, 1)],
                         "au12": [float(t["AU12_r"].iloc[i]) for i in (0, 1)]}
     figs = []
+    for second, label in ((5, "side-lit neutral"), (2, "smile")):
+        shifts = np.array([_hand_shift(p, second) for p in people])
+        case = f"IMM hand-placed points, neutral then {label}"
+        figs.append(_fig(case, "median mouth-corner shift", np.median(shifts[:, 0]), "IOD",
+                         False))
+        figs.append(_fig(case, "median brow shift", np.median(shifts[:, 1]), "IOD", False))
     halves = {"all": people, "21-30": [p for p in people if p <= 30],
               "31-40": [p for p in people if p > 30]}
     for est in ESTIMATORS:
