@@ -25,7 +25,12 @@ from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, f
 from faceanalysis.estimation.estimators import fit_residual
 from faceanalysis.estimation.identifiability import assess
 from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_points_3d
-from faceanalysis.estimation.registry import ESTIMATORS, Observations, run_estimator
+from faceanalysis.estimation.registry import (
+    ESTIMATORS,
+    MESH_ESTIMATORS,
+    Observations,
+    run_estimator,
+)
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import analysis_metadata, quality_summary
 from faceanalysis.io.table import (
@@ -67,11 +72,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ----------
     video : path-like
         Video file, folder of images, or a single image.
-    estimator : {'joint', 'mesh', 'tw93', 'flow'}, keyword-only
+    estimator : {'joint', 'mesh', 'fused', 'tw93', 'flow'}, keyword-only
         ``joint`` (default): bounded least squares of all contractions through the
         model's fiducial response; ``mesh``: the same on the contour points and the
-        landmark tracker's face mesh (implies ``tracker='landmarks'``); ``tw93``: the
-        paper's per-muscle inversion;
+        landmark tracker's face mesh (implies ``tracker='landmarks'``); ``fused``:
+        ``mesh`` with the dense flow in the same fit (a second pass over the video);
+        ``tw93``: the paper's per-muscle inversion;
         ``flow``: bounded least squares of the dense face flow on the model's flow
         templates (a second pass over the video). See
         :mod:`faceanalysis.estimation.registry`.
@@ -141,11 +147,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     if refine and estimator != "joint":
         raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
-    if estimator == "mesh":
-        # the mesh estimator reads the landmark tracker's face mesh
+    if estimator in MESH_ESTIMATORS:
+        # they read the landmark tracker's face mesh
         if tracker not in (None, "landmarks"):
-            raise ValueError(f"the mesh estimator reads the landmark tracker's face mesh; "
-                             f"it does not work with tracker={tracker!r}")
+            raise ValueError(f"the {estimator} estimator reads the landmark tracker's face "
+                             f"mesh; it does not work with tracker={tracker!r}")
         tracker = "landmarks"
     try:
         check_backend(backend, device)

@@ -22,8 +22,9 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                        help="joint: bounded least squares through the face model (default); "
                             "mesh: the same on the contour points and the landmark tracker's "
                             "face mesh (recommended for real faces; implies --tracker "
-                            "landmarks); tw93: the paper's per-muscle inversion of eq. 5; flow: "
-                            "dense optical flow on the model's per-muscle flow templates")
+                            "landmarks); fused: mesh with the dense flow in the same fit (reads "
+                            "the video twice); tw93: the paper's per-muscle inversion of eq. 5; "
+                            "flow: dense optical flow on the model's per-muscle flow templates")
     group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first frame tracked)")
@@ -55,9 +56,9 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
     from faceanalysis.cli._common import UsageError
 
-    if args.estimator == "mesh" and args.tracker == "snakes":
-        raise UsageError("--estimator mesh reads the landmark tracker's face mesh; drop "
-                         "--tracker snakes")
+    if args.estimator in ("mesh", "fused") and args.tracker == "snakes":
+        raise UsageError(f"--estimator {args.estimator} reads the landmark tracker's face "
+                         "mesh; drop --tracker snakes")
     if args.refine and args.estimator != "joint":
         raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
 

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
                                    faces=faces, tracker=args.tracker)
         # the mesh estimator reads the landmark tracker's face mesh
-        estimators = (("joint", "mesh", "tw93", "flow") if args.tracker == "landmarks"
+        estimators = (("joint", "mesh", "fused", "tw93", "flow") if args.tracker == "landmarks"
                       else ("joint", "tw93", "flow"))
         report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
                                  estimators=estimators, progress=not args.quiet)

@@ -148,7 +148,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    inner_iterations: int = 120,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
                    robust_rounds: int = 2, noise: float | None = None,
-                   threshold: float = NOISE_THRESHOLD, debias: bool = False) -> np.ndarray:
+                   threshold: float = NOISE_THRESHOLD, debias: bool = False,
+                   quadratic: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -203,6 +204,10 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         Refit, on each frame, the controls the sparse fit left off rest without the
         sparsity prior (the others held at rest; a relaxed lasso): the prior then only
         chooses which muscles act, and does not also shrink how much.
+    quadratic : (ndarray (M, M), ndarray (T, M)), keyword-only, optional
+        A second measurement's least squares in the controls, ``c'Hc - 2 g_t'c`` per
+        frame (``H = A'A``, ``g_t = A'y_t`` of a linear model ``y = A c``, e.g. the dense
+        flow's templates), added to the objective; a frame whose ``g_t`` is NaN has none.
 
     Returns
     -------
@@ -237,6 +242,12 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     n_t = d_all.shape[0]
     # frames are independent problems: in chunks, the Jacobians of many points stay small
     chunk = max(1, _CHUNK_ELEMENTS // (d_all.shape[1] * 2 * len(response.muscles)))
+    if quadratic is not None:
+        qh, qg = (np.asarray(q, dtype=float) for q in quadratic)
+        m = len(response.muscles)
+        if qh.shape != (m, m) or qg.shape != (n_t, m):
+            raise ValueError(f"quadratic must be (H of shape ({m}, {m}), g of shape "
+                             f"({n_t}, {m})), got {qh.shape} and {qg.shape}")
     if n_t > chunk:
         init = (None if initial is None else
                 np.broadcast_to(np.asarray(initial, dtype=float), (n_t, len(response.muscles))))
@@ -246,7 +257,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                            outer_iterations=outer_iterations, inner_iterations=inner_iterations,
                            initial=None if init is None else init[a:a + chunk], robust=robust,
                            robust_rounds=robust_rounds, noise=noise, threshold=threshold,
-                           debias=debias)
+                           debias=debias,
+                           quadratic=None if quadratic is None else (qh, qg[a:a + chunk]))
             for a in range(0, n_t, chunk)])
     if robust_rounds < 0:
         raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
@@ -256,7 +268,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         if noise is not None:
             sparsity = _NoiseThreshold(noise * threshold)
         c = _estimate_joint(displacements, response, weights, regularization, sparsity,
-                            outer_iterations, inner_iterations, initial)
+                            outer_iterations, inner_iterations, initial, quadratic=quadratic)
         d = np.asarray(displacements, dtype=float)
         fw = None
         for _ in range(robust_rounds if robust is not None else 0):
@@ -264,13 +276,14 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
             c = np.where(np.isfinite(c), _estimate_joint(
                 d, response, weights, regularization, sparsity,
                 max(1, outer_iterations // 2),
-                inner_iterations, np.nan_to_num(c), fw), c)
+                inner_iterations, np.nan_to_num(c), fw, quadratic=quadratic), c)
         if debias:
             if robust is not None:
                 fw = _huber_weights(d, response, c, robust)
             c = np.where(np.isfinite(c), _estimate_joint(
                 d, response, weights, regularization, 0.0, max(1, outer_iterations // 2),
-                inner_iterations, np.nan_to_num(c), fw, support=np.nan_to_num(c) > 0), c)
+                inner_iterations, np.nan_to_num(c), fw, support=np.nan_to_num(c) > 0,
+                quadratic=quadratic), c)
         return c
 
 
@@ -289,7 +302,7 @@ class _NoiseThreshold:
 
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
                     outer_iterations, inner_iterations, initial, frame_weights=None,
-                    support=None):
+                    support=None, quadratic=None):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -336,9 +349,21 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         c = np.broadcast_to(np.asarray(initial, dtype=float), (n_t, n_m))[valid].copy()
         c = np.clip(c, 0.0, hi)                            # a start point, not a result
 
+    if quadratic is not None:
+        # another measurement's least squares in c, |y - A c|^2 = c'Hc - 2 g'c + const
+        qh = np.asarray(quadratic[0], dtype=float)
+        qg = np.nan_to_num(np.asarray(quadratic[1], dtype=float)[valid])
+        has = np.isfinite(np.asarray(quadratic[1], dtype=float)[valid]).all(axis=1)
+        qh_t = np.where(has[:, None, None], qh[None], 0.0)          # (T, M, M)
+        observed = observed | (has[:, None] & (np.diag(qh) > 0)[None])
+
     def objective(cc):
         r = dv - response.predict(cc).reshape(-1, n_f * 2) * sw
-        return np.einsum("tk,tk->t", r, r) + ((lam * cc + 2.0 * mu) * cc).sum(axis=1)
+        val = np.einsum("tk,tk->t", r, r) + ((lam * cc + 2.0 * mu) * cc).sum(axis=1)
+        if quadratic is not None:
+            val = val + np.einsum("tm,tmn,tn->t", cc, qh_t, cc) - 2.0 * np.einsum(
+                "tm,tm->t", qg, cc)
+        return val
 
     current = objective(c)
     for _ in range(outer_iterations):
@@ -347,6 +372,9 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         jt = jac.transpose(0, 2, 1)                        # (T, M, K)
         hess = np.matmul(jt, jac) + np.diag(lam)
         grad0 = np.matmul(jt, res[:, :, None])[:, :, 0] - lam * c - mu
+        if quadratic is not None:
+            hess = hess + qh_t
+            grad0 = grad0 + qg - np.einsum("tmn,tn->tm", qh_t, c)
         step = box_qp(hess, grad0, -c, hi - c, iterations=inner_iterations)
         # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
         # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of

@@ -32,8 +32,8 @@ import pandas as pd
 from faceanalysis.estimation.model_response import OBSERVED_CONTROLS
 from faceanalysis.flow.templates import FlowTemplates
 
-__all__ = ["estimate_contractions", "estimate_flow", "reestimate_flow", "FlowDesign",
-           "FLOW_CONTROLS"]
+__all__ = ["estimate_contractions", "estimate_flow", "flow_quadratic", "reestimate_flow",
+           "FlowDesign", "FLOW_CONTROLS"]
 
 #: Controls the flow estimator fits by default: those of the ``joint`` estimator
 #: (:data:`faceanalysis.estimation.model_response.OBSERVED_CONTROLS`), which leave out the
@@ -250,13 +250,63 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
     ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
                          fps=fps, start=start, end=end)
     values = estimate_contractions(ff.displacement, templates, design=design)
-    pos = {int(f): i for i, f in enumerate(ff.frames)}
-    out = np.full((len(table), len(design.controls)), np.nan)
+    return pd.DataFrame(_on_table_rows(values, ff.frames, frames), columns=list(design.controls),
+                        index=table.index)
+
+
+def _on_table_rows(values: np.ndarray, flow_frames, frames) -> np.ndarray:
+    """Rows of ``values`` (one per frame of ``flow_frames``) placed on ``frames``; NaN where
+    the flow has no frame."""
+    pos = {int(f): i for i, f in enumerate(flow_frames)}
+    out = np.full((len(frames), values.shape[1]), np.nan)
     for i, f in enumerate(frames):
         j = pos.get(int(f))
         if j is not None:
             out[i] = values[j]
-    return pd.DataFrame(out, columns=list(design.controls), index=table.index)
+    return out
+
+
+def flow_quadratic(video: str | os.PathLike, table: pd.DataFrame, controls, *,
+                   neutral: int | None = None, method: str = "dis", fps: float | None = None,
+                   start: int = 0, end: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The dense flow's least squares in ``controls``, for a fit that also reads points.
+
+    The video's face flow from the neutral frame (as :func:`estimate_flow` measures it, on
+    the generic face's templates warped to the subject, nuisance motion projected out) is
+    ``y_t ~ A c``; this returns ``H = A'A`` and ``g_t = A'y_t`` with ``A``'s columns in the
+    order of ``controls`` (zero for a control without a template), for
+    :func:`~faceanalysis.estimation.estimators.estimate_joint`'s ``quadratic``.
+
+    Returns
+    -------
+    (ndarray (M, M), ndarray (T, M))
+        ``g`` has one row per row of ``table``; NaN where the flow has no frame.
+    """
+    from faceanalysis.flow.dense import video_face_flow
+    from faceanalysis.flow.personalize import personalize_from_table
+    from faceanalysis.flow.templates import default_templates
+    from faceanalysis.io.table import heads_from_table
+
+    frames = table["frame"].to_numpy(int)
+    ok = np.isfinite(heads_from_table(table)).all(axis=1)
+    if not ok.any():
+        raise ValueError(f"{video}: no tracked frame to estimate from")
+    ref = int(frames[np.argmax(ok)]) if neutral is None else int(neutral)
+    templates = personalize_from_table(default_templates(), table, ref)
+    fitted = tuple(c for c in controls if c in templates.controls)
+    design = FlowDesign(templates, controls=fitted, regularization=0.0)
+    ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
+                         fps=fps, start=start, end=end)
+    d = np.asarray(ff.displacement, dtype=float)
+    seen = np.isfinite(d[:, templates.mask, :]).all(axis=(1, 2))
+    y = np.full((len(d), design.A.shape[0]), np.nan)
+    if seen.any():
+        y[seen] = design.observations(d[seen])
+    A = np.zeros((design.A.shape[0], len(controls)))
+    for j, c in enumerate(controls):
+        if c in fitted:
+            A[:, j] = design.A[:, fitted.index(c)]
+    return A.T @ A, _on_table_rows(y @ A, ff.frames, frames)
 
 
 def reestimate_flow(analysis, video: str | os.PathLike, *,

@@ -154,7 +154,7 @@ def test_landmark_tracker_without_a_face_names_the_file(tmp_path):
 
 
 def test_unknown_estimator_lists_the_choices(surprise):
-    with pytest.raises(ValueError, match="choose from joint, mesh, tw93, flow"):
+    with pytest.raises(ValueError, match="choose from joint, mesh, fused, tw93, flow"):
         analyze(surprise["video"], estimator="magic")
 
 

@@ -220,3 +220,21 @@ def test_a_region_the_tracker_lost_takes_its_face_mesh_points_with_it(jaw_and_sm
     in_brow = np.array([r == "brow_l" for r in region])
     assert np.isnan(mesh_d[5, in_brow]).all() and np.isfinite(mesh_d[5, ~in_brow]).all()
     assert np.isfinite(mesh_d[4]).all()
+
+
+def test_fused_estimator_reads_the_smile_the_mesh_misses(jaw_and_smile):
+    # the dense flow in the same fit follows the rendered skin the landmark model does not
+    from faceanalysis.analysis.pipeline import reestimate
+
+    truth, a = jaw_and_smile
+    mesh, fused = (reestimate(a, e).table for e in ("mesh", "fused"))
+    smile_apex, jaw_apex = len(truth) - 1, 9
+
+    def zyg(t):
+        return (t["zygomaticus_major_l"] + t["zygomaticus_major_r"]).to_numpy() / 2
+
+    assert zyg(fused)[smile_apex] > 0.5 > zyg(mesh)[smile_apex] + 0.3
+    assert fused["jaw_rotation"][jaw_apex] > mesh["jaw_rotation"][jaw_apex]
+    assert fused.loc[:1, list(MUSCLES)].max().max() <= 0.1
+    params = reestimate(a, "fused").metadata["parameters"]
+    assert params["estimator"] == "fused" and "mesh_61" in params["measurement_points"]
