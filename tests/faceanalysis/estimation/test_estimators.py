@@ -336,3 +336,25 @@ def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
     monkeypatch.setattr(est, "_CHUNK_ELEMENTS", 4 * 8 * 7)       # 7 frames a chunk
     # (a batch stops iterating when none of its frames gains: a chunk may stop sooner)
     np.testing.assert_allclose(estimate_joint(d, resp), whole, atol=1e-6)
+
+
+def test_a_second_measurement_enters_the_same_fit(rng):
+    # the chin is not seen, so the points alone cannot tell the jaw; a linear measurement
+    # of it (as the dense flow gives) in the objective does
+    resp = _response(rng)
+    c = np.array([[0.3, 0.0, 0.2, 0.15]])
+    d = resp.predict(c)
+    d[:, FIDS.index("chin")] = np.nan
+    a = np.zeros((3, 4))
+    a[0, 3] = 2.0                                        # reads the jaw, 2 units per radian
+    y = a @ c[0]
+    alone = estimate_joint(d, resp, robust=None, sparsity=0)
+    both = estimate_joint(d, resp, robust=None, sparsity=0,
+                          quadratic=(a.T @ a, (y @ a)[None]))
+    assert both[0, 3] == pytest.approx(0.15, abs=0.01)
+    assert abs(alone[0, 3] - 0.15) > 0.02 or np.isnan(alone[0, 3])
+    no_frame = estimate_joint(d, resp, robust=None, sparsity=0,
+                              quadratic=(a.T @ a, np.full((1, 4), np.nan)))
+    np.testing.assert_allclose(no_frame, alone)
+    with pytest.raises(ValueError, match="quadratic"):
+        estimate_joint(d, resp, quadratic=(np.eye(3), np.zeros((1, 3))))
