@@ -150,7 +150,7 @@ def _compute_correspondence(model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 
 @functools.lru_cache(maxsize=4)
-def _cached(key: str, model_id: int, model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _cached(key: str, model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     path = cache_dir() / f"mesh-points-{key}.npz"
     if path.is_file():
         try:
@@ -188,7 +188,7 @@ def mesh_correspondence(model=None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         from synth import FaceModel
 
         model = FaceModel.default()
-    return _cached(_key(model), id(model), model)
+    return _cached(_key(model), model)
 
 
 @functools.lru_cache(maxsize=1)
