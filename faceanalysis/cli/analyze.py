@@ -55,8 +55,9 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
 def check_analysis_options(args: argparse.Namespace) -> None:
     """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
     from faceanalysis.cli._common import UsageError
+    from faceanalysis.estimation.registry import MESH_ESTIMATORS
 
-    if args.estimator in ("mesh", "fused") and args.tracker == "snakes":
+    if args.estimator in MESH_ESTIMATORS and args.tracker == "snakes":
         raise UsageError(f"--estimator {args.estimator} reads the landmark tracker's face "
                          "mesh; drop --tracker snakes")
     if args.refine and args.estimator != "joint":

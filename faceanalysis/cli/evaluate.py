@@ -103,8 +103,10 @@ def run(args: argparse.Namespace) -> int:
         faces = suite.photographs(args.faces) if args.faces else ()
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
                                    faces=faces, tracker=args.tracker)
-        # the mesh estimator reads the landmark tracker's face mesh
-        estimators = (("joint", "mesh", "fused", "tw93", "flow") if args.tracker == "landmarks"
+        from faceanalysis.estimation.registry import MESH_ESTIMATORS
+
+        # those read the landmark tracker's face mesh
+        estimators = (("joint", *MESH_ESTIMATORS, "tw93", "flow") if args.tracker == "landmarks"
                       else ("joint", "tw93", "flow"))
         report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
                                  estimators=estimators, progress=not args.quiet)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -137,18 +136,13 @@ ROBUST = 0.05
 # Largest Jacobian (frames x point coordinates x controls) the joint fit builds at once.
 _CHUNK_ELEMENTS = 2_000_000
 
-#: With ``noise`` given, how many noise standard deviations a control's projection of the
-#: displacements must exceed for it to leave rest (see :func:`estimate_joint`).
-NOISE_THRESHOLD = 3.0
-
 
 def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    weights: np.ndarray | None = None, regularization: float = 0.0,
                    sparsity: float = SPARSITY, outer_iterations: int = 4,
                    inner_iterations: int = 120,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
-                   robust_rounds: int = 2, noise: float | None = None,
-                   threshold: float = NOISE_THRESHOLD, debias: bool = False,
+                   robust_rounds: int = 2, debias: bool = False,
                    quadratic: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
@@ -192,14 +186,6 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         less. None: plain least squares.
     robust_rounds : int, keyword-only
         Reweighting rounds.
-    noise : float, keyword-only, optional
-        The tracking noise (cm per coordinate). When given, the sparsity prior is set by
-        it instead of ``sparsity``: control ``m`` moves off rest only when the
-        displacements project on its full response ``D_m(upper)`` by more than
-        ``threshold * noise * |D_m(upper)|``, so that noise alone, however many points
-        carry it, leaves the face at rest.
-    threshold : float, keyword-only
-        That projection in noise standard deviations (default :data:`NOISE_THRESHOLD`).
     debias : bool, keyword-only
         Refit, on each frame, the controls the sparse fit left off rest without the
         sparsity prior (the others held at rest; a relaxed lasso): the prior then only
@@ -256,17 +242,12 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                            regularization=regularization, sparsity=sparsity,
                            outer_iterations=outer_iterations, inner_iterations=inner_iterations,
                            initial=None if init is None else init[a:a + chunk], robust=robust,
-                           robust_rounds=robust_rounds, noise=noise, threshold=threshold,
-                           debias=debias,
+                           robust_rounds=robust_rounds, debias=debias,
                            quadratic=None if quadratic is None else (qh, qg[a:a + chunk]))
             for a in range(0, n_t, chunk)])
     if robust_rounds < 0:
         raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
     with _one_blas_thread():
-        if noise is not None and not (np.isfinite(noise) and noise >= 0):
-            raise ValueError(f"noise must be a non-negative number of cm, got {noise}")
-        if noise is not None:
-            sparsity = _NoiseThreshold(noise * threshold)
         c = _estimate_joint(displacements, response, weights, regularization, sparsity,
                             outer_iterations, inner_iterations, initial, quadratic=quadratic)
         d = np.asarray(displacements, dtype=float)
@@ -293,20 +274,13 @@ def _huber_weights(d, response, c, robust):
     return np.minimum(1.0, robust / np.maximum(np.nan_to_num(r, nan=0.0), 1e-12))
 
 
-@dataclass(frozen=True)
-class _NoiseThreshold:
-    """The sparsity prior given as a projection in cm (``threshold * noise``)."""
-
-    cm: float
-
-
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
                     outer_iterations, inner_iterations, initial, frame_weights=None,
                     support=None, quadratic=None):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
-    if not isinstance(sparsity, _NoiseThreshold) and not sparsity >= 0:
+    if not sparsity >= 0:
         raise ValueError(f"sparsity must be >= 0, got {sparsity}")
     if outer_iterations < 1 or inner_iterations < 1:
         raise ValueError("outer_iterations and inner_iterations must be >= 1")
@@ -329,12 +303,7 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
     full = response.displacement[:, -1].reshape(n_m, -1)               # (M, K)
     scale = np.mean((full * np.repeat(np.sqrt(w), 2)) ** 2) * n_f * 2
     lam = regularization * scale / upper**2               # per control
-    if isinstance(sparsity, _NoiseThreshold):
-        # the full response's weighted length: its projection of white noise has
-        # standard deviation noise * that length
-        mu = sparsity.cm * np.linalg.norm(full * np.repeat(np.sqrt(w), 2), axis=1) / upper
-    else:
-        mu = sparsity * scale / upper
+    mu = sparsity * scale / upper
     # A control none of whose motion falls on the seen points is not observed there.
     sw_prior = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)
     seen_norm = np.sqrt((sw_prior**2) @ (full**2).T)                    # (T, M)

@@ -227,6 +227,21 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
         Index = the table's rows; one column per fitted control (muscles,
         ``jaw_rotation``); NaN for lost frames.
     """
+    # templates of a model without some of the default muscles: fit the others
+    design, ff = _face_flow(video, table, neutral=neutral, templates=templates, method=method,
+                            fps=fps, start=start, end=end, regularization=regularization,
+                            personalised=personalised, controls=controls,
+                            subset=controls is FLOW_CONTROLS)
+    values = estimate_contractions(ff.displacement, design.templates, design=design)
+    return pd.DataFrame(_on_table_rows(values, ff.frames, table["frame"].to_numpy(int)),
+                        columns=list(design.controls), index=table.index)
+
+
+def _face_flow(video, table: pd.DataFrame, *, neutral, templates, method, fps, start, end,
+               regularization, personalised, controls, subset):
+    """The design of ``controls`` on the (personalised) templates, and the video's face
+    flow from the neutral frame. With ``subset``, ``controls`` the templates lack are
+    dropped instead of refused."""
     from faceanalysis.flow.dense import video_face_flow
     from faceanalysis.flow.personalize import personalize_from_table
     from faceanalysis.io.table import heads_from_table
@@ -236,22 +251,18 @@ def estimate_flow(video: str | os.PathLike, table: pd.DataFrame, *,
 
         templates = default_templates()
     frames = table["frame"].to_numpy(int)
-    heads = heads_from_table(table)
-    ok = np.isfinite(heads).all(axis=1)
+    ok = np.isfinite(heads_from_table(table)).all(axis=1)
     if not ok.any():
         raise ValueError(f"{video}: no tracked frame to estimate from")
     ref = int(frames[np.argmax(ok)]) if neutral is None else int(neutral)
     if personalised:
         templates = personalize_from_table(templates, table, ref)
-    if controls is FLOW_CONTROLS:
-        # templates of a model without some of the default muscles: fit the others
+    if subset:
         controls = tuple(c for c in controls if c in templates.controls)
     design = FlowDesign(templates, controls=controls, regularization=regularization)
     ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
                          fps=fps, start=start, end=end)
-    values = estimate_contractions(ff.displacement, templates, design=design)
-    return pd.DataFrame(_on_table_rows(values, ff.frames, frames), columns=list(design.controls),
-                        index=table.index)
+    return design, ff
 
 
 def _on_table_rows(values: np.ndarray, flow_frames, frames) -> np.ndarray:
@@ -282,23 +293,12 @@ def flow_quadratic(video: str | os.PathLike, table: pd.DataFrame, controls, *,
     (ndarray (M, M), ndarray (T, M))
         ``g`` has one row per row of ``table``; NaN where the flow has no frame.
     """
-    from faceanalysis.flow.dense import video_face_flow
-    from faceanalysis.flow.personalize import personalize_from_table
-    from faceanalysis.flow.templates import default_templates
-    from faceanalysis.io.table import heads_from_table
-
-    frames = table["frame"].to_numpy(int)
-    ok = np.isfinite(heads_from_table(table)).all(axis=1)
-    if not ok.any():
-        raise ValueError(f"{video}: no tracked frame to estimate from")
-    ref = int(frames[np.argmax(ok)]) if neutral is None else int(neutral)
-    templates = personalize_from_table(default_templates(), table, ref)
-    fitted = tuple(c for c in controls if c in templates.controls)
-    design = FlowDesign(templates, controls=fitted, regularization=0.0)
-    ff = video_face_flow(video, table=table, neutral=ref, method=method, grid=templates.grid,
-                         fps=fps, start=start, end=end)
+    design, ff = _face_flow(video, table, neutral=neutral, templates=None, method=method,
+                            fps=fps, start=start, end=end, regularization=0.0,
+                            personalised=True, controls=controls, subset=True)
+    fitted = design.controls
     d = np.asarray(ff.displacement, dtype=float)
-    seen = np.isfinite(d[:, templates.mask, :]).all(axis=(1, 2))
+    seen = np.isfinite(d[:, design.templates.mask, :]).all(axis=(1, 2))
     y = np.full((len(d), design.A.shape[0]), np.nan)
     if seen.any():
         y[seen] = design.observations(d[seen])
@@ -306,7 +306,7 @@ def flow_quadratic(video: str | os.PathLike, table: pd.DataFrame, controls, *,
     for j, c in enumerate(controls):
         if c in fitted:
             A[:, j] = design.A[:, fitted.index(c)]
-    return A.T @ A, _on_table_rows(y @ A, ff.frames, frames)
+    return A.T @ A, _on_table_rows(y @ A, ff.frames, table["frame"].to_numpy(int))
 
 
 def reestimate_flow(analysis, video: str | os.PathLike, *,

@@ -84,8 +84,7 @@ def _key(model) -> str:
         __version__.encode(),
         np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
         np.ascontiguousarray(model.mesh.triangles).tobytes(),
-        repr(sorted(MODEL_FILES.items()) if isinstance(MODEL_FILES, dict) else MODEL_FILES)
-        .encode(),
+        repr(sorted(MODEL_FILES.items())).encode(),
         repr((SEAM_MARGIN, _FACE_OVAL, _EYELIDS, _MIN_FACING, _RENDER_SIZE, NAMED_POINTS))
         .encode(),
         source_digest(("synth", "trackers"), ("faceanalysis.estimation.mesh_points",)).encode(),
@@ -236,17 +235,11 @@ def similarity_3d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, 
     (2.0, True, [1.0, 1.0, 1.0])
     """
     a = np.asarray(src, dtype=float)
-    b = np.asarray(dst, dtype=float)
-    ma, mb = a.mean(axis=0), b.mean(axis=0)
-    a0, b0 = a - ma, b - mb
-    var = float(np.mean(np.sum(a0**2, axis=1)))
-    if var < 1e-12:
+    if np.mean(np.sum((a - a.mean(axis=0)) ** 2, axis=1)) < 1e-12:
         raise ValueError("the source points coincide")
-    u, sv, vt = np.linalg.svd(b0.T @ a0 / len(a))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ d @ vt
-    s = float(np.trace(np.diag(sv) @ d) / var)
-    return s, rot, mb - s * rot @ ma
+    s, rot, t = _weighted_similarity(a, np.asarray(dst, dtype=float)[None],
+                                     np.ones((1, len(a))))
+    return float(s[0]), rot[0], t[0]
 
 
 def _weighted_similarity(src, dst, w):

@@ -33,12 +33,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from faceanalysis.estimation.estimators import SPARSITY, estimate_joint, estimate_tw93
+from faceanalysis.estimation.estimators import estimate_joint, estimate_tw93
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import Tracks
 
 __all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "Estimate", "Observations", "estimate_fused",
-           "estimate_mesh", "mesh_regions", "regions_lost", "run_estimator"]
+           "estimate_mesh", "mesh_fit", "mesh_regions", "regions_lost", "run_estimator"]
 
 
 @dataclass(frozen=True)
@@ -159,7 +159,7 @@ def mesh_observations(obs: Observations, response: FiducialResponse) -> np.ndarr
     idx = [int(names[i].removeprefix(MESH_POINT_PREFIX)) for i in mesh]
     d = np.full((len(tracks), len(names), 2), np.nan)
     for j, n in enumerate(names):
-        if j not in mesh and n in obs.response.fiducials:
+        if not n.startswith(MESH_POINT_PREFIX) and n in obs.response.fiducials:
             d[:, j] = obs.displacements[:, obs.response.fiducials.index(n)]
     k = obs.neutral
     px = mesh_displacements(landmarks, k, idx)
@@ -219,19 +219,27 @@ def mesh_regions(response: FiducialResponse) -> list[str | None]:
     return out
 
 
-def estimate_mesh(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
-                  **fit) -> Estimate:
-    """The ``mesh`` estimator: bounded least squares of all controls on the contour points
-    and the face mesh together (see :func:`mesh_observations`), with the settings of
-    :data:`MESH_FIT` (``fit`` overrides them)."""
+def mesh_fit(displacements: np.ndarray, response: FiducialResponse, *,
+             contour_weight: float = CONTOUR_WEIGHT, **fit) -> tuple[np.ndarray, dict]:
+    """The ``mesh`` fit of ``displacements`` of ``response``'s points: contour points weighed
+    ``contour_weight`` to each face-mesh point, the settings of :data:`MESH_FIT` (``fit``
+    adds to or overrides them, e.g. ``quadratic``). Returns the contractions and the
+    options used."""
     from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
 
-    response = mesh_response()
-    d = mesh_observations(obs, response)
     w = np.array([1.0 if n.startswith(MESH_POINT_PREFIX) else contour_weight
                   for n in response.fiducials])
     options = {"weights": w, **MESH_FIT, **fit}
-    values = estimate_joint(d, response, **options)
+    return estimate_joint(displacements, response, **options), options
+
+
+def estimate_mesh(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
+                  **fit) -> Estimate:
+    """The ``mesh`` estimator: bounded least squares of all controls on the contour points
+    and the face mesh together (see :func:`mesh_observations` and :func:`mesh_fit`)."""
+    response = mesh_response()
+    d = mesh_observations(obs, response)
+    values, options = mesh_fit(d, response, contour_weight=contour_weight, **fit)
     return Estimate(pd.DataFrame(values, columns=list(response.muscles)), response, d, options)
 
 
@@ -251,7 +259,6 @@ def estimate_fused(obs: Observations, *, flow_weight: float = FLOW_WEIGHT,
     dense flow in the same objective (:func:`~faceanalysis.estimation.flow.flow_quadratic`,
     weighted by ``flow_weight``); reads the video a second time."""
     from faceanalysis.estimation.flow import flow_quadratic
-    from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
 
     if not (np.isfinite(flow_weight) and flow_weight >= 0):
         raise ValueError(f"flow_weight must be a non-negative number, got {flow_weight}")
@@ -261,11 +268,10 @@ def estimate_fused(obs: Observations, *, flow_weight: float = FLOW_WEIGHT,
     h, g = flow_quadratic(obs.tracks.video, obs.tracks.table, response.muscles,
                           neutral=int(obs.tracks.frames[obs.neutral]), fps=o.get("fps"),
                           start=o.get("start") or 0, end=o.get("end"))
-    w = np.array([1.0 if n.startswith(MESH_POINT_PREFIX) else contour_weight
-                  for n in response.fiducials])
-    options = {"weights": w, **MESH_FIT, **fit}
-    values = estimate_joint(d, response, quadratic=(flow_weight * h, flow_weight * g),
-                            **options)
+    values, options = mesh_fit(d, response, contour_weight=contour_weight,
+                               quadratic=(flow_weight * h, flow_weight * g), **fit)
+    # the identifiability simulation is of the points' fit: it has no flow to add
+    options.pop("quadratic")
     return Estimate(pd.DataFrame(values, columns=list(response.muscles)), response, d, options)
 
 
@@ -314,5 +320,4 @@ def run_estimator(name: str, obs: Observations, **options) -> Estimate:
     out = ESTIMATORS[name](obs, **options)
     if isinstance(out, Estimate):
         return out
-    fit = {} if name != "joint" or options.get("refine") else {"sparsity": SPARSITY}
-    return Estimate(out, obs.response, obs.displacements, fit)
+    return Estimate(out, obs.response, obs.displacements)

@@ -26,8 +26,8 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
-from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
+from faceanalysis.estimation.registry import mesh_fit, mesh_response
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.evaluation.scores import pool, public
 from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
@@ -84,17 +84,6 @@ def _displacements(points: np.ndarray, response: FiducialResponse,
     n = len(response.fiducials) if calibrate_on is None else calibrate_on
     cal = calibrate(image[0, :n], heads[0], response.rest[:n])
     return (image - image[0]) @ np.linalg.inv(cal.matrix).T
-
-
-def _mesh_fit(disp: np.ndarray, table: FiducialResponse) -> np.ndarray:
-    """The ``mesh`` estimator's fit (:func:`faceanalysis.estimation.registry.estimate_mesh`)
-    on displacements of ``table``'s points."""
-    from faceanalysis.estimation.estimators import estimate_joint
-    from faceanalysis.estimation.registry import CONTOUR_WEIGHT, MESH_FIT
-
-    w = np.where([n.startswith(MESH_POINT_PREFIX) for n in table.fiducials], 1.0,
-                 CONTOUR_WEIGHT)
-    return estimate_joint(disp, table, weights=w, **MESH_FIT)
 
 
 def measurement_ceiling(config: SuiteConfig | None = None, *,
@@ -162,8 +151,6 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         response = model_response()
     mesh_table = None
     if "mesh" in estimators:
-        from faceanalysis.estimation.registry import mesh_response
-
         mesh_table = mesh_response()
     bar = None
     if progress:
@@ -194,7 +181,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                                            mtable, calibrate_on=len(MEASUREMENT_POINTS))
                 for est in estimators:
                     if est == "mesh":
-                        values = dict(zip(mtable.muscles, _mesh_fit(mdisp, mtable).T))
+                        values = dict(zip(mtable.muscles, mesh_fit(mdisp, mtable)[0].T))
                     else:
                         values = dict(zip(table.muscles,
                                           estimate(disp, table, estimator=est).T))

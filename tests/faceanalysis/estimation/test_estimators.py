@@ -312,20 +312,6 @@ def test_debias_keeps_the_prior_choice_and_drops_its_shrinkage(rng):
     assert (relaxed[0, [0, 1, 3]] == 0).all()
 
 
-def test_noise_threshold_rests_noise_and_keeps_motion_above_it(rng):
-    resp = _response(rng)
-    noise = 0.01
-    frames = 200
-    d = rng.normal(0.0, noise, (frames, len(FIDS), 2))
-    at_rest = estimate_joint(d, resp, noise=noise, robust=None)
-    assert np.mean(at_rest == 0) > 0.95
-    c = np.array([[0.0, 0.0, 0.4, 0.0]])
-    moved = estimate_joint(resp.predict(c) + d[:1], resp, noise=noise, robust=None)
-    assert moved[0, 2] == pytest.approx(0.4, abs=0.08)
-    with pytest.raises(ValueError, match="noise"):
-        estimate_joint(d, resp, noise=-1.0)
-
-
 def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
     import faceanalysis.estimation.estimators as est
 
