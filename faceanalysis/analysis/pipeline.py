@@ -41,6 +41,7 @@ from faceanalysis.io.table import (
     POSE_COLUMNS,
     empty_table,
     with_au_columns,
+    with_identifiable_columns,
 )
 from faceanalysis.tracking import Tracks, faded_furrow_ends, track
 
@@ -197,8 +198,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     }
     table = _tracking_table(tracks)
     parameters["measurement_points"] = list(est.response.fiducials)
+    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         tracks.confidence, parameters)
+                                         tracks.confidence, parameters, ident)
     if fit["frames_over_limit"] > 0.1 * max(int(tracks.success.sum()), 1):
         log.warning("%s: on %d of %d tracked frames the face model does not explain the "
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "
@@ -206,7 +208,6 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     "other features or motion beyond the model's. Their confidence is "
                     "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"],
                     int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"])
-    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     if ident["not_identifiable"]:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
                     "%s from the other controls: their values lean on the prior that "
@@ -324,10 +325,15 @@ def _tracking_table(tracks: Tracks) -> pd.DataFrame:
 
 
 def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
-                  response: FiducialResponse, track_conf: np.ndarray, parameters: dict):
-    """``table`` with the estimate's controls, its confidence and AU columns; the
-    per-frame fit residual and its summary. ``parameters`` gains the estimated and
-    resting controls.
+                  response: FiducialResponse, track_conf: np.ndarray, parameters: dict,
+                  ident: dict):
+    """``table`` with the estimate's controls, its confidence, AU and identifiability
+    columns; the per-frame fit residual and its summary. ``parameters`` gains the
+    estimated and resting controls.
+
+    A frame's value of a control is flagged measured (``<control>_identifiable``) when
+    ``ident`` (:func:`~faceanalysis.estimation.identifiability.assess`) finds the control
+    identifiable and the estimator observed it on that frame.
 
     Controls the estimator did not estimate are reported at rest (0) on tracked frames
     and listed in ``parameters['controls_at_rest']``; lost frames are NaN. A tracked
@@ -341,11 +347,15 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
                  if c in (*MUSCLES, JAW) and np.isfinite(values[c].to_numpy(float)).any()]
     observed = np.ones(len(table), dtype=float)
     held: dict[str, int] = {}
+    controls = (*MUSCLES, JAW)
+    measured = np.zeros((len(table), len(controls)), dtype=bool)
     if estimated:
         v, seen = _hold_unobserved(values[estimated].to_numpy(float), success)
         observed = seen.mean(axis=1)
         held = {c: int(n) for c, n in zip(estimated, (~seen & success[:, None]).sum(axis=0))
                 if n}
+        for j, c in enumerate(estimated):
+            measured[:, controls.index(c)] = seen[:, j]
     for col in (*MUSCLES, JAW):
         col_v = v[:, estimated.index(col)] if col in estimated else np.zeros(len(table))
         table[col] = np.where(success, col_v, np.nan)
@@ -358,7 +368,9 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     parameters["estimated_controls"] = estimated
     parameters["controls_at_rest"] = [m for m in (*MUSCLES, JAW) if m not in estimated]
     parameters["controls_held"] = held
-    return with_au_columns(table), residual, fit
+    identifiable = [c for c, entry in ident["controls"].items() if entry["identifiable"]]
+    table = with_identifiable_columns(with_au_columns(table), identifiable, observed=measured)
+    return table, residual, fit
 
 
 def _hold_unobserved(values: np.ndarray, success: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -459,13 +471,13 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
         track_conf = table["confidence"].to_numpy(float)
     parameters = {**params, "estimator": estimator, "refine": bool(refine),
                   "measurement_points": list(est.response.fiducials)}
+    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         track_conf, parameters)
+                                         track_conf, parameters, ident)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = parameters
     metadata["model_fit"] = fit
-    metadata["identifiability"] = assess(est.response, est.displacements,
-                                         fit_options=est.fit_options)
+    metadata["identifiability"] = ident
     if "quality" in metadata:
         # the confidence changed with the estimate: so do its mean and minimum
         q = quality_summary(table, frames_missing=metadata["quality"].get("frames_missing", 0))

@@ -327,7 +327,12 @@ def reestimate_flow(analysis, video: str | os.PathLike, *,
     """
     from dataclasses import replace
 
-    from faceanalysis.io.table import JAW, MUSCLES, with_au_columns
+    from faceanalysis.io.table import (
+        JAW,
+        MUSCLES,
+        with_au_columns,
+        with_identifiable_columns,
+    )
 
     table = analysis.table.copy()
     params = analysis.metadata.get("parameters", {})
@@ -335,10 +340,16 @@ def reestimate_flow(analysis, video: str | os.PathLike, *,
                         method=method, fps=fps if fps is not None else params.get("fps"),
                         start=params.get("start") or 0, end=params.get("end"), **kwargs)
     success = table["success"].to_numpy() == 1
-    for col in (*MUSCLES, JAW):
+    observed = np.zeros((len(table), len(MUSCLES) + 1), dtype=bool)
+    for j, col in enumerate((*MUSCLES, JAW)):
         v = est[col].to_numpy(float) if col in est.columns else np.zeros(len(table))
+        observed[:, j] = np.isfinite(v) & (col in est.columns)
         table[col] = np.where(success, v, np.nan)
-    table = with_au_columns(table)
+    # flagged by the points' identifiability: the flow's own is not assessed
+    ident = analysis.metadata.get("identifiability", {}).get("controls", {})
+    table = with_identifiable_columns(
+        with_au_columns(table), [c for c, e in ident.items() if e.get("identifiable")],
+        observed=observed)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = {**params, "estimator": "flow",
                               "estimated_controls": [c for c in est.columns

@@ -124,7 +124,12 @@ def compare(truth, estimate, *, controls=None, allow_partial: bool = False) -> d
     dict
         ``frames``, ``frames_compared``, ``controls`` (name -> rmse, r, truth_max),
         ``jaw_rmse_deg``, ``fiducial_error_px`` (mean), ``fiducial_error_by_point``, and the
-        aligned arrays under ``_pairs`` (for pooling; not JSON).
+        aligned arrays under ``_pairs`` (for pooling; not JSON). Where the estimate flags its
+        values (``<control>_identifiable``), each control also has ``identifiable`` (the
+        share of compared frames flagged measured), and the report has
+        ``identifiable_controls`` (flagged on at least half the frames and moving in the
+        truth) with their ``identifiable_median_rmse``, ``identifiable_max_rmse`` and
+        ``identifiable_median_r``.
 
     Raises
     ------
@@ -159,6 +164,15 @@ def compare(truth, estimate, *, controls=None, allow_partial: bool = False) -> d
         visible = merged[vis_cols].to_numpy()[ok].astype(bool)
     dist = np.hypot(*(fid_e - fid_t).transpose(2, 0, 1))
     pairs["_fiducials"] = (dist, visible)
+    flags = {}
+    for c in controls:
+        col = next((f for f in (f"{c}_identifiable_e", f"{c}_identifiable")
+                    if f in merged.columns and f"{c}_identifiable" in e.columns), None)
+        values = None if col is None else merged[col].to_numpy(float)[ok]
+        if values is not None and np.isfinite(values).any():
+            flags[c] = values
+    if flags:
+        pairs["_identifiable"] = flags
     report = _scores(pairs)
     report.update(frames=int(len(merged)), frames_compared=int(ok.sum()))
     report["_pairs"] = pairs
@@ -173,9 +187,10 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float | None:
 
 def _scores(pairs: dict) -> dict:
     controls = {}
-    for name, (t, e) in pairs.items():
+    for name, pair in pairs.items():
         if name.startswith("_"):
             continue
+        t, e = pair
         good = np.isfinite(t) & np.isfinite(e)
         t, e = t[good], e[good]
         controls[name] = {
@@ -184,7 +199,13 @@ def _scores(pairs: dict) -> dict:
             "truth_max": float(np.max(t)) if t.size else None,
             "estimate_max": float(np.max(e)) if e.size else None,
         }
+    flags = pairs.get("_identifiable")
+    if flags:
+        for name, f in flags.items():
+            f = f[np.isfinite(f)]
+            controls[name]["identifiable"] = float(f.mean()) if f.size else None
     out = {"controls": controls}
+    out.update(_identifiable_summary(controls))
     jaw = controls.get(JAW)
     out["jaw_rmse_deg"] = None if not jaw or jaw["rmse"] is None else float(
         np.degrees(jaw["rmse"]))
@@ -201,6 +222,22 @@ def _scores(pairs: dict) -> dict:
     return out
 
 
+def _identifiable_summary(controls: dict) -> dict:
+    """Median RMSE and r over the controls the estimate flags measured on most of the
+    frames (``<control>_identifiable``) and that move in the truth; empty when the
+    estimate carries no flags."""
+    if not any("identifiable" in s for s in controls.values()):
+        return {}
+    names = [n for n, s in controls.items()
+             if (s.get("identifiable") or 0) >= 0.5 and (s.get("truth_max") or 0) > 1e-6]
+    rmse = [controls[n]["rmse"] for n in names if controls[n]["rmse"] is not None]
+    r = [controls[n]["r"] for n in names if controls[n]["r"] is not None]
+    return {"identifiable_controls": names,
+            "identifiable_median_rmse": float(np.median(rmse)) if rmse else None,
+            "identifiable_max_rmse": float(np.max(rmse)) if rmse else None,
+            "identifiable_median_r": float(np.median(r)) if r else None}
+
+
 def pool(reports: list[dict]) -> dict:
     """Pool several :func:`compare` reports (all frames of all sequences together)."""
     if not reports:
@@ -211,6 +248,10 @@ def pool(reports: list[dict]) -> dict:
     if all("_fiducials" in r["_pairs"] for r in reports):
         pairs["_fiducials"] = tuple(np.concatenate([r["_pairs"]["_fiducials"][k]
                                                     for r in reports]) for k in (0, 1))
+    if all("_identifiable" in r["_pairs"] for r in reports):
+        flagged = set.intersection(*(set(r["_pairs"]["_identifiable"]) for r in reports))
+        pairs["_identifiable"] = {n: np.concatenate([r["_pairs"]["_identifiable"][n]
+                                                     for r in reports]) for n in flagged}
     out = _scores(pairs)
     out["frames"] = int(sum(r["frames"] for r in reports))
     out["frames_compared"] = int(sum(r["frames_compared"] for r in reports))
@@ -244,6 +285,15 @@ def format_table(reports: dict[str, dict], *, controls=None) -> str:
                        ("fiducial error (px)", "fiducial_error_px")):
         cells = " | ".join(f"{_fmt(reports[n].get(key))} | " for n in names)
         lines.append(f"| {label} | {cells}|")
+    if any("identifiable_controls" in reports[n] for n in names):
+        cells = []
+        for n in names:
+            rep = reports[n]
+            count = len(rep.get("identifiable_controls", ()))
+            cells += [f"{_fmt(rep.get('identifiable_median_rmse'))} ({count})",
+                      _fmt(rep.get("identifiable_median_r"))]
+        lines.append("| median over the controls flagged identifiable (count) | "
+                     + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -18,7 +18,11 @@ one column per muscle of :data:`MUSCLES`
     radians, positive opens the mouth;
 ``AU01_r`` ... ``AU27_r``
     FACS action-unit intensities in [0, 5] (OpenFace-style names), derived from
-    the muscles by :func:`au_intensities` (through :func:`synth.facs.muscles_to_aus`).
+    the muscles by :func:`au_intensities` (through :func:`synth.facs.muscles_to_aus`);
+``<control>_identifiable``, ``AUxx_identifiable``
+    1 where the frame's value is measured: the seen points tell the control apart from
+    the others at the video's tracking noise and the frame observes it; 0 where it leans
+    on the estimator's prior or holds an earlier value (:func:`with_identifiable_columns`).
 
 Values that are unknown (a lost frame, an action unit without a muscle mapping)
 are empty cells, read back as NaN.
@@ -44,6 +48,7 @@ __all__ = [
     "FIDUCIAL_COLUMNS",
     "FRAME_COLUMNS",
     "HEAD_COLUMNS",
+    "IDENTIFIABLE_COLUMNS",
     "POSE_COLUMNS",
     "JAW",
     "MUSCLES",
@@ -53,7 +58,9 @@ __all__ = [
     "contraction_columns",
     "empty_table",
     "read_contractions",
+    "required_columns",
     "with_au_columns",
+    "with_identifiable_columns",
     "write_contractions",
 ]
 
@@ -83,6 +90,12 @@ AU_NUMBERS: tuple[int, ...] = (1, 2, 4, 6, 9, 10, 12, 14, 15, 16, 17, 20, 23, 25
 #: ``AU01_r`` ... intensities in [0, 5].
 AU_COLUMNS: tuple[str, ...] = tuple(f"AU{n:02d}_r" for n in AU_NUMBERS)
 
+#: ``<control>_identifiable`` for every muscle and the jaw, then ``AUxx_identifiable``:
+#: 1 where that column's value is measured, 0 where it is not (empty on lost frames).
+IDENTIFIABLE_COLUMNS: tuple[str, ...] = (
+    *(f"{c}_identifiable" for c in (*MUSCLES, JAW)),
+    *(f"AU{n:02d}_identifiable" for n in AU_NUMBERS))
+
 # Decimals written per column: pixels to 1/1000, seconds to the microsecond,
 # contractions and radians to 1e-6, AU intensities and confidence to 1e-4.
 _DECIMALS: dict[str, int] = {
@@ -96,6 +109,7 @@ _DECIMALS: dict[str, int] = {
     **{c: 4 for c in AU_COLUMNS},
 }
 _INTEGER_COLUMNS = ("frame", "success")
+_FLAG_COLUMNS = frozenset(("success", *IDENTIFIABLE_COLUMNS))
 _RANGES: dict[str, tuple[float, float]] = {
     "confidence": (0.0, 1.0), **{m: (0.0, 1.0) for m in MUSCLES},
     **{a: (0.0, 5.0) for a in AU_COLUMNS},
@@ -128,10 +142,10 @@ def contraction_columns() -> list[str]:
     --------
     >>> cols = contraction_columns()
     >>> cols[:5], len(cols)
-    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 78)
+    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 124)
     """
     return [*FRAME_COLUMNS, *HEAD_COLUMNS, *POSE_COLUMNS, *FIDUCIAL_COLUMNS, *MUSCLES, JAW,
-            *AU_COLUMNS]
+            *AU_COLUMNS, *IDENTIFIABLE_COLUMNS]
 
 
 def empty_table(n: int, *, frames: Sequence[int] | None = None,
@@ -270,16 +284,88 @@ def with_au_columns(table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def _with_pose(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with empty pose columns where it has none: tables written before the pose
-    was measured, and by the snakes tracker's users, are still tables."""
-    missing = [c for c in POSE_COLUMNS if c not in df.columns]
+def with_identifiable_columns(table: pd.DataFrame, identifiable, *,
+                              observed: np.ndarray | None = None) -> pd.DataFrame:
+    """A copy of ``table`` with its :data:`IDENTIFIABLE_COLUMNS` set.
+
+    Parameters
+    ----------
+    table : DataFrame
+        A contractions table (``success`` and the control columns).
+    identifiable : collection of str
+        The controls the video's seen points tell apart at its tracking noise
+        (``analysis.json`` ``identifiability``). A control outside it, or one the estimator
+        does not estimate, is never flagged measured.
+    observed : ndarray of bool, shape (T, 27), optional
+        Per frame and control of ``(*MUSCLES, JAW)``, whether the estimator observed it on
+        that frame (a control whose points were lost holds an earlier value). All by default.
+
+    Returns
+    -------
+    DataFrame
+        ``<control>_identifiable`` is 1 on a tracked frame where the control is identifiable
+        and observed, else 0; ``AUxx_identifiable`` is 1 where every control the action unit
+        is derived from (:func:`au_dependencies`) is; lost frames are empty.
+
+    Examples
+    --------
+    >>> t = empty_table(2)
+    >>> t.loc[1, "success"] = 1
+    >>> out = with_identifiable_columns(t, {"zygomaticus_major_l", "zygomaticus_major_r"})
+    >>> out["zygomaticus_major_l_identifiable"].tolist(), out["AU12_identifiable"].tolist()
+    ([nan, 1.0], [nan, 1.0])
+    >>> out["AU01_identifiable"].tolist()
+    [nan, 0.0]
+    """
+    controls = (*MUSCLES, JAW)
+    n = len(table)
+    if observed is None:
+        observed = np.ones((n, len(controls)), dtype=bool)
+    observed = np.asarray(observed, dtype=bool)
+    if observed.shape != (n, len(controls)):
+        raise ValueError(f"observed must have shape (T={n}, {len(controls)}), "
+                         f"got {observed.shape}")
+    unknown = sorted(set(identifiable) - set(controls))
+    if unknown:
+        raise ValueError(f"unknown controls {unknown}; choose from {', '.join(controls)}")
+    success = table["success"].to_numpy() == 1
+    known = np.array([c in set(identifiable) for c in controls])
+    flags = observed & known[None, :]
+    deps = au_dependencies()
+    au_flags = [flags[:, [j for j, c in enumerate(controls) if c in deps[n_au]]].all(axis=1)
+                for n_au in AU_NUMBERS]
+    values = np.column_stack([flags, *au_flags]).astype(float)
+    values[~success] = np.nan
+    # one block for all the flags: setting 46 columns one by one fragments the frame
+    kept = table.drop(columns=[c for c in IDENTIFIABLE_COLUMNS if c in table.columns])
+    return pd.concat([kept, pd.DataFrame(values, index=table.index,
+                                         columns=list(IDENTIFIABLE_COLUMNS))], axis=1)
+
+
+def _with_optional(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with empty pose and identifiability columns where it has none: tables written
+    before these were measured, the snakes tracker's (no pose) and a synthetic sequence's
+    ``truth.csv`` are still tables."""
+    missing = [c for c in (*POSE_COLUMNS, *IDENTIFIABLE_COLUMNS) if c not in df.columns]
     if not missing:
         return df
     df = df.copy()
     for c in missing:
         df[c] = np.nan
     return df
+
+
+def required_columns() -> list[str]:
+    """The columns a contractions table must have: :func:`contraction_columns` less the
+    pose and identifiability columns, which a table may lack (read back empty).
+
+    Examples
+    --------
+    >>> len(required_columns()), "head_pitch" in required_columns()
+    (76, False)
+    """
+    optional = {*POSE_COLUMNS, *IDENTIFIABLE_COLUMNS}
+    return [c for c in contraction_columns() if c not in optional]
 
 
 def _check_frame(df: pd.DataFrame, path) -> None:
@@ -329,7 +415,7 @@ def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     np.float64(0.25)
     """
     path = Path(path)
-    df = _with_pose(df)
+    df = _with_optional(df)
     _check_frame(df, path)
     _validate(df, path)
     columns = contraction_columns()
@@ -338,6 +424,8 @@ def write_contractions(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     for column in columns + extra:
         if column in _INTEGER_COLUMNS:
             out[column] = pd.to_numeric(df[column]).astype(np.int64)
+        elif column in _FLAG_COLUMNS:
+            out[column] = pd.to_numeric(df[column]).astype("Int64")   # 0, 1 or empty
         elif column in _DECIMALS:
             values = pd.to_numeric(df[column]).astype(float)
             # Rounded doubles print as their shortest decimal, so this fixes the precision
@@ -396,13 +484,16 @@ def _validate(df: pd.DataFrame, path) -> pd.DataFrame:
                              "empty cell")
         if column in _INTEGER_COLUMNS:
             wrong = values != np.round(values)
-            if column == "success":
-                wrong |= ~np.isin(values, (0.0, 1.0))
             if wrong.any():
                 pos = int(np.flatnonzero(wrong)[0])
-                expected = "0 or 1" if column == "success" else "an integer"
                 raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
-                                 f"{values[pos]:g} is not {expected}")
+                                 f"{values[pos]:g} is not an integer")
+        if column in _FLAG_COLUMNS:
+            wrong = ~np.isin(values, (0.0, 1.0)) & ~np.isnan(values)
+            if wrong.any():
+                pos = int(np.flatnonzero(wrong)[0])
+                raise ValueError(f"{path}: {_row_label(df, pos)}, column {column}: "
+                                 f"{values[pos]:g} is not 0 or 1")
         if column in _RANGES:
             lo, hi = _RANGES[column]
             with np.errstate(invalid="ignore"):
@@ -460,7 +551,7 @@ def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"{path}: not a CSV table ({first})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
-    raw = _with_pose(raw)
+    raw = _with_optional(raw)
     _check_frame(raw, path)
     numeric = _validate(raw, path)
     out = numeric.copy()

@@ -227,9 +227,9 @@ def load_series(source) -> Series:
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError):
         raise ValueError(f"{csv}: not a CSV table (expected contractions.csv or an analysis "
                          "folder)") from None
-    from faceanalysis.io.table import contraction_columns, read_contractions
+    from faceanalysis.io.table import read_contractions, required_columns
 
-    if all(c in [str(h).strip() for h in head.columns] for c in contraction_columns()):
+    if all(c in [str(h).strip() for h in head.columns] for c in required_columns()):
         df = read_contractions(csv)            # full table: validated, names row and column
     else:
         try:

@@ -437,3 +437,22 @@ def test_analysis_says_which_controls_the_points_can_tell_apart(analysed):
     assert set(ident["not_identifiable"]) == {m for m, c in ident["controls"].items()
                                              if not c["identifiable"]}
     assert json.loads(json.dumps(ident, allow_nan=False)) == ident
+
+
+def test_table_flags_the_values_the_points_cannot_measure(analysed):
+    ident = analysed.metadata["identifiability"]["controls"]
+    table = analysed.table
+    tracked = table["success"] == 1
+    held = analysed.metadata["parameters"]["controls_held"]
+    for control, entry in ident.items():
+        flags = table.loc[tracked, f"{control}_identifiable"]
+        if not entry["identifiable"]:
+            assert (flags == 0).all(), control
+        elif control not in held:
+            assert (flags == 1).all(), control
+    assert table.loc[~tracked, [f"{c}_identifiable" for c in ident]].isna().all().all()
+    # controls the estimator does not estimate are reported at rest, not measured
+    for control in analysed.metadata["parameters"]["controls_at_rest"]:
+        assert (table.loc[tracked, f"{control}_identifiable"] == 0).all(), control
+    brows = [f"AU{n:02d}_identifiable" for n in (1, 2, 4)]
+    assert (table.loc[tracked, brows] == 1).all().all()

@@ -96,3 +96,28 @@ def test_cli_refuses_mismatch_unless_allow_partial(tmp_path, run_cli):
     code, out, err = run_cli("evaluate", "--truth", seq, "--estimate", res, "--allow-partial",
                              "--json")
     assert code == 0 and json.loads(out)["frames"] == 30
+
+
+def test_scores_over_the_controls_the_estimate_flags_identifiable():
+    from faceanalysis.evaluation.scores import format_table, pool
+
+    truth = _table(range(20))
+    estimate = truth.copy()
+    good, bad = "zygomaticus_major_l", "risorius_l"
+    estimate[good] = truth[good] + 0.02
+    estimate[bad] = 1.0 - truth[bad]                  # wrong, and flagged as a guess
+    for c in (*MUSCLES, JAW):
+        estimate[f"{c}_identifiable"] = 0.0
+    estimate[f"{good}_identifiable"] = 1.0
+    estimate.loc[:12, f"{JAW}_identifiable"] = 1.0   # 13 of 20 frames: counts
+    report = compare(truth, estimate)
+    assert report["controls"][good]["identifiable"] == 1.0
+    assert report["controls"][bad]["identifiable"] == 0.0
+    assert report["identifiable_controls"] == [good, JAW]
+    assert report["identifiable_median_rmse"] == pytest.approx(np.median(
+        [0.02, report["controls"][JAW]["rmse"]]))
+    pooled = pool([report, compare(truth, estimate)])
+    assert pooled["identifiable_controls"] == [good, JAW]
+    assert "flagged identifiable" in format_table({"joint": pooled})
+    # without flags there is nothing to restrict to
+    assert "identifiable_controls" not in compare(truth, truth)

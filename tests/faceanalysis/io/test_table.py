@@ -10,6 +10,7 @@ from faceanalysis.io.table import (
     AU_COLUMNS,
     FIDUCIALS,
     HEAD_COLUMNS,
+    IDENTIFIABLE_COLUMNS,
     JAW,
     MUSCLES,
     au_intensities,
@@ -17,6 +18,7 @@ from faceanalysis.io.table import (
     empty_table,
     read_contractions,
     with_au_columns,
+    with_identifiable_columns,
     write_contractions,
 )
 
@@ -32,10 +34,11 @@ def filled_table(n=6, rng=None):
     t[fid] = rng.uniform(0, 640, (n, len(fid)))
     t[list(MUSCLES)] = rng.uniform(0, 1, (n, len(MUSCLES)))
     t[JAW] = rng.uniform(-0.05, 0.3, n)
+    t[list(IDENTIFIABLE_COLUMNS)] = rng.integers(0, 2, (n, len(IDENTIFIABLE_COLUMNS)))
     t[list(AU_COLUMNS)] = rng.uniform(0, 5, (n, len(AU_COLUMNS)))
     lost = [c for c in contraction_columns() if c not in ("frame", "timestamp", "success")]
     t.loc[2, lost] = np.nan
-    return t
+    return t.copy()   # one block per dtype, as a table read from a file
 
 
 def test_schema_matches_design():
@@ -50,9 +53,12 @@ def test_schema_matches_design():
     assert cols[8:10] == ["head_pitch", "head_yaw"]
     assert cols[10:12] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
     assert cols.index(JAW) == cols.index("orbicularis_oculi_r") + 1
-    assert cols[-len(AU_COLUMNS):] == list(AU_COLUMNS)
+    assert cols[cols.index(JAW) + 1:][:len(AU_COLUMNS)] == list(AU_COLUMNS)
     assert AU_COLUMNS[0] == "AU01_r" and AU_COLUMNS[-1] == "AU27_r" and len(AU_COLUMNS) == 16
-    assert len(cols) == len(set(cols)) == 4 + 4 + 2 + 22 + 29 + 1 + 16
+    assert cols[-len(IDENTIFIABLE_COLUMNS):] == list(IDENTIFIABLE_COLUMNS)
+    assert IDENTIFIABLE_COLUMNS[0] == f"{MUSCLES[0]}_identifiable"
+    assert IDENTIFIABLE_COLUMNS[-1] == "AU27_identifiable"
+    assert len(cols) == len(set(cols)) == 4 + 4 + 2 + 22 + 29 + 1 + 16 + 30 + 16
 
 
 def test_round_trip(tmp_path):
@@ -82,8 +88,10 @@ def test_file_format_is_fixed(tmp_path):
     assert 1 <= len(first["zygomaticus_major_l"].split(".")[1]) <= 6
     assert len(first["fid_chin_x"].split(".")[1]) <= 3
     assert "e" not in lines[1].lower()
+    assert first["AU12_identifiable"] in ("0", "1")
     lost = dict(zip(lines[0].split(","), lines[3].split(",")))
     assert lost["zygomaticus_major_l"] == "" and lost["success"] == "0"
+    assert lost["AU12_identifiable"] == ""
 
 
 def test_missing_file(tmp_path):
@@ -120,6 +128,8 @@ def write_with(tmp_path, row, column, value):
     (0, "AU12_r", "6", r"frame 10\), column AU12_r: 6 is outside \[0, 5\]"),
     (0, "confidence", "1.2", r"column confidence"),
     (5, "success", "2", r"frame 15\), column success: 2 is not 0 or 1"),
+    (1, "risorius_l_identifiable", "0.5",
+     r"frame 11\), column risorius_l_identifiable: 0.5 is not 0 or 1"),
     (5, "frame", "12", r"line 7 \(frame 12\), column frame: frame numbers must increase"),
     (2, "timestamp", "", r"frame 12\), column timestamp: empty cell"),
     (1, "fid_chin_x", "1,2", r"column fid_chin_x: '1,2' is not a number"),
@@ -265,3 +275,34 @@ def test_written_tables_with_lost_frames_are_read_back_by_every_reader(tmp_path)
         assert np.isfinite(series.controls).all() and np.isfinite(series.jaw).all()
 
     check()
+
+
+def test_identifiable_flags_follow_the_assessment_and_the_observed_frames():
+    t = filled_table(4)
+    observed = np.ones((4, len(MUSCLES) + 1), dtype=bool)
+    zyg_l = list(MUSCLES).index("zygomaticus_major_l")
+    observed[3, zyg_l] = False                       # held on frame 3: not measured there
+    out = with_identifiable_columns(t, ["zygomaticus_major_l", "zygomaticus_major_r", JAW],
+                                    observed=observed)
+    assert out["zygomaticus_major_l_identifiable"].tolist()[:2] == [1.0, 1.0]
+    assert np.isnan(out.loc[2, "zygomaticus_major_l_identifiable"])      # lost frame
+    assert out.loc[3, "zygomaticus_major_l_identifiable"] == 0.0
+    assert out.loc[3, "zygomaticus_major_r_identifiable"] == 1.0
+    assert out["risorius_l_identifiable"].tolist()[:2] == [0.0, 0.0]
+    # an action unit is measured where every control it is derived from is
+    assert out["AU12_identifiable"].tolist()[:2] == [1.0, 1.0]
+    assert out.loc[3, "AU12_identifiable"] == 0.0
+    assert out.loc[0, "AU26_identifiable"] == 1.0 and out.loc[0, "AU01_identifiable"] == 0.0
+    assert t.equals(filled_table(4))                 # input untouched
+    with pytest.raises(ValueError, match="unknown controls"):
+        with_identifiable_columns(t, ["zygomaticus"])
+    with pytest.raises(ValueError, match="observed must have shape"):
+        with_identifiable_columns(t, [], observed=observed[:2])
+
+
+def test_tables_without_identifiable_columns_are_read(tmp_path):
+    t = filled_table().drop(columns=list(IDENTIFIABLE_COLUMNS))
+    path = tmp_path / "c.csv"
+    t.to_csv(path, index=False)
+    back = read_contractions(path)
+    assert back[list(IDENTIFIABLE_COLUMNS)].isna().all().all()
