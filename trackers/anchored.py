@@ -206,12 +206,19 @@ class AnchoredTracker:
         # opening mouth, but on photographs it moved some off: 0.036 against 0.028
         # inter-ocular distances with the offset
         self.tracker_options = {"mouth_corner": "ends", **tracker_options}
+        if head_frame == "landmarks":
+            # the hairline only serves 004's head frame, which the rigid landmarks
+            # replace here: re-placing it when lost would cost a second relaxation of
+            # the frame (on 45 of WolfgangLanger's 472 frames) for nothing measured
+            self.tracker_options.setdefault("replace_lost", tuple(
+                n for n in DEFAULT_SPRINGS if n != "hairline"))
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None
         self._ref_rigid3: np.ndarray | None = None
         self._gap = False
         self._offsets: dict[str, np.ndarray] = {}
+        self._unreferenced: set[str] = set()
 
     def track(self, frame) -> TrackResult | None:
         """Track one frame; ``None`` when no face is found on it."""
@@ -253,7 +260,9 @@ class AnchoredTracker:
             # spring's pull toward the raw curves, which would otherwise be released
             # over the next frames as a creep
             res = self.tracker.track(frame, targets=targets, head=self.tracker.ref_head)
+            first = True
         else:
+            first = False
             a, b = rigid_similarity(self._ref_rigid, rigid)
             head = _apply_similarity(self.tracker.ref_head, a, b)
             targets = self._node_targets(curves, a)
@@ -268,11 +277,26 @@ class AnchoredTracker:
         system = self.tracker.system
         # each node's distance from its spring's target, for all contours at once
         dist = np.hypot(*(system.X - system.anchor).T)
+        gaps = {}
         for name in targets:
             k = self.tracker.names.index(name)
-            gap = float(np.mean(dist[system.contour_slice(k)])) / max(iod, 1e-9)
-            if gap > self.max_disagreement:
+            gaps[name] = float(np.mean(dist[system.contour_slice(k)])) / max(iod, 1e-9)
+            if gaps[name] > self.max_disagreement:
                 quality[name] = replace(quality[name], lost=True)
+        if first:
+            # a contour the first frame lost has no references yet: where it settled
+            # then is not where its landmark curve holds it later (a furrow cut short at
+            # its faint end, then pulled along the whole curve)
+            self._unreferenced = {n for n in targets if quality[n].lost}
+        else:
+            agreeing = [n for n in self._unreferenced if gaps[n] <= self.max_disagreement]
+            if agreeing:
+                # the first frame it agrees with its curve sets them
+                self.tracker.rebase_references(frame, agreeing)
+                for name in agreeing:
+                    quality[name] = replace(quality[name], depth=1.0, stretch=1.0, shape=0.0,
+                                            lost=False)
+                self._unreferenced -= set(agreeing)
         if self.occlusion and all(not quality[n].lost and quality[n].depth > d
                                   for n, d in OCCLUSION_WITNESSES.items()):
             # an edge much stronger than the features' own across the lower face: a

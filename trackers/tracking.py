@@ -168,6 +168,10 @@ class Tracker(HeadFrameSearch, ContourFields):
         curves given to :meth:`track` (``Contour.spring``; relative to the damping
         ``gamma/dt`` = 0.5 of each step). Without targets the springs hold the nodes
         where they were last placed; None or 0 (default): free snakes, as in 004.
+    replace_lost : collection of str, optional
+        The contours re-placed when they are lost (each re-placement costs a second
+        relaxation of the frame); all by default. One left out stays where it is,
+        reported lost, until it finds its feature again.
     head_anchor : {'auto', 'eyes', 'features', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -214,7 +218,7 @@ class Tracker(HeadFrameSearch, ContourFields):
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile", redetect: bool = True,
                  redetect_interval: int = 15, springs=None, corner_reach: float = 0.06,
-                 corner_follow: float = 0.0, corner_cap: float = 0.2):
+                 corner_follow: float = 0.0, corner_cap: float = 0.2, replace_lost=None):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -299,6 +303,14 @@ class Tracker(HeadFrameSearch, ContourFields):
         self.first_max_iter = int(first_max_iter)
         self.lost_depth = float(lost_depth)
         self.stretch_range = (float(lo), float(hi))
+        names = tuple(layout.contours)
+        if replace_lost is None:
+            replace_lost = names
+        unknown = sorted(set(replace_lost) - set(names))
+        if unknown:
+            raise ValueError(f"replace_lost names unknown contours {unknown}; choose from "
+                             f"{', '.join(names)}")
+        self.replace_lost = frozenset(replace_lost)
         self.refine_ends = bool(refine_ends)
         self.channel_order = channel_order
         self.names = list(CONTOUR_NAMES)
@@ -506,6 +518,28 @@ class Tracker(HeadFrameSearch, ContourFields):
         return q
 
     # ------------------------------------------------------------------ public
+    def rebase_references(self, frame, names) -> None:
+        """Take the named contours' depth, length and shape on ``frame`` (where they
+        are now) as the references their quality is judged against.
+
+        For a contour re-placed after the first frame on a curve from elsewhere (a
+        landmark model): the first frame's references describe where it was before,
+        so its stretch and shape would be measured against another feature.
+        """
+        unknown = sorted(set(names) - set(self.names))
+        if unknown:
+            raise ValueError(f"unknown contours {unknown}; choose from {', '.join(self.names)}")
+        if not names:
+            return
+        Ps, origins, _, _ = self._fields(frame)
+        depths = self._depths(Ps, origins)
+        for k, name in enumerate(self.names):
+            if name in names:
+                pts = self.system.contour_points(k)
+                self.ref_depth[name] = depths[name]
+                self.ref_length[name] = _polyline_length(pts, self.layout.contours[name].closed)
+                self.ref_shape[name] = pts
+
     def track(self, frame, *, targets=None, head=None, fallback_head=None) -> TrackResult:
         """Relax the contours on ``frame`` (starting from the last equilibrium).
 
@@ -586,7 +620,8 @@ class Tracker(HeadFrameSearch, ContourFields):
         # a contour lost frame after frame (the chin below the picture, a hand held over
         # the mouth) is re-placed on its 1st, 2nd, 4th, 8th... lost frame, at least every
         # REINIT_EVERY frames: each re-placement costs a second relaxation of all contours
-        lost = [k for k in lost if _retry_now(self._lost_streak[self.names[k]])]
+        lost = [k for k in lost if self.names[k] in self.replace_lost
+                and _retry_now(self._lost_streak[self.names[k]])]
         reinit = set()
         if lost and not first:
             base = self.last_head if quality["hairline"].lost or quality["nose_tip"].lost \

@@ -95,6 +95,28 @@ def test_a_contour_far_from_its_landmarks_is_lost(face_truth):
     assert res.quality["upper_lip"].lost and not res.quality["brow_l"].lost
 
 
+def test_a_contour_lost_on_the_first_frame_takes_its_references_where_it_agrees(face_truth):
+    from trackers.anchored import MAX_DISAGREEMENT
+
+    img, _ = face_truth
+    # every contour disagrees with its curve on the first frame, and the mouth line's
+    # first length is not the one it has when its curve holds it (a furrow cut short at
+    # its faint end on the first frame, then pulled along the whole curve)
+    tracker = AnchoredTracker(max_disagreement=1e-9)
+    assert tracker.track(img).quality["upper_lip"].lost
+    tracker.max_disagreement = MAX_DISAGREEMENT
+    tracker.tracker.ref_length["upper_lip"] *= 2.0
+    again = tracker.track(img)
+    assert not again.quality["upper_lip"].lost
+    lip = tracker.tracker.names.index("upper_lip")
+    pts = tracker.tracker.system.contour_points(lip)
+    length = np.sum(np.hypot(*np.diff(pts, axis=0).T))
+    assert tracker.tracker.ref_length["upper_lip"] == pytest.approx(length, rel=1e-6)
+    third = tracker.track(img)
+    assert not third.quality["upper_lip"].lost
+    assert third.quality["upper_lip"].stretch == pytest.approx(1.0, abs=0.05)
+
+
 def test_bad_options_are_refused(models):  # noqa: F811
     with pytest.raises(ValueError, match="channel_order"):
         AnchoredTracker(channel_order="rgba")

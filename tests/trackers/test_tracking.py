@@ -68,6 +68,46 @@ def test_lost_contour_is_reinitialised_from_layout():
     assert not r.quality["brow_l"].lost and not r.quality["brow_r"].lost
 
 
+def _without_brows(img, lay):
+    blank = img.copy()
+    for side in ("l", "r"):
+        p = lay.contours[f"brow_{side}"].points
+        x0, y0 = np.floor(p.min(0)).astype(int) - 8
+        x1, y1 = np.ceil(p.max(0)).astype(int) + 8
+        blank[y0:y1, x0:x1] = 190
+    return blank
+
+
+def test_only_the_named_contours_are_replaced_when_lost():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    tr = Tracker(lay, replace_lost=[n for n in lay.contours if n != "brow_l"])
+    img, _ = draw_face()
+    tr.track(img)
+    r = tr.track(_without_brows(img, lay))
+    assert r.quality["brow_l"].lost and r.quality["brow_r"].lost
+    assert r.quality["brow_r"].reinitialised and not r.quality["brow_l"].reinitialised
+    with pytest.raises(ValueError, match="replace_lost names unknown contours"):
+        Tracker(lay, replace_lost=["brows"])
+
+
+def test_references_can_be_taken_again():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    tr = Tracker(lay)
+    img, _ = draw_face()
+    tr.track(img)
+    # references from another placement: the brow reads as shrunk to half and is lost
+    tr.ref_length["brow_l"] *= 2.0
+    r = tr.track(img)
+    assert r.quality["brow_l"].lost and r.quality["brow_l"].stretch < 0.6
+    tr.rebase_references(img, ["brow_l"])
+    r = tr.track(img)
+    assert not r.quality["brow_l"].lost
+    assert r.quality["brow_l"].stretch == pytest.approx(1.0, abs=0.02)
+    assert r.quality["brow_l"].depth == pytest.approx(1.0, abs=0.05)
+    with pytest.raises(ValueError, match="unknown contours"):
+        tr.rebase_references(img, ["eyebrow"])
+
+
 def test_bad_frames_name_the_frame():
     lay = layout_from_eyes(*EYES, (256, 256))
     tr = Tracker(lay)
