@@ -43,7 +43,7 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
-from faceanalysis.tracking import Tracks, faded_furrow_ends, track
+from faceanalysis.tracking import Tracks, faded_furrow_ends, to_head_frame, track
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         Frame range ``[start, end)``.
     neutral : int, optional
         Frame (absolute index) showing the neutral face, used for calibration;
-        default: the first tracked frame that sees every measurement point.
+        default: the first tracked frame (a point it misses takes its neutral position
+        from the first frame within :data:`LATE_REFERENCE_S` seconds that sees it).
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
@@ -236,14 +237,21 @@ def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | 
                          f"{start}..{'end' if last is None else last}")
 
 
+#: A point the neutral frame does not see takes its neutral position from the first tracked
+#: frame within this many seconds after it that sees it (:func:`_late_references`).
+LATE_REFERENCE_S = 1.0
+
+
 def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
-    """Row of the neutral frame: the given one, else the first tracked frame that sees
-    every point, else the tracked frame that sees the most."""
-    n_valid = np.isfinite(tracks.points).all(axis=2).sum(axis=1)
+    """Row of the neutral frame: the given one, else the first tracked frame.
+
+    The first tracked frame even when it misses a point (a contour lost there): the
+    point takes its neutral position from a frame just after (:func:`_late_references`).
+    Waiting for a frame that sees every point could calibrate on an expression, which
+    would bias every value; a late reference biases one point at most.
+    """
     if neutral is None:
-        k = int(np.argmax(np.where(tracks.success, n_valid, -1)))
-        complete = np.flatnonzero(tracks.success & (n_valid == tracks.points.shape[1]))
-        return int(complete[0]) if complete.size else k
+        return int(np.flatnonzero(tracks.success)[0])
     hits = np.flatnonzero(tracks.frames == neutral)
     if hits.size == 0:
         raise ValueError(f"neutral frame {neutral} is outside the analysed range "
@@ -260,8 +268,16 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
     section. Suspect points (:func:`~faceanalysis.estimation.calibration.find_suspect`)
     are left out with ``suspect_points='exclude'``; faded furrow ends always are."""
     meas = tracks.points
-    seen = np.isfinite(meas[k]).all(axis=1)
-    drop = find_suspect(meas[k], tracks.heads[k], response.rest, valid=seen)
+    late = _late_references(tracks, k)
+    neutral_points = meas[k].copy()
+    for j, row in late.items():
+        # the point where that frame puts it relative to the head, placed in this frame
+        q = to_head_frame(meas[row, j][None], tracks.heads[row])[0]
+        x, y, scale, roll = tracks.heads[k]
+        rot = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
+        neutral_points[j] = np.array([x, y]) + scale * rot @ q
+    seen = np.isfinite(neutral_points).all(axis=1)
+    drop = find_suspect(neutral_points, tracks.heads[k], response.rest, valid=seen)
     suspect = [n for n, d in zip(response.fiducials, drop) if d]
     excluded: list[str] = []
     if suspect and suspect_points == "exclude":
@@ -269,7 +285,7 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
         meas[:, drop] = np.nan
         seen = seen & ~drop
         excluded = suspect
-    cal = calibrate(meas[k], tracks.heads[k], response.rest, valid=seen)
+    cal = calibrate(neutral_points, tracks.heads[k], response.rest, valid=seen)
     # (counted only where the point would have been measured)
     faded = (faded_furrow_ends(tracks.stretch, k, response.fiducials)
              & np.isfinite(meas).all(axis=2))
@@ -286,9 +302,34 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
     calib = {"neutral_frame": int(tracks.frames[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
              "suspect_points": suspect, "excluded_points": excluded,
+             "late_references": {response.fiducials[j]: int(tracks.frames[row])
+                                 for j, row in late.items()},
              "faded_furrow_ends": {n: int(c) for n, c in zip(response.fiducials,
                                                              faded.sum(axis=0)) if c}}
     return meas, cal, calib
+
+
+def _late_references(tracks: Tracks, k: int) -> dict[int, int]:
+    """For each point the neutral frame ``k`` does not see, the first tracked row within
+    :data:`LATE_REFERENCE_S` after it that sees it: point index -> row. A point seen
+    nowhere in that time is left without a neutral position (not measured)."""
+    pts = tracks.points
+    missing = np.flatnonzero(~np.isfinite(pts[k]).all(axis=1))
+    if not missing.size:
+        return {}
+    t = np.asarray(tracks.timestamps, dtype=float)
+    if np.isfinite(t[k]):
+        near = np.isfinite(t) & (t > t[k]) & (t - t[k] <= LATE_REFERENCE_S)
+    else:
+        near = np.arange(len(t)) > k
+        near &= np.arange(len(t)) <= k + 30
+    rows = np.flatnonzero(near & tracks.success)
+    out = {}
+    for j in missing:
+        hit = rows[np.isfinite(pts[rows, j]).all(axis=1)]
+        if hit.size:
+            out[int(j)] = int(hit[0])
+    return out
 
 
 def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: FiducialResponse,

@@ -456,3 +456,36 @@ def test_table_flags_the_values_the_points_cannot_measure(analysed):
         assert (table.loc[tracked, f"{control}_identifiable"] == 0).all(), control
     brows = [f"AU{n:02d}_identifiable" for n in (1, 2, 4)]
     assert (table.loc[tracked, brows] == 1).all().all()
+
+
+def test_the_first_tracked_frame_is_neutral_and_a_point_it_misses_is_referenced_later(
+        analysed):
+    from dataclasses import replace
+
+    from faceanalysis.analysis.pipeline import _calibrate, _neutral_row
+    from faceanalysis.tracking import to_head_frame
+
+    tracks, response = analysed.tracks, analysed.response
+    j = list(response.fiducials).index("mouth_corner_l")
+    points = tracks.points.copy()
+    points[0, j] = np.nan                     # the first frame misses the corner
+    hidden = replace(tracks, points=points)
+    assert _neutral_row(hidden, None) == 0
+    meas, cal, calib = _calibrate(hidden, 0, response, "exclude", "clip")
+    assert calib["neutral_frame"] == 0
+    assert calib["late_references"] == {"mouth_corner_l": int(tracks.frames[1])}
+    np.testing.assert_allclose(cal.neutral[j],
+                               to_head_frame(points[1, j][None], tracks.heads[1])[0],
+                               atol=1e-9)
+    disp = cal.model_displacements(meas, tracks.heads)
+    assert np.isfinite(disp[1:, j]).all() and np.abs(disp[1, j]).max() < 1e-9
+    # the same analysis without the gap: a corner one frame apart at the start of a
+    # surprise is where the first frame's is
+    _, full, _ = _calibrate(tracks, 0, response, "exclude", "clip")
+    assert np.abs(cal.neutral[j] - full.neutral[j]).max() < 0.01
+    # seen nowhere near the start: no neutral position, never measured
+    points[:, j] = np.nan
+    never = replace(tracks, points=points)
+    meas, cal, calib = _calibrate(never, 0, response, "exclude", "clip")
+    assert calib["late_references"] == {}
+    assert np.isnan(cal.model_displacements(meas, tracks.heads)[:, j]).all()
