@@ -207,8 +207,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "
                     "stay under 0.41): a head turned out of the image plane, contours on "
                     "other features or motion beyond the model's. Their confidence is "
-                    "lowered; check the overlay (--overlay)", video, fit["frames_over_limit"],
-                    int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"])
+                    "lowered; check the overlay (--overlay)%s", video, fit["frames_over_limit"],
+                    int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"],
+                    _LANDMARK_HINT if tracks.tracker == "snakes" else "")
     if ident["not_identifiable"]:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
                     "%s from the other controls: their values lean on the prior that "
@@ -236,6 +237,11 @@ def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | 
         raise ValueError(f"{video}: neutral frame {neutral} is outside the analysed range "
                          f"{start}..{'end' if last is None else last}")
 
+
+#: Added to the warnings that say the snakes did not hold the face: on real faces the
+#: landmark tracker places and holds them (docs/accuracy.md).
+_LANDMARK_HINT = ("; for a real face, try --estimator mesh (MediaPipe's face mesh holds the "
+                  "contours on their features)")
 
 #: A point the neutral frame does not see takes its neutral position from the first tracked
 #: frame within this many seconds after it that sees it (:func:`_late_references`).
@@ -295,10 +301,11 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
         log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
                     "where the face model puts %s (a contour on the wrong feature?); %s. "
                     "Check the overlay (--overlay), or give another --neutral frame or a "
-                    "corrected --layout", video, int(tracks.frames[k]), ", ".join(suspect),
+                    "corrected --layout%s", video, int(tracks.frames[k]), ", ".join(suspect),
                     "s" if len(suspect) == 1 else "", MAX_POINT_RESIDUAL,
                     "it" if len(suspect) == 1 else "them",
-                    "left out of the estimation" if excluded else "kept")
+                    "left out of the estimation" if excluded else "kept",
+                    _LANDMARK_HINT if tracks.tracker == "snakes" else "")
     calib = {"neutral_frame": int(tracks.frames[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
              "suspect_points": suspect, "excluded_points": excluded,
