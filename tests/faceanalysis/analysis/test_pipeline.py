@@ -327,6 +327,23 @@ def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
         assert laughing > crying + 0.05, (tol, crying, laughing)
 
 
+@pytest.mark.real_data
+@pytest.mark.slow
+def test_real_video_the_mesh_estimator_reads_the_laugh_above_the_crying(real_video_dir):
+    from trackers.landmarks import ensure_models
+
+    try:
+        ensure_models()
+    except (OSError, RuntimeError) as exc:
+        pytest.skip(f"the landmark model is not available: {exc}")
+    # as for the snakes above, over tolerances changed in their fifth digit
+    for tol in (0.01, 0.01 * (1 + 1e-4), 0.01 * (1 - 1e-4)):
+        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4", estimator="mesh",
+                    tracker_options={"tol": tol})
+        laughing, crying = _zygomaticus_laughing_and_crying(a.table)
+        assert laughing > crying + 0.05, (tol, crying, laughing)
+
+
 def _hide_left_brow(video, table, out, frames):
     """``video`` rewritten to ``out`` with the left brow covered by a flat box of the
     skin's colour on ``frames``: the tracker loses that contour there."""
