@@ -88,8 +88,10 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         Frame range ``[start, end)``.
     neutral : int, optional
         Frame (absolute index) showing the neutral face, used for calibration;
-        default: the first tracked frame (a point it misses takes its neutral position
-        from the first frame within :data:`LATE_REFERENCE_S` seconds that sees it).
+        default: the first tracked frame that sees every measurement point within
+        :data:`LATE_REFERENCE_S` seconds of the first tracked frame, else the first tracked
+        frame (a point it misses takes its neutral position from the first frame within
+        that time that sees it).
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
@@ -243,21 +245,29 @@ def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | 
 _LANDMARK_HINT = ("; for a real face, try --estimator mesh (MediaPipe's face mesh holds the "
                   "contours on their features)")
 
-#: A point the neutral frame does not see takes its neutral position from the first tracked
-#: frame within this many seconds after it that sees it (:func:`_late_references`).
+#: The default neutral frame waits at most this many seconds after the first tracked frame
+#: for one that sees every point (:func:`_neutral_row`); a point the neutral frame does not
+#: see takes its neutral position from the first tracked frame within this many seconds
+#: after it that sees it (:func:`_late_references`).
 LATE_REFERENCE_S = 1.0
 
 
 def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
-    """Row of the neutral frame: the given one, else the first tracked frame.
+    """Row of the neutral frame: the given one, else the first tracked frame that sees
+    every point within :data:`LATE_REFERENCE_S` of the first tracked frame, else the first
+    tracked frame.
 
-    The first tracked frame even when it misses a point (a contour lost there): the
-    point takes its neutral position from a frame just after (:func:`_late_references`).
-    Waiting for a frame that sees every point could calibrate on an expression, which
-    would bias every value; a late reference biases one point at most.
+    The wait is short: a frame that sees every point much later could be an expression,
+    which would bias every value; a point the neutral frame misses takes its neutral
+    position from a frame just after it instead (:func:`_late_references`), which biases
+    that point at most. The first tracked frame is not taken when a complete one follows
+    within the wait: the contours settle on their features over the first frames.
     """
     if neutral is None:
-        return int(np.flatnonzero(tracks.success)[0])
+        first = int(np.flatnonzero(tracks.success)[0])
+        complete = tracks.success & np.isfinite(tracks.points).all(axis=(1, 2))
+        rows = np.flatnonzero(complete & _within(tracks, first, inclusive=True))
+        return int(rows[0]) if rows.size else first
     hits = np.flatnonzero(tracks.frames == neutral)
     if hits.size == 0:
         raise ValueError(f"neutral frame {neutral} is outside the analysed range "
@@ -324,19 +334,24 @@ def _late_references(tracks: Tracks, k: int) -> dict[int, int]:
     missing = np.flatnonzero(~np.isfinite(pts[k]).all(axis=1))
     if not missing.size:
         return {}
-    t = np.asarray(tracks.timestamps, dtype=float)
-    if np.isfinite(t[k]):
-        near = np.isfinite(t) & (t > t[k]) & (t - t[k] <= LATE_REFERENCE_S)
-    else:
-        near = np.arange(len(t)) > k
-        near &= np.arange(len(t)) <= k + 30
-    rows = np.flatnonzero(near & tracks.success)
+    rows = np.flatnonzero(_within(tracks, k, inclusive=False) & tracks.success)
     out = {}
     for j in missing:
         hit = rows[np.isfinite(pts[rows, j]).all(axis=1)]
         if hit.size:
             out[int(j)] = int(hit[0])
     return out
+
+
+def _within(tracks: Tracks, k: int, *, inclusive: bool) -> np.ndarray:
+    """Rows at most :data:`LATE_REFERENCE_S` after row ``k`` (30 frames where the frames
+    have no time stamps), ``k`` itself if ``inclusive``."""
+    t = np.asarray(tracks.timestamps, dtype=float)
+    rows = np.arange(len(t))
+    after = rows >= k if inclusive else rows > k
+    if np.isfinite(t[k]):
+        return after & np.isfinite(t) & (t - t[k] <= LATE_REFERENCE_S)
+    return after & (rows <= k + 30)
 
 
 def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: FiducialResponse,

@@ -477,29 +477,37 @@ def test_table_flags_the_values_the_points_cannot_measure(analysed):
     assert (table.loc[tracked, brows] == 1).all().all()
 
 
-def test_the_first_tracked_frame_is_neutral_and_a_point_it_misses_is_referenced_later(
+def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_later(
         analysed):
     from dataclasses import replace
 
-    from faceanalysis.analysis.pipeline import _calibrate, _neutral_row
+    from faceanalysis.analysis.pipeline import LATE_REFERENCE_S, _calibrate, _neutral_row
     from faceanalysis.tracking import to_head_frame
 
     tracks, response = analysed.tracks, analysed.response
-    j = list(response.fiducials).index("mouth_corner_l")
+    assert tracks.timestamps[-1] - tracks.timestamps[0] < LATE_REFERENCE_S
+    names = list(response.fiducials)
+    j, i = names.index("mouth_corner_l"), names.index("brow_mid_r")
+    # the first frame misses the corner; the second sees every point: it is the neutral one
     points = tracks.points.copy()
-    points[0, j] = np.nan                     # the first frame misses the corner
-    hidden = replace(tracks, points=points)
-    assert _neutral_row(hidden, None) == 0
-    meas, cal, calib = _calibrate(hidden, 0, response, "exclude", "clip")
+    points[0, j] = np.nan
+    assert _neutral_row(replace(tracks, points=points), None) == 1
+    # no frame sees every point (the corner is missed on even frames, a brow on odd ones):
+    # the first frame is neutral and the corner takes its position from the second
+    points = tracks.points.copy()
+    points[0::2, j] = np.nan
+    points[1::2, i] = np.nan
+    gaps = replace(tracks, points=points)
+    assert _neutral_row(gaps, None) == 0
+    meas, cal, calib = _calibrate(gaps, 0, response, "exclude", "clip")
     assert calib["neutral_frame"] == 0
     assert calib["late_references"] == {"mouth_corner_l": int(tracks.frames[1])}
     np.testing.assert_allclose(cal.neutral[j],
                                to_head_frame(points[1, j][None], tracks.heads[1])[0],
                                atol=1e-9)
     disp = cal.model_displacements(meas, tracks.heads)
-    assert np.isfinite(disp[1:, j]).all() and np.abs(disp[1, j]).max() < 1e-9
-    # the same analysis without the gap: a corner one frame apart at the start of a
-    # surprise is where the first frame's is
+    assert np.isfinite(disp[1::2, j]).all() and np.abs(disp[1, j]).max() < 1e-9
+    # a corner one frame apart at the start of a surprise is where the first frame's is
     _, full, _ = _calibrate(tracks, 0, response, "exclude", "clip")
     assert np.abs(cal.neutral[j] - full.neutral[j]).max() < 0.01
     # seen nowhere near the start: no neutral position, never measured
