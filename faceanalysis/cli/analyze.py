@@ -96,7 +96,11 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
     q = result.metadata.get("quality", {})
+    controls = result.metadata.get("identifiability", {}).get("controls", {})
+    told = sum(bool(c.get("identifiable")) for c in controls.values())
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
-          f"({q.get('frames_lost', 0)} lost) -> {args.output}", file=sys.stderr)
+          f"({q.get('frames_lost', 0)} lost; {told} of {len(controls)} controls measured, "
+          f"the others flagged 0 in <control>_identifiable) -> {args.output}",
+          file=sys.stderr)
     print(args.output / CONTRACTIONS_CSV)
     return 0

@@ -234,6 +234,9 @@ def test_cli_keeps_suspect_points_on_request(run_cli, surprise, furrows_misplace
     assert code == 0 and "kept" in err
     meta = json.loads((out / "analysis.json").read_text())
     assert meta["calibration"]["suspect_points"] and not meta["calibration"]["excluded_points"]
+    # the closing line says how many controls the points measured
+    told = sum(c["identifiable"] for c in meta["identifiability"]["controls"].values())
+    assert f"{told} of {len(meta['identifiability']['controls'])} controls measured" in err
 
 
 def test_suspect_points_option_is_checked(surprise):
