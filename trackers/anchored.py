@@ -37,6 +37,7 @@ from trackers.landmark_contours import (
     landmark_curves,
     layout_from_landmarks,
 )
+from trackers.layout import CONTOUR_NAMES
 from trackers.polyline import resample_polyline
 from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
@@ -211,7 +212,7 @@ class AnchoredTracker:
             # replace here: re-placing it when lost would cost a second relaxation of
             # the frame (on 45 of WolfgangLanger's 472 frames) for nothing measured
             self.tracker_options.setdefault("replace_lost", tuple(
-                n for n in DEFAULT_SPRINGS if n != "hairline"))
+                n for n in CONTOUR_NAMES if n != "hairline"))
         self.tracker: Tracker | None = None
         self.index = 0
         self._ref_rigid: np.ndarray | None = None

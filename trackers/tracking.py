@@ -532,7 +532,10 @@ class Tracker(HeadFrameSearch, ContourFields):
         if not names:
             return
         Ps, origins, _, _ = self._fields(frame)
-        depths = self._depths(Ps, origins)
+        self._set_references(self._depths(Ps, origins), names)
+
+    def _set_references(self, depths, names) -> None:
+        """The named contours' depth, length and shape now are their references."""
         for k, name in enumerate(self.names):
             if name in names:
                 pts = self.system.contour_points(k)
@@ -601,11 +604,7 @@ class Tracker(HeadFrameSearch, ContourFields):
         outside = res.outside
         depths = self._depths(Ps, origins)
         if first:
-            for k, name in enumerate(self.names):
-                self.ref_depth[name] = depths[name]
-                self.ref_length[name] = _polyline_length(
-                    self.system.contour_points(k), self.layout.contours[name].closed)
-                self.ref_shape[name] = self.system.contour_points(k)
+            self._set_references(depths, self.names)
         quality = self._quality(depths, outside)
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost

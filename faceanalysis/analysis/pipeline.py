@@ -43,7 +43,8 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
-from faceanalysis.tracking import Tracks, faded_furrow_ends, to_head_frame, track
+from faceanalysis.tracking import Tracks, faded_furrow_ends, track
+from trackers.fiducials import HeadFrame
 
 log = logging.getLogger(__name__)
 
@@ -288,10 +289,8 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
     neutral_points = meas[k].copy()
     for j, row in late.items():
         # the point where that frame puts it relative to the head, placed in this frame
-        q = to_head_frame(meas[row, j][None], tracks.heads[row])[0]
-        x, y, scale, roll = tracks.heads[k]
-        rot = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
-        neutral_points[j] = np.array([x, y]) + scale * rot @ q
+        neutral_points[j] = HeadFrame(*tracks.heads[k]).to_image(
+            HeadFrame(*tracks.heads[row]).to_head(meas[row, j][None]))[0]
     seen = np.isfinite(neutral_points).all(axis=1)
     drop = find_suspect(neutral_points, tracks.heads[k], response.rest, valid=seen)
     suspect = [n for n, d in zip(response.fiducials, drop) if d]
@@ -419,7 +418,7 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
                 if n}
         for j, c in enumerate(estimated):
             measured[:, controls.index(c)] = seen[:, j]
-    for col in (*MUSCLES, JAW):
+    for col in controls:
         col_v = v[:, estimated.index(col)] if col in estimated else np.zeros(len(table))
         table[col] = np.where(success, col_v, np.nan)
     # the model's prediction at the estimate, whichever estimator made it
@@ -429,7 +428,7 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     residual, confidence, fit = _model_fit(disp, response, in_response, success, track_conf)
     table["confidence"] = confidence * observed
     parameters["estimated_controls"] = estimated
-    parameters["controls_at_rest"] = [m for m in (*MUSCLES, JAW) if m not in estimated]
+    parameters["controls_at_rest"] = [m for m in controls if m not in estimated]
     parameters["controls_held"] = held
     identifiable = [c for c, entry in ident["controls"].items() if entry["identifiable"]]
     table = with_identifiable_columns(with_au_columns(table), identifiable, observed=measured)

@@ -166,10 +166,12 @@ def compare(truth, estimate, *, controls=None, allow_partial: bool = False) -> d
     pairs["_fiducials"] = (dist, visible)
     flags = {}
     for c in controls:
-        col = next((f for f in (f"{c}_identifiable_e", f"{c}_identifiable")
-                    if f in merged.columns and f"{c}_identifiable" in e.columns), None)
-        values = None if col is None else merged[col].to_numpy(float)[ok]
-        if values is not None and np.isfinite(values).any():
+        col = f"{c}_identifiable"
+        if col not in e.columns:
+            continue
+        # suffixed by the merge where the truth has the column too
+        values = merged[col + "_e" if col in t.columns else col].to_numpy(float)[ok]
+        if np.isfinite(values).any():
             flags[c] = values
     if flags:
         pairs["_identifiable"] = flags

@@ -329,7 +329,8 @@ def with_identifiable_columns(table: pd.DataFrame, identifiable, *,
     if unknown:
         raise ValueError(f"unknown controls {unknown}; choose from {', '.join(controls)}")
     success = table["success"].to_numpy() == 1
-    known = np.array([c in set(identifiable) for c in controls])
+    identifiable = set(identifiable)
+    known = np.array([c in identifiable for c in controls])
     flags = observed & known[None, :]
     deps = au_dependencies()
     au_flags = [flags[:, [j for j, c in enumerate(controls) if c in deps[n_au]]].all(axis=1)
