@@ -43,18 +43,20 @@ from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
-__all__ = ["DEFAULT_SPRINGS", "LOWER_FACE", "MAX_DISAGREEMENT",
+__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "LOWER_FACE", "MAX_DISAGREEMENT",
            "OCCLUSION_WITNESSES", "AnchoredTracker", "rigid_similarity", "rotation_angles"]
 
 #: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). Weak: on
 #: rendered faces, whose edges the snakes find to a fraction of a pixel, stiffer springs
 #: (0.02) doubled the fiducial error by pulling the nodes toward the mesh's smoother
 #: curves, and on photographs they did not place the mouth corners better; a contour
-#: that slides away is caught by ``max_disagreement`` instead. The hairline has no
+#: that slides away is caught by ``max_disagreement`` instead. The chin boss's is twice
+#: as stiff: on a real chin the boss has no outline, and at 0.005 the snake spread over
+#: the jaw's (stretched 1.6 times in four frames of a still face). The hairline has no
 #: landmarks and stays a free snake.
 DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l": 0.01,
                    "furrow_r": 0.01, "nose_tip": 0.005, "upper_lip": 0.005,
-                   "lower_lip": 0.005, "chin_boss": 0.005}
+                   "lower_lip": 0.005, "chin_boss": 0.01}
 
 #: Stiffer springs on the two end nodes of these contours: the mouth line's ends are the
 #: mouth corners, which the mesh places better than the end of the dark line on real
@@ -63,6 +65,14 @@ DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l"
 #: 0.057 inter-ocular distances off on the smile with the contour's spring, 0.036 with
 #: this one).
 END_SPRINGS = {"upper_lip": 0.5}
+
+#: Hysteresis on where along their lines the brows' and furrows' ends are relocated, in
+#: each contour's sigma (:class:`~trackers.tracking.Tracker`, ``end_hold``). Where a
+#: brow's tail fades into the temple, relocating its end afresh on each frame cycled it
+#: by 4-8 px on a still face (WolfgangLanger's first frame, repeated); held within half
+#: a sigma, every brow and furrow fiducial stays within 0.05 px there. A quarter sigma
+#: left a furrow's top flickering by 1.3 px.
+END_HOLD = 0.5
 
 #: The lower face is taken as covered (every contour of :data:`LOWER_FACE` lost) when
 #: each of these contours lies on edges more than this many times as deep as on the first
@@ -206,7 +216,8 @@ class AnchoredTracker:
         # corner_follow=0.1) keeps rendered faces' corners where the mesh drifts from an
         # opening mouth, but on photographs it moved some off: 0.036 against 0.028
         # inter-ocular distances with the offset
-        self.tracker_options = {"mouth_corner": "ends", **tracker_options}
+        self.tracker_options = {"mouth_corner": "ends", "end_hold": END_HOLD,
+                                **tracker_options}
         if head_frame == "landmarks":
             # the hairline only serves 004's head frame, which the rigid landmarks
             # replace here: re-placing it when lost would cost a second relaxation of
@@ -354,6 +365,7 @@ class AnchoredTracker:
         """Put every contour on its landmark curve again (the face came back)."""
         t = self.tracker
         placed = t._set_targets(targets)
+        t._held_ends.clear()
         for k, name in enumerate(t.names):
             pts = placed.get(name)
             if pts is None:

@@ -172,6 +172,13 @@ class Tracker(HeadFrameSearch, ContourFields):
         The contours re-placed when they are lost (each re-placement costs a second
         relaxation of the frame); all by default. One left out stays where it is,
         reported lost, until it finds its feature again.
+    end_hold : float
+        Hysteresis, in each contour's sigma, on where along its line a relocated end
+        lies, for contours with springs: the end keeps its last place along the line
+        (carried by its spring target) while the end found lies within ``end_hold``
+        sigma of it, or none is found; across the line it follows the image. A line
+        that fades out has no sharp end, and the one found depends on where the search
+        starts. 0 (default) relocates the ends afresh on every frame.
     head_anchor : {'auto', 'eyes', 'features', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -218,7 +225,8 @@ class Tracker(HeadFrameSearch, ContourFields):
                  channel_order: str = "rgb", head_anchor: str = "auto",
                  mouth_corner: str = "profile", redetect: bool = True,
                  redetect_interval: int = 15, springs=None, corner_reach: float = 0.06,
-                 corner_follow: float = 0.0, corner_cap: float = 0.2, replace_lost=None):
+                 corner_follow: float = 0.0, corner_cap: float = 0.2, replace_lost=None,
+                 end_hold: float = 0.0):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -312,6 +320,11 @@ class Tracker(HeadFrameSearch, ContourFields):
                              f"{', '.join(names)}")
         self.replace_lost = frozenset(replace_lost)
         self.refine_ends = bool(refine_ends)
+        if not np.isfinite(end_hold) or end_hold < 0:
+            raise ValueError(f"end_hold must be >= 0, got {end_hold}")
+        self.end_hold = float(end_hold)
+        # (contour, end) -> the last relocated end's offset from that end's spring target
+        self._held_ends: dict[tuple[str, int], np.ndarray] = {}
         self.channel_order = channel_order
         self.names = list(CONTOUR_NAMES)
         self._lost_streak = dict.fromkeys(self.names, 0)
@@ -353,15 +366,30 @@ class Tracker(HeadFrameSearch, ContourFields):
     # ------------------------------------------------------------------ helpers
 
     def _refine(self, Ps, origins, gray, gorigin, settle=False):
+        """Relocate the contours' ends on their features' ends (``LayoutContour.ends``).
+
+        ``settle`` (True for every contour, or the names of some) marks contours just
+        placed: their ends may be cut back farther than a frame's motion, and they
+        start without held ends. With ``end_hold``, the end of a contour with spring
+        targets keeps its last relocated place along the line (carried by its target)
+        while the end found on this frame lies within ``end_hold`` sigma of it along the
+        line, or none is found.
+        """
         if not self.refine_ends:
             return
         X, st = self.system.X, self.system.starts
+        anchor = self.system.anchor
         g = np.ascontiguousarray(gray, dtype=np.float32)
         gox, goy = float(gorigin[0]), float(gorigin[1])
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
             if c.ends == "free":
                 continue
+            fresh = settle is True or (settle is not False and name in settle)
+            hold = self.end_hold > 0 and np.any(self.springs[name])
+            if hold and fresh:
+                for end in (0, -1):
+                    self._held_ends.pop((name, end), None)
             pts = X[st[k]:st[k + 1]]
             n = len(pts)
             new = pts
@@ -378,11 +406,33 @@ class Tracker(HeadFrameSearch, ContourFields):
                                           mode == "centre", g, gox, goy, True,
                                           _CORNER_FAN if mode == "corner" else 0.0,
                                           mode == "line")
+                target = anchor[st[k] if end == 0 else st[k + 1] - 1]
+                held = self._held_ends.get((name, end)) if hold else None
+                if held is not None:
+                    # where a feature fades out (a brow's tail into the temple) the end
+                    # found along the line depends on where the search starts, and
+                    # relocating it each frame cycled it by 4-8 px on a still face. The
+                    # end's place along the line is held (carried by its target), its
+                    # place across the line is the image's.
+                    hx, hy = target + held
+                    j = min(3, len(ref) - 1)
+                    tx, ty = ref[0] - ref[j]
+                    tn = max(np.hypot(tx, ty), 1e-9)
+                    tx, ty = tx / tn, ty / tn
+                    if ok:
+                        along = (x - hx) * tx + (y - hy) * ty
+                        if abs(along) <= self.end_hold * sigma:
+                            x, y = x - along * tx, y - along * ty
+                    else:
+                        along = (hx - ref[0, 0]) * tx + (hy - ref[0, 1]) * ty
+                        ok, x, y = True, ref[0, 0] + along * tx, ref[0, 1] + along * ty
                 if not ok:
                     continue
-                ref = _move_end_nb(ref, x, y, sigma, bool(settle))
+                ref = _move_end_nb(ref, x, y, sigma, fresh)
                 if ref.shape[0] == 0:
                     continue
+                if hold:
+                    self._held_ends[(name, end)] = np.array([x, y]) - target
                 new = ref if end == 0 else ref[::-1]
             if new is not pts:
                 self.system.set_contour(k, resample_polyline(new, n), reset_rest=True)
@@ -635,7 +685,10 @@ class Tracker(HeadFrameSearch, ContourFields):
             Ps, origins, gray, gorigin = self._fields(frame)
             r3 = relax()
             iters += r3.iterations
-            self._refine(Ps, origins, gray, gorigin, settle=True)
+            # the contours not re-placed were settled by this frame's first relaxation:
+            # cutting their ends back as far as a new placement's would lose a furrow
+            # cut short at its faint end on a still face
+            self._refine(Ps, origins, gray, gorigin, settle=reinit)
             outside = r3.outside
             depths = self._depths(Ps, origins)
             quality = self._quality(depths, outside, reinit)

@@ -315,3 +315,51 @@ def test_first_frame_settles_when_contours_stop_short_of_their_ravines():
     r = tr.track(img)
     assert r.converged and r.iterations < tr.first_max_iter, r.iterations
     assert r.success
+
+
+@pytest.mark.parametrize("hold", [0.0, 0.5])
+def test_end_hold_keeps_a_relocated_end_until_the_image_moves_it_farther(monkeypatch, hold):
+    import trackers.tracking as tracking
+
+    lay = layout_from_eyes(*EYES, (256, 256))
+    img, _ = draw_face()
+    tr = Tracker(lay, springs={"brow_l": 0.05}, end_hold=hold)
+    tr.track(img)
+    k = tr.names.index("brow_l")
+    sigma = float(lay.contours["brow_l"].sigma)
+    pts = tr.system.contour_points(k)
+    end0 = pts[0].copy()
+    out = (end0 - pts[3]) / np.hypot(*(end0 - pts[3]))     # along the brow, outward
+    real = tracking._refine_end_nb
+    found = {}
+
+    def scripted(ref, *args):
+        # the brow's first end is found where the test says; every other end as usual
+        if "at" in found and np.hypot(*(ref[0] - end0)) < 3 * sigma:
+            at = found["at"]
+            return (False, 0.0, 0.0) if at is None else (True, float(at[0]), float(at[1]))
+        return real(ref, *args)
+
+    monkeypatch.setattr(tracking, "_refine_end_nb", scripted)
+
+    def end_after(at):
+        found["at"] = at
+        tr.track(img)
+        return tr.system.contour_points(k)[0]
+
+    near = end0 + 0.3 * sigma * out
+    if hold:
+        # found within the hold, or not found: the end stays where it was relocated
+        np.testing.assert_allclose(end_after(near), end0, atol=0.05)
+        np.testing.assert_allclose(end_after(None), end0, atol=0.05)
+    else:
+        np.testing.assert_allclose(end_after(near), near, atol=0.05)
+    far = end0 + 2.0 * sigma * out
+    np.testing.assert_allclose(end_after(far), far, atol=0.05)        # beyond it: followed
+    if hold:
+        np.testing.assert_allclose(end_after(far + 0.3 * sigma * out), far, atol=0.05)
+        # across the line the end follows the image
+        across = far + 0.3 * sigma * np.array([-out[1], out[0]])
+        np.testing.assert_allclose(end_after(across), across, atol=0.05)
+    with pytest.raises(ValueError, match="end_hold"):
+        Tracker(lay, end_hold=-1.0)
