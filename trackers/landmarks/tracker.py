@@ -8,15 +8,33 @@ import numpy as np
 
 from trackers.landmarks._image import check_image
 from trackers.landmarks.detection import _run as _detect
+from trackers.landmarks.mesh import _SIZE, roi_transform
 from trackers.landmarks.mesh import _run as _mesh
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["Landmarks", "LandmarkTracker"]
+__all__ = ["RECROP", "Landmarks", "LandmarkTracker"]
+
+#: Crop change (pixels of the 192-pixel crop) beyond which a tracking frame is read again
+#: from the crop its own landmarks call for (:class:`LandmarkTracker`, ``recrop``). On
+#: real clips 5-9 % of frames exceed it (cap13, WolfgangLanger).
+RECROP = 4.0
 
 # frames a lost face's position is remembered, so that a face returning after a short
 # occlusion is preferred over a bystander
 _MEMORY = 30
+
+# the crop's corners, homogeneous crop pixels
+_CROP_CORNERS = np.array([[0, _SIZE - 1, 0, _SIZE - 1], [0, 0, _SIZE - 1, _SIZE - 1],
+                          [1, 1, 1, 1]], float)
+
+
+def _crop_change(a, b) -> float:
+    """How far the crop from landmarks ``b`` lies from the crop from ``a``: the largest
+    move of a crop corner, in pixels of the 192-pixel crop."""
+    ma, mb = roi_transform(a), roi_transform(b)
+    return float(np.hypot(*(ma @ _CROP_CORNERS - mb @ _CROP_CORNERS)).max()
+                 / np.hypot(*mb[:, 0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +78,11 @@ class LandmarkTracker:
     refine_first : bool
         After a detection, run the landmark model again on the crop from its own landmarks
         (a tighter, better aligned crop than the detector's; lowers the error of that frame).
+    recrop : float
+        On a tracking frame whose landmarks call for a crop whose corners lie more than
+        this many crop pixels (of 192) from the last frame's, run the model again on
+        that crop: a face that moved or changed much between frames is read from a crop
+        that fits it (``inf``: never).
 
     Examples
     --------
@@ -69,7 +92,8 @@ class LandmarkTracker:
     """
 
     def __init__(self, *, channel_order: str = "rgb", runtime: str = "auto",
-                 min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True):
+                 min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True,
+                 recrop: float = RECROP):
         check_image(np.zeros((2, 2), np.uint8), channel_order)
         # resolved once: 'auto' looks for LiteRT on the import path, which costs
         # file-system calls (and, with decoding in another thread, the GIL) every frame
@@ -81,6 +105,9 @@ class LandmarkTracker:
         self.channel_order, self.runtime = channel_order, runtime
         self.min_presence, self.min_score = float(min_presence), float(min_score)
         self.refine_first = bool(refine_first)
+        if not recrop > 0:
+            raise ValueError(f"recrop={recrop!r} must be positive (inf: never)")
+        self.recrop = float(recrop)
         self.reset()
 
     def reset(self) -> None:
@@ -129,6 +156,11 @@ class LandmarkTracker:
         points, presence, detected = None, 0.0, False
         if self._previous is not None:
             points, presence = self._landmarks(image, self._previous)
+            if (presence >= self.min_presence
+                    and _crop_change(self._previous, points) > self.recrop):
+                again, p = self._landmarks(image, points)
+                if p >= self.min_presence:
+                    points, presence = again, p
         if points is None or presence < self.min_presence:
             (points, presence), detected = self._detect(image), True
         if points is None or presence < self.min_presence:

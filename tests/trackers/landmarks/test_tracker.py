@@ -37,10 +37,43 @@ def test_the_largest_face_first_then_the_same_face(face):
     assert back.detected and _centre(back) > 320
 
 
+@pytest.mark.parametrize("recrop", [None, np.inf])
+def test_a_face_that_jumps_is_read_from_a_crop_that_fits_it(face, recrop):
+    img, _ = face
+
+    def frame(dx, dy):
+        canvas = np.full((360, 640, 3), img[0, 0], np.uint8)
+        canvas[60 + dy:252 + dy, 200 + dx:392 + dx] = img
+        return canvas
+
+    tracker = LandmarkTracker() if recrop is None else LandmarkTracker(recrop=recrop)
+    for _ in range(3):
+        still = tracker.track(frame(0, 0))
+    # the face jumps 40 px left and 20 px down between two frames: read from the last
+    # frame's crop, its landmarks land a median 6 px from the moved face's
+    jumped = tracker.track(frame(-40, 20))
+    err = np.median(np.hypot(*(jumped.points - still.points - [-40, 20]).T))
+    if recrop is None:
+        assert err < 1.5
+    else:
+        assert err > 3.0
+
+
+def test_crop_change_is_in_crop_pixels(face):
+    from trackers.landmarks.tracker import _crop_change
+
+    lm = LandmarkTracker().track(face[0])
+    assert _crop_change(lm.points, lm.points) == 0.0
+    side = 1.5 * np.ptp(lm.points, axis=0).max()          # the crop's side, image pixels
+    assert _crop_change(lm.points, lm.points + [side / 192 * 5, 0]) == pytest.approx(5.0)
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="'auto', 'litert', 'opencv'"):
         LandmarkTracker(runtime="onnx")
     with pytest.raises(ValueError, match="'rgb', 'bgr'"):
         LandmarkTracker(channel_order="yuv")
+    with pytest.raises(ValueError, match="recrop"):
+        LandmarkTracker(recrop=0)
     with pytest.raises(ValueError, match="min_presence"):
         LandmarkTracker(min_presence=0)
