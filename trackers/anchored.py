@@ -71,7 +71,7 @@ END_SPRINGS = {"upper_lip": 0.5}
 #: brow's tail fades into the temple, relocating its end afresh on each frame cycled it
 #: by 4-8 px on a still face (WolfgangLanger's first frame, repeated); held within half
 #: a sigma, every brow and furrow fiducial stays within 0.05 px there. A quarter sigma
-#: left a furrow's top flickering by 1.3 px.
+#: left cap12's right furrow top flickering by 2 px.
 END_HOLD = 0.5
 
 #: The lower face is taken as covered (every contour of :data:`LOWER_FACE` lost) when
