@@ -59,6 +59,21 @@ def test_a_face_that_jumps_is_read_from_a_crop_that_fits_it(face, recrop):
         assert err > 3.0
 
 
+def test_settle_gives_where_tracking_a_still_frame_converges(face):
+    img, _ = face
+    tracker = LandmarkTracker()
+    assert tracker.settle(img) is None                      # nothing tracked yet
+    first = tracker.track(img)
+    settled = tracker.settle(img)
+    assert not settled.detected and settled.presence > 0.9
+    later = [tracker.track(img) for _ in range(3)]
+    off = np.median(np.hypot(*(first.points - later[-1].points).T))
+    for lm in later:
+        # the render's tracking frames alternate by about 0.12 px around where they settle
+        assert np.median(np.hypot(*(lm.points - settled.points).T)) < 0.2
+    assert off > 0.2          # the detection frame's own landmarks lie farther off
+
+
 def test_crop_change_is_in_crop_pixels(face):
     from trackers.landmarks.tracker import _crop_change
 
