@@ -16,6 +16,7 @@ import contextlib
 import errno
 import importlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -76,6 +77,13 @@ def _sigterm_raises():
         return
 
     def handler(signum, frame):
+        if frame is not None and (frame.f_code.co_filename.startswith("<frozen importlib")
+                                  or frame.f_code.co_name == "__del__"):
+            # an exception raised here can be swallowed (the import lock's weakref
+            # callback, a finaliser ignore it) and the run would go on to the end:
+            # deliver the signal again a moment later, outside them
+            threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
+            return
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         raise Terminated(signum)
 
