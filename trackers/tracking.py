@@ -379,13 +379,14 @@ class Tracker(HeadFrameSearch, ContourFields):
             return
         X, st = self.system.X, self.system.starts
         anchor = self.system.anchor
+        placed = set(self.names) if settle is True else set(settle or ())
         g = np.ascontiguousarray(gray, dtype=np.float32)
         gox, goy = float(gorigin[0]), float(gorigin[1])
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
             if c.ends == "free":
                 continue
-            fresh = settle is True or (settle is not False and name in settle)
+            fresh = name in placed
             hold = self.end_hold > 0 and np.any(self.springs[name])
             if hold and fresh:
                 for end in (0, -1):

@@ -168,12 +168,7 @@ class LandmarkTracker:
             points, presence = again, p
             if moved < shift:
                 break
-        if presence is None:
-            return None
-        self._previous = points
-        lo, hi = points[:, :2].min(0), points[:, :2].max(0)
-        return Landmarks(points[:, :2].copy(), points[:, 2].copy(), float(presence),
-                         (*map(float, lo), *map(float, hi)), False)
+        return None if presence is None else self._accept(points, presence, False)
 
     def track(self, frame) -> Landmarks | None:
         """The landmarks of the followed face in ``frame``, or None when no face is found.
@@ -200,6 +195,10 @@ class LandmarkTracker:
             if self._lost > _MEMORY:
                 self._last_centre = None
             return None
+        return self._accept(points, presence, detected)
+
+    def _accept(self, points, presence, detected) -> Landmarks:
+        """Track on from ``points`` (468, 3) and return them as this frame's landmarks."""
         self._previous, self._lost = points, 0
         lo, hi = points[:, :2].min(0), points[:, :2].max(0)
         self._last_centre = (lo + hi) / 2
