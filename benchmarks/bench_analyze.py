@@ -6,8 +6,9 @@ end figure uses up to two cores.
 
 Per video and tracker (``tracker="snakes"``: the snakes of 004; ``tracker="landmarks"``:
 MediaPipe's face detector and mesh holding the snakes, :class:`trackers.AnchoredTracker`,
-with its default runtime ``cv2.dnn`` and, where ``ai-edge-litert`` is importable, with
-LiteRT too), from the same run of :func:`faceanalysis.analysis.pipeline.analyze`:
+with LiteRT, its default runtime where ``ai-edge-litert`` is installed, and with
+``cv2.dnn``, the runtime everywhere else), from the same run of
+:func:`faceanalysis.analysis.pipeline.analyze`:
 
 * ``analysis``: tracking (landmarks where used, potentials, snake relaxation, head frame
   or pose, fiducials) + calibration + estimation, decode excluded:

@@ -1,4 +1,5 @@
-"""Running a ``.tflite`` network: OpenCV's dnn module (no extra dependency) or LiteRT (faster).
+"""Running a ``.tflite`` network: LiteRT (Google's runtime, a dependency where it publishes
+wheels) or OpenCV's dnn module (everywhere, 1.6-2x slower).
 
 Both take the same float32 NHWC input and return the outputs sorted by their tensor names,
 so the callers do not depend on the runtime. Each network also lends a reusable input
@@ -10,6 +11,8 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -21,8 +24,13 @@ RUNTIMES = ("auto", "litert", "opencv")
 _local = threading.local()  # networks are not thread-safe: one per thread
 
 
+# what LiteRT prints to the process's stderr when it builds an interpreter: not news to a
+# user, and a line in every CLI run's log
+_LITERT_NOTICE = "INFO: Created TensorFlow Lite XNNPACK delegate for CPU."
+
+
 def litert_available() -> bool:
-    """Whether the optional ``ai-edge-litert`` package is installed."""
+    """Whether the ``ai-edge-litert`` package is installed."""
     return importlib.util.find_spec("ai_edge_litert") is not None
 
 
@@ -33,8 +41,9 @@ def check_runtime(runtime: str) -> str:
     if runtime == "auto":
         return "litert" if litert_available() else "opencv"
     if runtime == "litert" and not litert_available():
-        raise ValueError("runtime='litert' needs the optional package ai-edge-litert "
-                         "(pip install 'faceanalysis[litert]'); or use runtime='opencv'")
+        raise ValueError("runtime='litert' needs the package ai-edge-litert, which is not "
+                         "installed (it has no wheel for this platform?); use "
+                         "runtime='opencv'")
     return runtime
 
 
@@ -69,7 +78,7 @@ class _LiteRTNet:
 
         # one thread: the toolkit parallelises over videos (Dask workers), not inside a frame
         self._it = Interpreter(model_path=str(path), num_threads=1)
-        self._it.allocate_tensors()
+        _without_notice(self._it.allocate_tensors)
         self._input = self._it.get_input_details()[0]["index"]
         out = sorted(self._it.get_output_details(), key=lambda d: d["name"])
         self._outputs = [d["index"] for d in out]
@@ -90,6 +99,30 @@ class _LiteRTNet:
         return [self._it.get_tensor(i).copy() for i in self._outputs]
 
 
+def _without_notice(fn):
+    """``fn()``, with what it writes to the process's stderr (file descriptor 2) passed on
+    except LiteRT's notice that it built its CPU delegate (C++ code: ``sys.stderr`` cannot
+    catch it)."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):      # no stderr to catch
+        return fn()
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            return fn()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            text = caught.read().decode(errors="replace")
+            rest = "".join(line for line in text.splitlines(keepends=True)
+                           if line.rstrip() != _LITERT_NOTICE)
+            if rest:
+                sys.stderr.write(rest)
+
+
 def load_network(path: str | os.PathLike, *, runtime: str = "auto"):
     """Load a ``.tflite`` network.
 
@@ -98,8 +131,10 @@ def load_network(path: str | os.PathLike, *, runtime: str = "auto"):
     path : path
         The model file.
     runtime : {'auto', 'litert', 'opencv'}
-        'opencv': ``cv2.dnn.readNetFromTFLite``; 'litert': ``ai_edge_litert`` (optional
-        package, about 1.6 times faster); 'auto': LiteRT when installed, else OpenCV.
+        'opencv': ``cv2.dnn.readNetFromTFLite``; 'litert': ``ai_edge_litert`` (installed
+        with the toolkit where LiteRT publishes wheels: Linux x86-64 and ARM64, macOS on
+        Apple silicon, Windows x86-64; 1.6-2 times faster); 'auto': LiteRT when
+        installed, else OpenCV.
 
     Returns
     -------

@@ -41,3 +41,32 @@ def test_input_buffer_runs_like_a_new_batch(models, runtime):
     for got, want in zip(net.run(buf), expected):
         np.testing.assert_array_equal(got, want)
     assert np.shares_memory(net.input_buffer(x.shape), buf)   # reused, not reallocated
+
+
+@pytest.mark.skipif(not litert_available(), reason="ai-edge-litert is not installed")
+def test_a_litert_network_leaves_stderr_quiet(models):
+    import subprocess
+    import sys
+
+    # a new process: LiteRT announces its CPU delegate once per process
+    code = ("import sys; from trackers.landmarks.runtime import _LiteRTNet; "
+            "_LiteRTNet(sys.argv[1]).run(__import__('numpy').zeros((1, 192, 192, 3), 'f4'))")
+    run = subprocess.run([sys.executable, "-c", code, str(models["face_landmark"])],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr == ""
+
+
+def test_only_litert_notice_is_kept_from_stderr(capfd):
+    import os
+
+    from trackers.landmarks.runtime import _LITERT_NOTICE, _without_notice
+
+    def noisy():
+        os.write(2, f"{_LITERT_NOTICE}\nsomething the user must see\n".encode())
+        return 7
+
+    assert _without_notice(noisy) == 7
+    assert capfd.readouterr().err == "something the user must see\n"
+    os.write(2, b"after\n")                 # stderr is the process's own again
+    assert capfd.readouterr().err == "after\n"
