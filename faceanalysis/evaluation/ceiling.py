@@ -122,17 +122,19 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     Examples
     --------
     A smile with the mouth opened (AU 12 + 26) on one unseen face: from exact points
-    the jaw and the zygomaticus are followed within 0.1 degree and 0.02 (with the ridge
-    the ``joint`` fit had before, the zygomaticus's peak came out at 0.59 of 0.7):
+    the jaw is followed within 0.3 degree and the zygomaticus in step (r 1.0) within
+    0.1; through the generic face's table its peak reads 0.80 for 0.7 on this face:
 
     >>> from faceanalysis.evaluation.suite import SuiteConfig
     >>> rep = measurement_ceiling(SuiteConfig(identities=1, frames=10,
     ...                                       sequences=(("au", "12:0.7,26:0.6"),)))
     >>> round(rep["joint"]["jaw_rmse_deg"], 1)
-    0.1
+    0.3
     >>> zyg = rep["joint"]["controls"]["zygomaticus_major_l"]
-    >>> round(zyg["r"], 3), zyg["truth_max"], round(zyg["rmse"], 2) <= 0.02
+    >>> round(zyg["r"], 3), zyg["truth_max"], round(zyg["rmse"], 2) <= 0.1
     (1.0, 0.7, True)
+    >>> round(zyg["estimate_max"], 2)
+    0.8
     """
     from faceanalysis.estimation.model_response import model_response, tabulate_response
     from synth.face_shape import FaceShape

@@ -19,10 +19,10 @@ def model():
     return m
 
 
-def _run(model, values=None, jaw=0.0):
+def _run(model, values=None, jaw=0.0, tol=3e-4):
     model.reset()
     model.set_contractions(values, jaw_rotation=jaw)
-    x = model.equilibrate()
+    x = model.equilibrate(tol=tol)
     return x, model.landmark_positions()
 
 
@@ -90,8 +90,10 @@ def test_jaw_rotation_opens_the_mouth(model):
                                     "orbicularis_oculi", "levator_labii_nasi"])
 def test_left_right_pairs_are_mirror_images(model, muscle):
     mi = model.mesh.mirror_index
-    x_l, _ = _run(model, {f"{muscle}_l": 1.0})
-    x_r, _ = _run(model, {f"{muscle}_r": 1.0})
+    # converged well below the asymmetry looked for: at the default tolerance the solver's
+    # own stopping point differs between the sides by up to 3e-3 for a full smile
+    x_l, _ = _run(model, {f"{muscle}_l": 1.0}, tol=3e-5)
+    x_r, _ = _run(model, {f"{muscle}_r": 1.0}, tol=3e-5)
     d_l = x_l - model.mesh.vertices
     d_r = x_r - model.mesh.vertices
     assert np.abs(d_l).max() > 0.1
