@@ -265,15 +265,15 @@ class AnchoredTracker:
             targets["chin_boss"] = self.tracker.system.contour_points(
                 self.tracker.names.index("chin_boss")).copy()
             res = self.tracker.track(frame, targets=targets)
-            # pitch and yaw are measured against where tracking settles on this frame:
-            # the later frames' points come from crops of the last frame's landmarks, and
-            # against this frame's own (read from the detector's box) a still head read
-            # as pitched by 1 degree. (The 2-D similarity keeps this frame's own points:
-            # taken from the settled ones too, it removed a 1.1-1.4 px jump of a still
-            # real head but the rendered smile's zygomaticus reading fell.)
+            # the head's later frames (2-D similarity, pitch and yaw) are measured against
+            # where tracking settles on this frame: the later frames' points come from
+            # crops of the last frame's landmarks, and against this frame's own (read from
+            # the detector's box) a still real head moved by 1.1-1.4 px and pitched by
+            # 1 degree on the second frame
             settled = self.landmarks.settle(frame)
             if settled is not None:
-                rigid3 = np.c_[settled.points[_RIGID_INDEX], settled.z[_RIGID_INDEX]]
+                rigid = settled.points[_RIGID_INDEX]
+                rigid3 = np.c_[rigid, settled.z[_RIGID_INDEX]]
             self._ref_rigid, self._ref_rigid3 = rigid, rigid3
             self._learn_offsets(targets, res, iod)
             targets = self._node_targets(curves, 1 + 0j)
