@@ -102,11 +102,11 @@ class _LiteRTNet:
 def _without_notice(fn):
     """``fn()``, with what it writes to the process's stderr (file descriptor 2) passed on
     except LiteRT's notice that it built its CPU delegate (C++ code: ``sys.stderr`` cannot
-    catch it)."""
+    catch it). What other threads write there meanwhile is passed on after the call."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
-    except (OSError, ValueError):      # no stderr to catch
+    except (OSError, ValueError, AttributeError):    # no stderr to catch
         return fn()
     with tempfile.TemporaryFile() as caught:
         os.dup2(caught.fileno(), 2)
