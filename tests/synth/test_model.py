@@ -19,10 +19,10 @@ def model():
     return m
 
 
-def _run(model, values=None, jaw=0.0, tol=3e-4):
+def _run(model, values=None, jaw=0.0, **equilibrate):
     model.reset()
     model.set_contractions(values, jaw_rotation=jaw)
-    x = model.equilibrate(tol=tol)
+    x = model.equilibrate(**equilibrate)
     return x, model.landmark_positions()
 
 
