@@ -64,6 +64,7 @@ from faceanalysis.io.outputs import (
     atomic_path,
     write_text_atomic,
 )
+from faceanalysis.tracking import available_cores
 
 __all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
            "start_local_cluster"]
@@ -275,13 +276,6 @@ def _json_default(value):
 
 # --------------------------------------------------------------------------- the run
 
-def _default_workers() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
 def _remove_partials(root: Path, names: Iterable[str]) -> None:
     """Remove temporary folders left by workers that died (ours, by their exact prefix)."""
     for name in names:
@@ -353,8 +347,8 @@ def start_local_cluster(workers: int | None = None, *, threads: int | None = Non
     if threads is not None and (isinstance(threads, bool)
                                 or not isinstance(threads, (int, np.integer)) or threads < 1):
         raise ValueError(f"threads must be a positive integer, got {threads!r}")
-    n = int(workers or _default_workers())
-    budget = str(int(threads) if threads else max(1, _default_workers() // n))
+    n = int(workers or available_cores())
+    budget = str(int(threads) if threads else max(1, available_cores() // n))
     env = {"OMP_NUM_THREADS": budget, "OPENBLAS_NUM_THREADS": budget, "MKL_NUM_THREADS": budget,
            "NUMBA_NUM_THREADS": budget, "FACEANALYSIS_WORKER_THREADS": budget}
     # Dask sets MALLOC_TRIM_THRESHOLD_ in new worker processes (to give memory back to the

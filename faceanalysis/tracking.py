@@ -265,7 +265,8 @@ class Tracks:
         :mod:`trackers.landmark_contours`); None on lost frames and with the snakes
         tracker.
     timings : dict
-        ``track_s`` (time in the tracker) and ``frames``.
+        ``track_s`` (time in the tracker), ``cpu_s`` (CPU time of the process, all
+        threads, over the tracking loop: decoding included) and ``frames``.
     """
 
     video: str
@@ -436,20 +437,31 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     nan_pose = np.full(2, np.nan)
     writer = None
     t_track = 0.0
+    c_start = time.process_time()
     bar = progress_bar(source.n_frames, progress, "track")
     try:
         # decoding runs ahead in a thread; closing() stops it before the source closes
         with source, closing(read_ahead(source)) as decoded:
-            for frame in decoded:
+            upcoming = next(decoded, None)
+            while upcoming is not None:
+                frame = upcoming
                 frames.append(frame.index)
                 stamps.append(frame.timestamp)
                 res = None
-                if frame.ok:
+                t0 = time.perf_counter()
+                upcoming = next(decoded, None)
+                if kind != "landmarks":
                     t0 = time.perf_counter()
+                # else the landmark tracker works on this frame (prefetched) while the
+                # next one is decoded: the wait counts as tracking time, so that no
+                # landmark work hides outside the timed span
+                if frame.ok:
                     if kind == "landmarks":
                         if tracker is None:
                             tracker = _anchored(backend, device, tracker_options)
-                        res = tracker.track(frame.image)
+                        ahead = (upcoming.image if upcoming is not None and upcoming.ok
+                                 else None)
+                        res = tracker.track(frame.image, next_frame=ahead)
                     else:
                         tracker, res = _track_frame(tracker, frame, video, layout,
                                                     source.size, redetect, backend, device,
@@ -503,6 +515,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             bar.close()
         if writer is not None:
             writer.abort()
+        if kind == "landmarks" and tracker is not None:
+            tracker.close()
     if not frames:
         raise ValueError(f"{video}: no frames in the requested range")
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
@@ -511,7 +525,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                   pose=np.stack(poses), tracker=kind, landmarks=mesh,
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
-                  contours=contours, timings={"track_s": t_track, "frames": len(frames)})
+                  contours=contours, timings={"track_s": t_track, "frames": len(frames),
+                                              "cpu_s": time.process_time() - c_start})
 
 
 def _mesh(res):
@@ -528,8 +543,19 @@ def _mesh(res):
 def _anchored(backend, device, tracker_options):
     from trackers.anchored import AnchoredTracker
 
-    return AnchoredTracker(channel_order="bgr", backend=backend, device=device,
-                           **(tracker_options or {}))
+    # the landmarks' thread only pays where a core is free for it: not in a batch worker
+    # given one core of many (FACEANALYSIS_WORKER_THREADS, set by the batch runner)
+    budget = os.environ.get("FACEANALYSIS_WORKER_THREADS", "")
+    cores = int(budget) if budget.isdigit() else available_cores()
+    options = {"prefetch": cores > 1, **(tracker_options or {})}
+    return AnchoredTracker(channel_order="bgr", backend=backend, device=device, **options)
+
+
+def available_cores() -> int:
+    """The number of cores the operating system lets this process run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1   # pragma: no cover - not Linux
 
 
 #: After a stretch of at least this many frames without a face (a title card, the sky),

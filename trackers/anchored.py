@@ -88,6 +88,7 @@ LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
 MAX_DISAGREEMENT = 0.12
 
 _RIGID_INDEX = np.array(RIGID_POINTS, np.intp)
+_END = object()
 
 
 def rigid_similarity(src, dst):
@@ -171,6 +172,10 @@ class AnchoredTracker:
         features' (:data:`OCCLUSION_WITNESSES`): a hand over the mouth.
     runtime : str
         The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
+    prefetch : bool
+        Where :meth:`track` is told the next frame, run its landmarks in a second thread
+        while this frame's snakes relax (False: one thread, as a batch of videos run
+        side by side on every core wants).
     backend, device
         Where the snakes relax (:func:`~trackers.torch_backend.make_tracker`).
     **tracker_options
@@ -187,13 +192,14 @@ class AnchoredTracker:
     def __init__(self, *, landmarks=None, channel_order: str = "rgb",
                  springs=None, max_disagreement: float = MAX_DISAGREEMENT,
                  occlusion: bool = True, head_frame: str = "landmarks",
-                 runtime: str = "auto", backend: str = "numpy", device=None,
-                 **tracker_options):
+                 runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
+                 device=None, **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if not np.isfinite(max_disagreement) or max_disagreement <= 0:
             raise ValueError(f"max_disagreement must be positive, got {max_disagreement}")
         self.occlusion = bool(occlusion)
+        self.prefetch = bool(prefetch)
         if head_frame not in ("landmarks", "tracker"):
             raise ValueError(f"head_frame must be 'landmarks' or 'tracker', got {head_frame!r}")
         self.head_frame = head_frame
@@ -232,11 +238,29 @@ class AnchoredTracker:
         self._offsets: dict[str, np.ndarray] = {}
         self._unreferenced: set[str] = set()
 
-    def track(self, frame) -> TrackResult | None:
-        """Track one frame; ``None`` when no face is found on it."""
+    def track(self, frame, *, next_frame=None) -> TrackResult | None:
+        """Track one frame; ``None`` when no face is found on it.
+
+        ``next_frame``, the frame that will be tracked next where it is known, lets its
+        landmarks run in a background thread while this frame's snakes relax
+        (``prefetch``); the results are the same either way.
+        """
         index = self.index
         self.index += 1
         lm = self.landmarks.track(frame)
+        if lm is not None and self.tracker is None:
+            # the head's later frames (2-D similarity, pitch and yaw) are measured against
+            # where tracking settles on this frame: the later frames' points come from
+            # crops of the last frame's landmarks, and against this frame's own (read from
+            # the detector's box) a still real head moved by 1.1-1.4 px and pitched by
+            # 1 degree on the second frame
+            settled = self.landmarks.settle(frame) or lm
+            ref_rigid = settled.points[_RIGID_INDEX]
+            ref_rigid3 = np.c_[ref_rigid, settled.z[_RIGID_INDEX]]
+        if next_frame is not None and self.prefetch and hasattr(self.landmarks, "prefetch"):
+            # the next frame's landmarks depend only on this frame's: they run in a
+            # thread while this frame's snakes relax
+            self.landmarks.prefetch(next_frame)
         if lm is None:
             self._gap = True
             return None
@@ -265,16 +289,7 @@ class AnchoredTracker:
             targets["chin_boss"] = self.tracker.system.contour_points(
                 self.tracker.names.index("chin_boss")).copy()
             res = self.tracker.track(frame, targets=targets)
-            # the head's later frames (2-D similarity, pitch and yaw) are measured against
-            # where tracking settles on this frame: the later frames' points come from
-            # crops of the last frame's landmarks, and against this frame's own (read from
-            # the detector's box) a still real head moved by 1.1-1.4 px and pitched by
-            # 1 degree on the second frame
-            settled = self.landmarks.settle(frame)
-            if settled is not None:
-                rigid = settled.points[_RIGID_INDEX]
-                rigid3 = np.c_[rigid, settled.z[_RIGID_INDEX]]
-            self._ref_rigid, self._ref_rigid3 = rigid, rigid3
+            self._ref_rigid, self._ref_rigid3 = rigid, rigid3 = ref_rigid, ref_rigid3
             self._learn_offsets(targets, res, iod)
             targets = self._node_targets(curves, 1 + 0j)
             # settle once more toward the offset targets: the first equilibrium held a
@@ -383,5 +398,18 @@ class AnchoredTracker:
 
     def run(self, frames):
         """Generator of :meth:`track` results for an iterable of frames."""
-        for frame in frames:
-            yield self.track(frame)
+        it = iter(frames)
+        frame = next(it, _END)
+        try:
+            while frame is not _END:
+                nxt = next(it, _END)
+                yield self.track(frame, next_frame=None if nxt is _END else nxt)
+                frame = nxt
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the landmark model's prefetch thread, if one was started."""
+        close = getattr(self.landmarks, "close", None)
+        if close is not None:
+            close()

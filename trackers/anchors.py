@@ -130,7 +130,7 @@ def similarity_from_pairs(src, dst):
     return a, complex(zd[0] - a * zs[0])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _lk_nb(win, rows, cols, J, tm, x, y, h):
     """Inverse-compositional Lucas-Kanade for a translation with gain and bias
     normalisation and robust (Cauchy) weights; returns the refined (x, y) or the

@@ -116,7 +116,7 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     return np.array([x, y]) if ok else None
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _path_xy(p, arc, tx, ty, s):
     if s >= 0.0:
         return p[0, 0] + s * tx, p[0, 1] + s * ty
@@ -132,7 +132,7 @@ def _path_xy(p, arc, tx, ty, s):
     return p[i, 0] + f * (p[i + 1, 0] - p[i, 0]), p[i, 1] + f * (p[i + 1, 1] - p[i, 1])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
     """Half width at half depth of the dark line through (cx, cy), normal to (tx, ty)."""
     nx, ny = -ty, tx
@@ -174,7 +174,7 @@ def _half_width_nb(gray, cx, cy, tx, ty, gox, goy, sigma):
     return hw if np.isfinite(hw) else np.nan
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma):
     """Grey level beside a line through (cx, cy) running across (nx, ny): the median
     of the samples 3.5 to 5 sigma out on both sides (NaN off the image)."""
@@ -192,7 +192,7 @@ def _flanks_nb(gray, cx, cy, nx, ny, gox, goy, sigma):
     return np.median(np.array(outer))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _gray_step_end_nb(p, arc, tx, ty, s_coarse, sigma, gray, gox, goy, s_min):
     """Arc position of a thin dark line's end: the half-level crossing of the
     strongest dark-to-bright step of the grey level along the path, searched from
@@ -265,7 +265,7 @@ def _gray_step_end_nb(p, arc, tx, ty, s_coarse, sigma, gray, gox, goy, s_min):
     return ss[j - 1] + f * 0.25
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan, step):
     n = p.shape[0]
     k = min(3, n - 1)
@@ -301,7 +301,7 @@ def _refine_end_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, fan, st
     return found, bx, by
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty, step):
     n = p.shape[0]
     arc = np.zeros(n)
@@ -419,7 +419,7 @@ def _refine_dir_nb(p, P, ox, oy, sigma, inset, gray, gox, goy, has_gray, tx, ty,
     return True, s_end, x, y
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _trim_start_nb(p, s):
     """Polyline ``p`` without arc length ``s`` from its start."""
     n = p.shape[0]
@@ -438,7 +438,7 @@ def _trim_start_nb(p, s):
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _move_end_nb(ref, qx, qy, sigma, settle):
     """Contour ``ref`` (its end to move first) with that end moved to ``(qx, qy)``:
     extended along the end, or cut back where the end now lies (by at most 2 sigma a

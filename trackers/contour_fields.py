@@ -21,7 +21,7 @@ from trackers.snakes import paper_equivalent_strength
 
 __all__ = ["ContourFields"]
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _mean_depth_nb(P, pts, ox, oy):
     total = 0.0
     cnt = 0
@@ -33,7 +33,7 @@ def _mean_depth_nb(P, pts, ox, oy):
     return -total / cnt if cnt else 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _boxes_nb(X, starts, m, X0, Y0, gw, gh, out):
     for k in range(starts.shape[0] - 1):
         xmin = np.inf

@@ -152,7 +152,7 @@ def arc_point(points, fraction: float) -> np.ndarray:
     return out[0]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _arc_point_nb(p, fraction, out):
     # np.interp(fraction * length, arc, p[:, c]), value for value (the fiducials and
     # the extra measurement points take a few of these a frame)

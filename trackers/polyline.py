@@ -60,7 +60,7 @@ def resample_polyline(points, n: int | None = None, *, spacing: float | None = N
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _arc_length_nb(pts):
     s = np.empty(pts.shape[0])
     s[0] = 0.0
@@ -69,7 +69,7 @@ def _arc_length_nb(pts):
     return s
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _interp_at_nb(pts, s, t, j, out, row):
     """``out[row] = np.interp(t, s, pts[:, c])`` for both columns, value for value; the
     search for ``t``'s segment starts at ``j`` (the segment is returned, so that
@@ -109,7 +109,7 @@ def _interp_at_nb(pts, s, t, j, out, row):
     return j
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _resample_nb(pts, s, n, closed, out):
     # at np.linspace(0, s[-1], n (+1 closed)), as np.interp would: the tracker
     # resamples every contour whose end moved, several times a frame

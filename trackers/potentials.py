@@ -174,7 +174,7 @@ def _blur(img, sigma):
                             borderType=cv2.BORDER_REFLECT)
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _edge_at(g, y, x):
     H, W = g.shape
     y0 = y - 1 if y > 0 else 0
@@ -186,7 +186,7 @@ def _edge_at(g, y, x):
     return -np.sqrt(gx * gx + gy * gy)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_nb(g, P):
     # central differences inside, one-sided on the border; the inside loop has no
     # branch and no division, so that it vectorises (4.9 against 43 us on 80 x 140;
@@ -206,7 +206,7 @@ def _edge_nb(g, P):
             P[y, W - 1] = _edge_at(g, y, W - 1)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _dark_below_nb(g, P):
     H, W = g.shape
     for y in range(H):
@@ -217,7 +217,7 @@ def _dark_below_nb(g, P):
             P[y, x] = gy if gy < 0.0 else 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _valley_nb(g, s2, P):
     H, W = g.shape
     gx = np.empty_like(g)

@@ -111,7 +111,7 @@ def _polyline_length(p, closed=False):
     return float(_length_nb(np.ascontiguousarray(p, dtype=np.float64), bool(closed)))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _length_nb(p, closed):
     n = p.shape[0]
     total = 0.0
@@ -122,7 +122,7 @@ def _length_nb(p, closed):
     return total
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _shape_nb(cur, ref, closed):
     n = cur.shape[0]
     cx = 0.0

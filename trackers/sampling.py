@@ -15,7 +15,7 @@ import numpy as np
 __all__ = ["force_field", "sample_bilinear", "sample_or_nan"]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _force_nb(P, p, F):
     H, W = P.shape
     for y in range(H):
@@ -28,7 +28,7 @@ def _force_nb(P, p, F):
             F[y, x, 1] = -p * (P[y1, x] - P[y0, x]) / (y1 - y0)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def bilinear_nb(P, x, y, ox, oy):  # pragma: no cover
     """Bilinear sample of the 2-D array ``P`` at image point (x, y), ``P[0, 0]`` being at
     (ox, oy); NaN outside (compiled helper shared by the trackers' kernels)."""
@@ -45,7 +45,7 @@ def bilinear_nb(P, x, y, ox, oy):  # pragma: no cover
             + ty * ((1 - tx) * P[y0 + 1, x0] + tx * P[y0 + 1, x0 + 1]))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _sample_nb(P, pts, ox, oy, out):
     """Bilinear samples of P at (x, y) - (ox, oy); NaN outside."""
     for i in range(pts.shape[0]):

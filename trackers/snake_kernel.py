@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
     """Solve A X = R in place for the two columns of R (banded Cholesky + cyclic fix).
 
@@ -76,7 +76,7 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
                 R[i, c] -= zc[i, 0] * h0 + zc[i, 1] * h1 + zc[i, 2] * h2
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _first_outside(X, fidx, fgeom):
     """The first node outside its field (``fgeom`` rows: x, y of the field's [0, 0],
     its height and width), or -1: the test of ``ContourSystem.outside_fields`` without
@@ -90,7 +90,7 @@ def _first_outside(X, fidx, fgeom):
     return -1
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _pgrad(P, k, y, x, h, w):
     """-grad P at pixel (y, x) of field k: central differences, one-sided at borders."""
     x0 = x - 1 if x > 0 else 0
@@ -102,7 +102,7 @@ def _pgrad(P, k, y, x, h, w):
     return -gx, -gy
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, fgeom, from_potential, gdt, dt,
                   tol, min_iter, max_iter, outside, split, max_step, prv, normal_only,

@@ -181,13 +181,14 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     k = _neutral_row(tracks, neutral)
     meas, cal, calib = _calibrate(tracks, k, response, suspect_points, video)
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     disp = cal.model_displacements(meas, tracks.heads)
     disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
                        options={"fps": fps, "start": start, "end": end}, calibration=cal)
     est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
     t_estimate = time.perf_counter() - t0
+    c_estimate = time.process_time() - c0
 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
@@ -223,7 +224,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
                                  extra={"calibration": calib, "model_fit": fit,
                                         "identifiability": ident})
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
-               "total_s": elapsed, "frames": len(tracks)}
+               "total_s": elapsed, "frames": len(tracks),
+               "track_cpu_s": tracks.timings["cpu_s"], "estimate_cpu_s": c_estimate}
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)

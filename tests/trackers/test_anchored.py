@@ -46,6 +46,23 @@ def test_fiducials_head_frame_and_lost_frames(face_truth):
     assert back.index == 3
 
 
+def test_prefetching_the_next_frame_changes_no_result(face_truth):
+    img, _ = face_truth
+    frames = [img, _shift(img, 2, 1), _shift(img, 4, 2), np.full_like(img, 128), img,
+              _shift(img, -3, 1)]
+    runs = {}
+    for prefetch in (False, True):
+        tracker = AnchoredTracker(prefetch=prefetch)
+        runs[prefetch] = list(tracker.run(frames))
+        assert tracker.landmarks._executor is None          # run() stops the thread
+    for a, b in zip(runs[False], runs[True]):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert all(np.array_equal(a.fiducials[n], b.fiducials[n]) for n in a.fiducials)
+            assert a.head == b.head and a.extra["head_pitch"] == b.extra["head_pitch"]
+    assert runs[True][3] is None and runs[True][4].extra["detected"]
+
+
 def test_a_still_face_stays_still(face_truth):
     # the springs pull toward the landmark curves moved by the first frame's offsets:
     # on a face that does not move, nothing should creep

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,6 +86,13 @@ class LandmarkTracker:
         that crop: a face that moved or changed much between frames is read from a crop
         that fits it (``inf``: never).
 
+    Notes
+    -----
+    :meth:`prefetch` starts the next frame's landmarks in a background thread: the
+    network runs without Python's global lock, so a caller that has other work for the
+    current frame (the snakes of :class:`~trackers.AnchoredTracker`) overlaps the two.
+    Results are those of calling :meth:`track` on the frames in order.
+
     Examples
     --------
     >>> tracker = LandmarkTracker(channel_order="bgr")   # doctest: +SKIP
@@ -108,13 +117,54 @@ class LandmarkTracker:
         if not recrop > 0:
             raise ValueError(f"recrop={recrop!r} must be positive (inf: never)")
         self.recrop = float(recrop)
+        self._executor: ThreadPoolExecutor | None = None
+        self._pending = None       # (frame, future, state before it) of a prefetch
         self.reset()
 
     def reset(self) -> None:
         """Forget the face: the next frame starts with a detection."""
+        self._discard()
         self._previous = None      # (468, 3) landmarks of the last frame, while tracking
         self._last_centre = None   # where the face was last seen
         self._lost = 0             # frames since then
+
+    def prefetch(self, frame) -> None:
+        """Start tracking ``frame`` in a background thread.
+
+        The next :meth:`track` of this same array object returns the result; any other
+        call first waits for it and undoes it, so results never depend on whether a
+        prefetch was made. Call :meth:`close` (or use the tracker as a context manager)
+        to stop the thread.
+        """
+        self._discard()
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1,
+                                                thread_name_prefix="landmarks")
+        state = self._previous, self._last_centre, self._lost   # before the thread moves it
+        self._pending = (frame, self._executor.submit(self._track, frame), state)
+
+    def close(self) -> None:
+        """Stop the prefetch thread (a later :meth:`prefetch` starts a new one)."""
+        self._discard()
+        if self._executor is not None:
+            self._executor.shutdown()
+            self._executor = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _discard(self) -> None:
+        """Wait for a pending prefetch and restore the state from before it."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            _, future, state = pending
+            # its frame is not tracked: an error there is not this caller's
+            with contextlib.suppress(Exception):
+                future.result()
+            self._previous, self._last_centre, self._lost = state
 
     def _net(self, name):
         # the networks are cached per thread by load_network; the files are checked (and
@@ -156,6 +206,7 @@ class LandmarkTracker:
 
         Returns None when no face is being tracked.
         """
+        self._discard()
         if self._previous is None:
             return None
         image = check_image(frame, self.channel_order)
@@ -178,6 +229,14 @@ class LandmarkTracker:
         frame : ndarray, shape (H, W) or (H, W, 3)
             uint8, or float in [0, 1].
         """
+        pending = self._pending
+        if pending is not None and pending[0] is frame:
+            self._pending = None
+            return pending[1].result()
+        self._discard()
+        return self._track(frame)
+
+    def _track(self, frame) -> Landmarks | None:
         image = check_image(frame, self.channel_order)
         points, presence, detected = None, 0.0, False
         if self._previous is not None:

@@ -74,6 +74,43 @@ def test_settle_gives_where_tracking_a_still_frame_converges(face):
     assert off > 0.2          # the detection frame's own landmarks lie farther off
 
 
+def _same(a, b):
+    if a is None or b is None:
+        return a is b
+    return (np.array_equal(a.points, b.points) and np.array_equal(a.z, b.z)
+            and a.presence == b.presence and a.detected == b.detected)
+
+
+def test_a_prefetched_frame_gives_what_tracking_it_gives(face):
+    img, _ = face
+    blank = np.full_like(img, 128)
+    moved = np.roll(img, (3, -5), axis=(0, 1))
+    frames = [img, moved, blank, img, moved, img]
+    plain = LandmarkTracker()
+    expected = [plain.track(f) for f in frames]
+    with LandmarkTracker() as tracker:
+        got = []
+        for k, f in enumerate(frames):
+            got.append(tracker.track(f))
+            if k + 1 < len(frames):
+                tracker.prefetch(frames[k + 1])
+        assert tracker._executor is not None
+    assert tracker._executor is None                        # closed by the context
+    assert all(_same(a, b) for a, b in zip(expected, got))
+    # a prefetch that is not followed by its frame is undone: the state is as before it
+    tracker = LandmarkTracker()
+    first = tracker.track(img)
+    tracker.prefetch(blank)                    # would lose the face...
+    after = tracker.track(moved)               # ...but another frame comes instead
+    reference = LandmarkTracker()
+    reference.track(img)
+    assert _same(after, reference.track(moved)) and not after.detected
+    tracker.prefetch(moved)
+    settled = tracker.settle(moved)           # settle waits for and undoes it too
+    assert settled is not None and first is not None
+    tracker.close()
+
+
 def test_crop_change_is_in_crop_pixels(face):
     from trackers.landmarks.tracker import _crop_change
 
