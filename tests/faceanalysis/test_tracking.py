@@ -139,6 +139,30 @@ def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
     np.testing.assert_allclose(tr.landmarks[2][61, :2], tr.landmarks[3][61, :2], atol=1.0)
 
 
+def test_reading_landmarks_a_frame_ahead_changes_no_result(tmp_path, rendered_face,
+                                                           monkeypatch):
+    from faceanalysis.tracking import _anchored
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    frames = [np.roll(rendered_face, (k % 3, -k), axis=(0, 1)) for k in range(5)]
+    frames[2] = np.full_like(rendered_face, 120)
+    for i, img in enumerate(frames):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    ahead = track(folder, fps=10, tracker="landmarks", tracker_options={"prefetch": True})
+    alone = track(folder, fps=10, tracker="landmarks", tracker_options={"prefetch": False})
+    assert ahead.success.tolist() == alone.success.tolist() == [True, True, False, True, True]
+    np.testing.assert_array_equal(ahead.fiducials, alone.fiducials)
+    np.testing.assert_array_equal(ahead.pose, alone.pose)
+    assert ahead.timings["cpu_s"] > 0 and ahead.timings["track_s"] > 0
+    # a batch worker given one core reads them on its own thread; two cores: ahead
+    monkeypatch.setenv("FACEANALYSIS_WORKER_THREADS", "1")
+    assert not _anchored("numpy", None, None).prefetch
+    assert _anchored("numpy", None, {"prefetch": True}).prefetch
+    monkeypatch.setenv("FACEANALYSIS_WORKER_THREADS", "2")
+    assert _anchored("numpy", None, None).prefetch
+
+
 def test_tracker_choice_is_checked(tmp_path):
     path, lay = _face_video(tmp_path, frames_lost_brow=())
     with pytest.raises(ValueError, match="unknown tracker 'mesh'; choose from landmarks, "):

@@ -133,8 +133,9 @@ class LandmarkTracker:
 
         The next :meth:`track` of this same array object returns the result; any other
         call first waits for it and undoes it, so results never depend on whether a
-        prefetch was made. Call :meth:`close` (or use the tracker as a context manager)
-        to stop the thread.
+        prefetch was made. The frame is read in the thread: leave it unchanged until it
+        is tracked. Call :meth:`close` (or use the tracker as a context manager) to stop
+        the thread.
         """
         self._discard()
         if self._executor is None:
