@@ -16,8 +16,9 @@ use the forces.
   The compressive branch plays the role of the compression penalty of 000 (section 4): a
   strongly compressed spring stiffens too, which keeps elements from collapsing.
 
-* Volume preservation, the ``Q`` term of 004 III-A: ``bulk / 2 * V0 * ((V - V0) / V0)**2``
-  per prism (three tetrahedra, 000 section 6), force ``-dQ/dx``.
+* Volume preservation, the ``Q`` term of 004 III-A: ``bulk / 2 * V0 * (J - 1)**2``, ``J = V / V0``
+  per prism (three tetrahedra, 000 section 6; divided by ``J`` under compression, see
+  :mod:`synth.volume`), force ``-dQ/dx``.
 * Skull non-penetration (000 section 7): a fascia node whose height above the (jaw-rotated)
   skull plane under it drops below the margin is pushed back out along the skull normal by
   a stiff penalty.  As a fail-safe, a node that still ends up below the bone surface itself

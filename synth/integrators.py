@@ -200,13 +200,16 @@ def damping_coefficients(lattice, ratio: float = 1.1) -> np.ndarray:
     return 2.0 * ratio * lowest_frequency(lattice) * np.asarray(lattice.mass)
 
 
-def stable_timestep(lattice, damping: np.ndarray | None = None, safety: float = 0.3) -> float:
+def stable_timestep(lattice, damping: np.ndarray | None = None, safety: float = 0.2) -> float:
     """A time step (s) inside the stability region of :func:`rk2_step` for this lattice.
 
-    ``safety / omega_max`` with ``omega_max`` the Gershgorin bound of the highest frequency
-    (large-strain springs and volume term); the midpoint rule amplifies lightly damped
+    ``safety / omega_max`` with ``omega_max`` the Gershgorin bound of the highest frequency at
+    rest (large-strain springs and volume term); the midpoint rule amplifies lightly damped
     oscillations by ``(omega dt)**4 / 8`` per step, which the damping absorbs for
-    ``omega dt <~ 0.3``.  Also keeps ``gamma dt / m < 1``."""
+    ``omega dt <~ 0.3``. The default leaves room for the volume term's stiffening under
+    compression (``1 / J**3``, :mod:`synth.volume`): a sudden jaw opening squeezes elements
+    near the jaw to a fraction of their volume for a few steps.  Also keeps
+    ``gamma dt / m < 1``."""
     free = ~lattice.fixed
     m = lattice.mass[free]
     k = _node_stiffness(lattice)[free]

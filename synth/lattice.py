@@ -258,7 +258,8 @@ def build_lattice(mesh, *, layer_depths=DEFAULT_LAYER_DEPTHS, stiffness=None,
         Overrides of the epidermis / fascia membrane thickness (cm).
     bulk_modulus : float
         Stiffness of the volume-preservation term (kPa): energy
-        ``bulk / 2 * V0 * ((V - V0) / V0)**2`` per element (004 Q term).
+        ``bulk / 2 * V0 * (J - 1)**2`` per element, ``J = V / V0`` (004 Q term; divided by ``J``
+        under compression, see :mod:`synth.volume`).
     density : float
         Mass density for the lumped nodal masses (1e-4 = 1 g/cm³ in model units).
     skull_margin : float

@@ -1,7 +1,11 @@
 """Volume preservation of the tissue lattice: the ``Q`` term of 004 III-A.
 
-Energy ``bulk / 2 * V0 * ((V - V0) / V0)**2`` per prism (three tetrahedra, 000 section 6)
-and force ``-dQ/dx`` (see :mod:`synth.forces`). Its Numba kernel is most of this module:
+Energy per prism (three tetrahedra, 000 section 6), with ``J = V / V0``: 004's
+``bulk / 2 * V0 * (J - 1)**2`` where the element grows, and ``bulk / 2 * V0 * (J - 1)**2 / J``
+where it shrinks, which has the same value, slope and stiffness at rest (``J = 1``) but resists
+being squeezed ever harder (its force grows as ``1 / J**2``) so that no element collapses; below
+``J = 0.02`` it continues as its quadratic expansion there (finite for an inverted element).
+Force ``-dQ/dx`` (see :mod:`synth.forces`). Its Numba kernel is most of this module:
 it is written out coordinate by coordinate over blocks of prisms so that its arithmetic
 runs in SIMD loops, which is why it stands apart from the other, short terms.
 """
@@ -18,6 +22,13 @@ __all__ = ["volume_forces"]
 
 #: prisms per block of :func:`_volume_kernel` (its arithmetic runs in SIMD loops over a block)
 _VB = 64
+
+#: volume ratio below which the compression energy continues as its quadratic expansion
+_J_MIN = 0.02
+# its value, slope and curvature there, per unit of bulk * V0
+_E0 = 0.5 * (_J_MIN - 1.0) ** 2 / _J_MIN
+_G1 = 0.5 * (1.0 - 1.0 / _J_MIN ** 2)
+_G2 = 1.0 / _J_MIN ** 3
 
 
 @numba.njit(cache=True, nogil=True)
@@ -317,9 +328,19 @@ def _volume_kernel(x, prisms, quads, rest_volume, bulk, out):  # pragma: no cove
             e = e0 + t
             vol = (gt[18 * _VB + t] + gq[18 * _VB + t]) * (1.0 / 24.0)
             v0 = rest_volume[e]
-            strain = (vol - v0) / v0
-            energy += 0.5 * bulk[e] * v0 * strain * strain
-            cf = bulk[e] * strain * (1.0 / 24.0)
+            J = vol / v0
+            if J >= 1.0:
+                strain = J - 1.0
+                energy += 0.5 * bulk[e] * v0 * strain * strain
+                dedv = bulk[e] * strain
+            elif J > _J_MIN:
+                energy += 0.5 * bulk[e] * v0 * (J - 1.0) * (J - 1.0) / J
+                dedv = 0.5 * bulk[e] * (1.0 - 1.0 / (J * J))
+            else:
+                d = J - _J_MIN
+                energy += bulk[e] * v0 * (_E0 + _G1 * d + 0.5 * _G2 * d * d)
+                dedv = bulk[e] * (_G1 + _G2 * d)
+            cf = dedv * (1.0 / 24.0)
             for k in range(6):
                 n = prisms[e, k]
                 for c in range(3):
