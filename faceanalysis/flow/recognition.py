@@ -50,8 +50,11 @@ shows the face at rest just before. What the detector can say of its pick is rep
 laugh is a lull between bursts, not rest) and ``'unresolved'`` when :data:`REST_NOISE`
 times the clip's frame-to-frame noise of the total exceeds twice the margin, so that rest
 cannot be told
-from expression (real clips with large head motion or a hand over the face); after
-``'moving'`` or ``'unresolved'`` the labels are doubtful and the reference should be given.
+from expression (real clips with large head motion or a hand over the face). The flow of that
+first pass runs from the first frame, which may be the apex of an expression, and large flow is
+noisy; so an ``'unresolved'`` pick is judged again from the classification pass's flow, which
+runs from the pick and is small near it. After ``'moving'`` or ``'unresolved'`` the labels are
+doubtful and the reference should be given.
 The reference used is reported (:attr:`Recognition.reference`,
 :attr:`Recognition.reference_source`).
 
@@ -684,8 +687,16 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     frames = stream.frames[keep]
     store = _FrameStore(len(frames), (int(templates.mask.sum()), 2))
     energy = np.full(len(frames), np.nan)
+    # where the first pass could not tell rest from noise (its flow runs from the first
+    # frame, perhaps the apex of an expression, and is noisy where it is large), the flow
+    # from the rest frame found is small near it: judge there whether the face holds still
+    rejudge = rest == "unresolved" and source == "detected"
+    fit = _ContractionFit(templates) if rejudge else None
+    total = np.full(len(stream.frames), np.nan)
     try:
         for pos, clean, e in _stream_clean(stream, templates):
+            if rejudge:
+                total[pos] = fit(clean).sum(axis=1)
             for i, c, v in zip(pos, clean, e):
                 if keep[i]:
                     store[row[i]] = c
@@ -694,6 +705,10 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                               min_length=min_length, min_gap=min_gap)
     finally:
         store.close()
+    if rejudge:
+        again, verdict = _pick_rest(total, stream.frames, ref)
+        if again == ref:
+            rest = verdict
     return replace(rec, reference=int(ref), reference_source=source, reference_rest=rest)
 
 
