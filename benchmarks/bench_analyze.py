@@ -5,14 +5,16 @@ the landmark tracker runs the next frame's landmark model in a second thread whi
 snakes relax on this frame (:meth:`trackers.AnchoredTracker.track`, ``next_frame``);
 decoding runs ahead in a third (:func:`faceanalysis.io.video.read_ahead`).
 
-Per video and tracker (``tracker="snakes"``: the snakes of 004; ``tracker="landmarks"``:
-MediaPipe's face detector and mesh holding the snakes, :class:`trackers.AnchoredTracker`,
-with LiteRT, its default runtime where ``ai-edge-litert`` is installed, and with
-``cv2.dnn``, the runtime everywhere else), from the same run of
-:func:`faceanalysis.analysis.pipeline.analyze`:
+Per video and tracker, each with the estimator :func:`faceanalysis.analysis.pipeline.analyze`
+runs by default with it (``tracker="snakes"``: the snakes of 004, ``joint``;
+``tracker="landmarks"``, the default: MediaPipe's face detector and mesh holding the snakes,
+:class:`trackers.AnchoredTracker`, and the ``mesh`` fit, with LiteRT, the landmark model's
+default runtime where ``ai-edge-litert`` is installed, and with ``cv2.dnn``, the runtime
+everywhere else), from the same run of :func:`~faceanalysis.analysis.pipeline.analyze`:
 
 * ``analysis``: tracking (landmarks where used, potentials, snake relaxation, head frame
-  or pose, fiducials) + calibration + estimation, decode excluded:
+  or pose, fiducials) + calibration + estimation (the fit, the identifiability of each
+  control, the model's fit residual), decode excluded:
   frames / (tracking time + estimation time); with the landmark tracker, waiting for
   the next decoded frame counts as tracking time (its landmarks are being read then);
 * ``end to end``: the wall time of the whole call (decode + tracking + estimation
@@ -69,11 +71,11 @@ REAL = Path(os.environ.get("FACEANALYSIS_REAL_DATA",
 PEER = Path(__file__).resolve().parent / "peers" / "mediapipe_face_mesh.py"
 
 #: (label, analyze options, analysis target frames/s, ratio target, end-to-end target)
-SNAKES = ("snakes", {"tracker": "snakes"}, 300.0, 1.11, 150.0)
-LANDMARKS = ("landmarks (cv2.dnn)",
+SNAKES = ("snakes + joint", {"tracker": "snakes"}, 300.0, 1.11, 150.0)
+LANDMARKS = ("landmarks + mesh (cv2.dnn)",
              {"tracker": "landmarks", "tracker_options": {"runtime": "opencv"}},
              100.0, 0.5, None)
-LANDMARKS_LITERT = ("landmarks (LiteRT)",
+LANDMARKS_LITERT = ("landmarks + mesh (LiteRT)",
                     {"tracker": "landmarks", "tracker_options": {"runtime": "litert"}},
                     100.0, 0.5, None)
 
@@ -250,7 +252,7 @@ def run(quick: bool = False) -> list[Figure]:
             for rt in runtimes:
                 ms = statistics.median(s[0] for s in stage[rt])
                 label = "cv2.dnn" if rt == "opencv" else "LiteRT"
-                own = ours[f"landmarks ({label})"]
+                own = ours[f"landmarks + mesh ({label})"]
                 share = ms / (1e3 / statistics.median(o[0] for o in own))
                 figures.append(Figure(
                     "analyze", name, f"landmark stage alone ({label}), tracking mode", ms,

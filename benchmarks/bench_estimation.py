@@ -98,7 +98,7 @@ def imm(quick: bool = False) -> list[Figure]:
         for person in people:
             for second in (5, 2):
                 base = analyze(_pair(Path(tmp), person, second), fps=1.0, neutral=0,
-                               tracker="landmarks")
+                               tracker="landmarks", estimator="joint")
                 for est in ESTIMATORS:
                     t = (base if est == "joint" else reestimate(base, est)).table
                     rows[est][person, second] = {
@@ -155,7 +155,7 @@ def clips(quick: bool = False) -> list[Figure]:
         if not path.is_file():
             continue
         t0 = time.perf_counter()
-        base = analyze(path, tracker="landmarks")
+        base = analyze(path, tracker="landmarks", estimator="joint")
         t_joint = time.perf_counter() - t0
         for est in ESTIMATORS:
             t0 = time.perf_counter()

@@ -185,7 +185,7 @@ def smile_zygomaticus(quick=False):
                     img = cv2.imread(str(next(folder.glob(f"{person}-{t}?.jpg"))))
                     cv2.imwrite(str(d / f"{t}.png"), img)
                 try:
-                    table = analyze(d, fps=1.0, tracker=tracker).table
+                    table = analyze(d, fps=1.0, tracker=tracker, estimator="joint").table
                 except ValueError:
                     table = None
                 z = (np.full(2, np.nan) if table is None else

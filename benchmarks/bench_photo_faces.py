@@ -89,7 +89,7 @@ def _analyze(folder: Path):
 
     idx = [FIDUCIALS.index(n) for n in CORNERS]
     try:
-        a = analyze(folder, fps=1.0, tracker="landmarks", neutral=0)
+        a = analyze(folder, fps=1.0, tracker="landmarks", neutral=0, estimator="joint")
     except ValueError:
         return np.full(2, np.nan), np.full((2, 2, 2), np.nan)
     z = ((a.table["zygomaticus_major_l"] + a.table["zygomaticus_major_r"]) / 2).to_numpy()

@@ -79,7 +79,8 @@ def run(quick: bool) -> list[Figure]:
     with tempfile.TemporaryDirectory() as tmp:
         files = render_sequence(Path(tmp) / "input", frames=frames, size=256, seed=101,
                                 expression="happiness", flow=False)
-        analysis = analyze(files["video"], tracker_options={"brow_mid": 0.556})
+        analysis = analyze(files["video"], tracker="snakes",
+                           tracker_options={"brow_mid": 0.556})
         truth = pd.read_csv(files["truth"])
         model = FaceModel.default()
         t0 = time.perf_counter()

@@ -95,12 +95,14 @@ def analysis_options(options: Mapping | None) -> dict:
 
     Examples
     --------
-    >>> analysis_options({"estimator": "joint", "overlay": True, "neutral": None})
+    >>> analysis_options({"estimator": "mesh", "overlay": True, "neutral": None})
     {'overlay': True}
+    >>> analysis_options({"estimator": "joint", "tracker": "snakes"})
+    {'tracker': 'snakes'}
     """
     import inspect
 
-    from faceanalysis.analysis.pipeline import analyze, analyze_to_folder
+    from faceanalysis.analysis.pipeline import analyze, analyze_to_folder, default_estimator
 
     defaults = {name: p.default for f in (analyze, analyze_to_folder)
                 for name, p in inspect.signature(f).parameters.items()
@@ -109,6 +111,10 @@ def analysis_options(options: Mapping | None) -> dict:
     for name, value in (options or {}).items():
         if value is None or (name in defaults and value == defaults[name]):
             continue
+        if name == "estimator" and value == default_estimator(
+                options.get("tracker"), layout=options.get("layout"),
+                refine=bool(options.get("refine"))):
+            continue    # the one the analysis runs when none is named
         out[name] = str(Path(value).resolve()) if isinstance(value, Path) else value
     return out
 

@@ -43,6 +43,7 @@ __all__ = [
     "faded_furrow_ends",
     "measure_frame",
     "progress_bar",
+    "thread_budget",
     "to_head_frame",
     "track",
 ]
@@ -326,11 +327,12 @@ def _detect(image, frame_index: int, video):
 #: template layout and free snakes).
 TRACKERS = ("landmarks", "snakes")
 
-#: The tracker used when none is named. The landmark tracker holds real faces (see
-#: docs/accuracy.md) but is not yet as precise as free snakes on the toolkit's rendered
-#: faces (1.51 px mean fiducial error against 0.81 px), on which the estimators'
-#: accuracy figures rest; until it is, the default stays the snakes of 004.
-DEFAULT_TRACKER = "snakes"
+#: The tracker used when none is named (and no layout places the snakes): the landmark
+#: tracker, which finds and holds real faces and loses frames without one, where the free
+#: snakes of 004 slide onto other features (docs/accuracy.md). On the toolkit's rendered
+#: faces, which are drawn for them, the snakes are the more precise (0.79 px mean fiducial
+#: error against 1.44 px): the standard suite runs them.
+DEFAULT_TRACKER = "landmarks"
 
 
 def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS),
@@ -358,12 +360,12 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         for ``tracker='snakes'``; by default they are placed by OpenCV's face and eye
         detectors on the first frame.
     tracker : {'landmarks', 'snakes'}, optional
-        'landmarks' (recommended for real video): a learned landmark model
-        (MediaPipe's face mesh) finds the face on every frame, places the contours and
-        holds them with springs (:class:`trackers.AnchoredTracker`); a frame without a
-        face is lost and the analysis starts on the first frame with one. 'snakes' (default,
-        :data:`DEFAULT_TRACKER`): the method of 004 (Haar cascades, the template layout
-        and free snakes), which needs no model.
+        'landmarks' (default, :data:`DEFAULT_TRACKER`, unless ``layout`` is given): a
+        learned landmark model (MediaPipe's face mesh) finds the face on every frame, places
+        the contours and holds them with springs (:class:`trackers.AnchoredTracker`); a
+        frame without a face is lost and the analysis starts on the first frame with one.
+        'snakes': the method of 004 (Haar cascades, the template layout and free snakes),
+        which needs no model.
     tracker_options : dict, optional
         Keyword arguments for :class:`trackers.Tracker` or, with 'landmarks',
         :class:`trackers.AnchoredTracker` (e.g. ``{"brow_mid": 0.556}``).
@@ -544,10 +546,8 @@ def _anchored(backend, device, tracker_options):
     from trackers.anchored import AnchoredTracker
 
     # the landmarks' thread only pays where a core is free for it: not in a batch worker
-    # given one core of many (FACEANALYSIS_WORKER_THREADS, set by the batch runner)
-    budget = os.environ.get("FACEANALYSIS_WORKER_THREADS", "")
-    cores = int(budget) if budget.isdigit() else available_cores()
-    options = {"prefetch": cores > 1, **(tracker_options or {})}
+    # given one core of many
+    options = {"prefetch": thread_budget() > 1, **(tracker_options or {})}
     return AnchoredTracker(channel_order="bgr", backend=backend, device=device, **options)
 
 
@@ -556,6 +556,14 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1   # pragma: no cover - not Linux
+
+
+def thread_budget() -> int:
+    """The threads one analysis may run at once: ``FACEANALYSIS_WORKER_THREADS`` where the
+    batch runner set it (its workers share the machine's cores), else every core this
+    process may run on."""
+    budget = os.environ.get("FACEANALYSIS_WORKER_THREADS", "")
+    return max(int(budget), 1) if budget.isdigit() else available_cores()
 
 
 #: After a stretch of at least this many frames without a face (a title card, the sky),

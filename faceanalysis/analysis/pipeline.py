@@ -57,10 +57,33 @@ log = logging.getLogger(__name__)
 MAX_FIT_RESIDUAL = 0.5
 
 __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "analyze", "analyze_to_folder",
-           "reestimate"]
+           "default_estimator", "reestimate"]
 
 
-def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | None = None,
+def default_estimator(tracker: str | None = None, *, layout=None, refine: bool = False) -> str:
+    """The estimator :func:`analyze` runs when none is named.
+
+    ``mesh`` where the landmark tracker runs (the default tracker): on real faces it reads
+    the whole face mesh, and of the estimators it is the one whose smiles and rests the
+    photographs and clips of ``benchmarks/run.py estimation`` bear out; ``joint`` with
+    the snakes (``tracker='snakes'`` or a ``layout``, which places them), whose points are
+    the only ones there are, and with ``refine``, which refines the ``joint`` fit.
+
+    Examples
+    --------
+    >>> default_estimator(), default_estimator("snakes"), default_estimator(refine=True)
+    ('mesh', 'joint', 'joint')
+    """
+    from faceanalysis.tracking import DEFAULT_TRACKER
+
+    if refine:
+        return "joint"
+    if tracker is None:
+        tracker = "snakes" if layout is not None else DEFAULT_TRACKER
+    return "mesh" if tracker == "landmarks" else "joint"
+
+
+def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
             tracker: str | None = None, tracker_options: dict | None = None,
@@ -74,10 +97,12 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ----------
     video : path-like
         Video file, folder of images, or a single image.
-    estimator : {'joint', 'mesh', 'fused', 'tw93', 'flow'}, keyword-only
-        ``joint`` (default): bounded least squares of all contractions through the
-        model's fiducial response; ``mesh``: the same on the contour points and the
-        landmark tracker's face mesh (implies ``tracker='landmarks'``); ``fused``:
+    estimator : {'joint', 'mesh', 'fused', 'tw93', 'flow'}, optional
+        ``joint``: bounded least squares of all contractions through the model's
+        fiducial response on the contours' points; ``mesh``: the same on the contour
+        points and the landmark tracker's face mesh (implies ``tracker='landmarks'``);
+        default :func:`default_estimator`: ``mesh`` with the landmark tracker, ``joint``
+        with the snakes (and with ``refine``); ``fused``:
         ``mesh`` with the dense flow in the same fit (a second pass over the video);
         ``tw93``: the paper's per-muscle inversion;
         ``flow``: bounded least squares of the dense face flow on the model's flow
@@ -97,10 +122,11 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
     tracker : {'landmarks', 'snakes'}, optional
-        'landmarks' (recommended for real video): MediaPipe's face mesh finds the face
-        on every frame and holds the snakes (:class:`trackers.AnchoredTracker`); frames
-        without a face are lost. 'snakes' (default): 004's Haar cascades, template
-        layout and free snakes. See :func:`faceanalysis.tracking.track`.
+        'landmarks' (default, unless ``layout`` is given): MediaPipe's face mesh finds
+        the face on every frame and holds the snakes (:class:`trackers.AnchoredTracker`);
+        frames without a face are lost; the model files come from PyPI on first use.
+        'snakes': 004's Haar cascades, template layout and free snakes, no model needed.
+        See :func:`faceanalysis.tracking.track`.
     response : FiducialResponse, optional
         Model response to invert (default: the generic face model's, cached).
     refine : bool, keyword-only
@@ -146,6 +172,8 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     """
     from trackers.torch_backend import check_backend
 
+    if estimator is None:
+        estimator = default_estimator(tracker, layout=layout, refine=refine)
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
     if suspect_points not in ("exclude", "keep"):
@@ -187,8 +215,6 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
                        options={"fps": fps, "start": start, "end": end}, calibration=cal)
     est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
-    t_estimate = time.perf_counter() - t0
-    c_estimate = time.process_time() - c0
 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
@@ -206,6 +232,9 @@ def analyze(video: str | os.PathLike, *, estimator: str = "joint", fps: float | 
     ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
                                          tracks.confidence, parameters, ident)
+    # estimation: the fit, what the points can tell apart, the model's fit residual
+    t_estimate = time.perf_counter() - t0
+    c_estimate = time.process_time() - c0
     if fit["frames_over_limit"] > 0.1 * max(int(tracks.success.sum()), 1):
         log.warning("%s: on %d of %d tracked frames the face model does not explain the "
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "

@@ -18,23 +18,25 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     from faceanalysis.estimation.registry import ESTIMATORS
 
     group = parser.add_argument_group("analysis")
-    group.add_argument("--estimator", choices=tuple(ESTIMATORS), default="joint",
-                       help="joint: bounded least squares through the face model (default); "
-                            "mesh: the same on the contour points and the landmark tracker's "
-                            "face mesh (recommended for real faces; implies --tracker "
-                            "landmarks); fused: mesh with the dense flow in the same fit (reads "
-                            "the video twice); tw93: the paper's per-muscle inversion of eq. 5; "
+    group.add_argument("--estimator", choices=tuple(ESTIMATORS), default=None,
+                       help="mesh: bounded least squares through the face model on the "
+                            "contour points and the landmark tracker's face mesh (default "
+                            "with the landmark tracker; implies --tracker landmarks); joint: "
+                            "the same on the contours' points alone (default with --tracker "
+                            "snakes, --layout or --refine); fused: mesh with the dense flow "
+                            "in the same fit (reads the video twice); tw93: the paper's "
+                            "per-muscle inversion of eq. 5; "
                             "flow: dense optical flow on the model's per-muscle flow templates")
     group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first tracked frame that sees every point, "
                             "waiting at most 1 s)")
     group.add_argument("--tracker", choices=("landmarks", "snakes"),
-                       help="landmarks: MediaPipe's face mesh finds the face on every frame "
-                            "and holds the snakes; frames without a face are lost "
-                            "(recommended for real video; the model is downloaded on first "
-                            "use, see `faceanalysis models`); snakes: the paper's Haar "
-                            "cascades and free snakes, no model needed (default)")
+                       help="landmarks (default): MediaPipe's face mesh finds the face on "
+                            "every frame and holds the snakes; frames without a face are lost "
+                            "(the model is downloaded on first use, see `faceanalysis "
+                            "models`); snakes: the paper's Haar cascades and free snakes, no "
+                            "model needed (the default with --layout)")
     group.add_argument("--layout", type=Path, metavar="JSON",
                        help="initial contours from a JSON file (FaceLayout.to_json) instead "
                             "of automatic placement")
@@ -61,7 +63,7 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     if args.estimator in MESH_ESTIMATORS and args.tracker == "snakes":
         raise UsageError(f"--estimator {args.estimator} reads the landmark tracker's face "
                          "mesh; drop --tracker snakes")
-    if args.refine and args.estimator != "joint":
+    if args.refine and args.estimator not in (None, "joint"):
         raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
 
 

@@ -38,8 +38,16 @@ def run(args: argparse.Namespace) -> int:
     report = files.pop("_report")
     print(f"demo: {args.expression} on synthetic identity {args.seed}, "
           f"{report['frames_compared']}/{report['frames']} frames tracked")
-    print(f"  mean fiducial error {report['fiducial_error_px']:.2f} px, "
-          f"jaw error {report['jaw_rmse_deg']:.2f} deg")
+    snakes = report.get("snakes")
+    for label, r in (("landmark tracker + mesh fit (the default)", report),
+                     ("snakes of 004 + joint fit (--tracker snakes)", snakes)):
+        if r is not None:
+            print(f"  {label}: mean fiducial error {r['fiducial_error_px']:.2f} px, jaw error "
+                  f"{r['jaw_rmse_deg']:.2f} deg, median muscle RMSE "
+                  f"{r['identifiable_median_rmse']:.3f}")
+    if snakes is not None:
+        print("  (rendered faces are drawn for the snakes; on real faces they slide off "
+              "features the landmark tracker holds)")
     for name, path in files.items():
         print(f"  {name:<13} {path}")
     return 0

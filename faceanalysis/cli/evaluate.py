@@ -64,8 +64,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "a folder of frontal, neutral photographs (one per person) and "
                              "report that photo suite beside the procedural one")
     parser.add_argument("--tracker", choices=("snakes", "landmarks"), default=None,
-                        help="with --suite standard: the tracker of the analyses (default: "
-                             "the toolkit's, snakes)")
+                        help="with --suite standard: the tracker of the analyses (default "
+                             "snakes: the method of 004, on the faces drawn for it; landmarks: "
+                             "as `analyze` runs by default)")
     parser.add_argument("--json", action="store_true", help="print only JSON")
     add_quiet_option(parser)
 
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--suite needs -o OUT")
         faces = suite.photographs(args.faces) if args.faces else ()
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
-                                   faces=faces, tracker=args.tracker)
+                                   faces=faces, tracker=args.tracker or "snakes")
         from faceanalysis.estimation.registry import MESH_ESTIMATORS
 
         # those read the landmark tracker's face mesh

@@ -143,7 +143,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    inner_iterations: int = 120,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
                    robust_rounds: int = 2, debias: bool = False,
-                   quadratic: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                   quadratic: tuple[np.ndarray, np.ndarray] | None = None,
+                   threads: int | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -194,6 +195,10 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         A second measurement's least squares in the controls, ``c'Hc - 2 g_t'c`` per
         frame (``H = A'A``, ``g_t = A'y_t`` of a linear model ``y = A c``, e.g. the dense
         flow's templates), added to the objective; a frame whose ``g_t`` is NaN has none.
+    threads : int, keyword-only, optional
+        Frames are independent problems: a long video's are fitted in chunks, this many at
+        once (default :func:`faceanalysis.tracking.thread_budget`; the same numbers for any
+        count, to rounding).
 
     Returns
     -------
@@ -234,17 +239,40 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         if qh.shape != (m, m) or qg.shape != (n_t, m):
             raise ValueError(f"quadratic must be (H of shape ({m}, {m}), g of shape "
                              f"({n_t}, {m})), got {qh.shape} and {qg.shape}")
+    if threads is not None and (isinstance(threads, bool) or int(threads) != threads
+                                or threads < 1):
+        raise ValueError(f"threads must be a positive integer, got {threads!r}")
     if n_t > chunk:
         init = (None if initial is None else
                 np.broadcast_to(np.asarray(initial, dtype=float), (n_t, len(response.muscles))))
-        return np.concatenate([
-            estimate_joint(d_all[a:a + chunk], response, weights=weights,
-                           regularization=regularization, sparsity=sparsity,
-                           outer_iterations=outer_iterations, inner_iterations=inner_iterations,
-                           initial=None if init is None else init[a:a + chunk], robust=robust,
-                           robust_rounds=robust_rounds, debias=debias,
-                           quadratic=None if quadratic is None else (qh, qg[a:a + chunk]))
-            for a in range(0, n_t, chunk)])
+
+        def part(a):
+            return estimate_joint(
+                d_all[a:a + chunk], response, weights=weights, regularization=regularization,
+                sparsity=sparsity, outer_iterations=outer_iterations,
+                inner_iterations=inner_iterations,
+                initial=None if init is None else init[a:a + chunk], robust=robust,
+                robust_rounds=robust_rounds, debias=debias,
+                quadratic=None if quadratic is None else (qh, qg[a:a + chunk]), threads=1)
+
+        if threads is None:
+            from faceanalysis.tracking import thread_budget
+
+            threads = thread_budget()
+        workers = min(int(threads), -(-n_t // chunk))
+        if workers > 1:
+            # as many equal chunks per thread, so that none waits on a short last one
+            rounds = -(-n_t // (chunk * workers))
+            chunk = -(-n_t // (rounds * workers))
+        starts = range(0, n_t, chunk)
+        if workers < 2:
+            return np.concatenate([part(a) for a in starts])
+        from concurrent.futures import ThreadPoolExecutor
+
+        # the compiled solves and NumPy's products release the GIL; BLAS keeps one thread
+        # per chunk, limited once here for all of them
+        with _one_blas_thread(), ThreadPoolExecutor(workers) as pool:
+            return np.concatenate(list(pool.map(part, starts)))
     if robust_rounds < 0:
         raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
     with _one_blas_thread():
@@ -327,17 +355,19 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         observed = observed | (has[:, None] & (np.diag(qh) > 0)[None])
 
     def objective(cc):
+        """Per frame, the objective at ``cc`` and the weighted residuals it sums."""
         r = dv - response.predict(cc).reshape(-1, n_f * 2) * sw
         val = np.einsum("tk,tk->t", r, r) + ((lam * cc + 2.0 * mu) * cc).sum(axis=1)
         if quadratic is not None:
             val = val + np.einsum("tm,tmn,tn->t", cc, qh_t, cc) - 2.0 * np.einsum(
                 "tm,tm->t", qg, cc)
-        return val
+        return val, r
 
-    current = objective(c)
+    # the residual at the current point is kept from the objective that accepted it:
+    # the response's prediction at hundreds of points is a third of a step's cost
+    current, res = objective(c)
     for _ in range(outer_iterations):
         jac = response.jacobian(c) * sw[:, :, None]       # (T, K, M)
-        res = dv - response.predict(c).reshape(-1, n_f * 2) * sw
         jt = jac.transpose(0, 2, 1)                        # (T, M, K)
         hess = np.matmul(jt, jac) + np.diag(lam)
         grad0 = np.matmul(jt, res[:, :, None])[:, :, 0] - lam * c - mu
@@ -348,15 +378,16 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
         # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of
         # the step that lowers the objective (the box is convex: all stay feasible).
-        best, best_val = c, current
+        best, best_val, best_res = c, current, res
         for frac in (0.25, 0.5, 1.0):
             trial = np.clip(c + frac * step, 0.0, hi)       # rounding only
-            val = objective(trial)
+            val, r = objective(trial)
             better = val < best_val
             best = np.where(better[:, None], trial, best)
             best_val = np.where(better, val, best_val)
+            best_res = np.where(better[:, None], r, best_res)
         gain = current - best_val
-        c, current = best, best_val
+        c, current, res = best, best_val, best_res
         if np.all(gain <= 1e-6 * np.maximum(current, 1e-12)):
             break
     out[valid] = np.where(observed, c, np.nan)
@@ -399,7 +430,7 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     return x
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, nogil=True)
 def _matvec_nb(h, y, out):
     # four rows at a time: four independent sums per pass over y (a 26 x 26 product in
     # 43 ns against 118 for a row at a time; the FISTA loop is nothing else)
@@ -429,7 +460,7 @@ def _matvec_nb(h, y, out):
         i += 1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fista_nb(hess, grad0, lo, hi, lipschitz, iterations, tol, x):
     # problem by problem (each H stays in cache over its iterations)
     n_t, n_m = grad0.shape

@@ -183,6 +183,11 @@ def tabulate_response(model, controls: tuple[str, ...] = OBSERVED_CONTROLS, *,
                             weights.reshape(len(pairs), len(points), 2))
 
 
+#: The generic face's responses read in this process, by their arguments: building the
+#: default model to find its cache file costs more than a frame's estimate of a short clip.
+_DEFAULT_RESPONSES: dict[tuple, FiducialResponse] = {}
+
+
 def model_response(model=None, controls: tuple[str, ...] | None = None, *,
                    n_levels: int = 6, jaw_max: float = JAW_MAX, n_samples: int = 480,
                    points: tuple[str, ...] = MEASUREMENT_POINTS,
@@ -192,6 +197,10 @@ def model_response(model=None, controls: tuple[str, ...] | None = None, *,
     ``controls`` defaults to the :data:`OBSERVED_CONTROLS` that the model has (a model
     built from a user's muscle file may lack some).
     """
+    memo = (None if model is not None or not use_cache else
+            (controls, n_levels, jaw_max, n_samples, tuple(points)))
+    if memo is not None and memo in _DEFAULT_RESPONSES:
+        return _DEFAULT_RESPONSES[memo]
     if model is None:
         from synth import FaceModel
 
@@ -203,9 +212,13 @@ def model_response(model=None, controls: tuple[str, ...] | None = None, *,
     path = cache_dir() / f"response-{key}.npz"
     if use_cache and path.is_file():
         try:
-            return FiducialResponse.load(path)
+            response = FiducialResponse.load(path)
         except (OSError, ValueError, KeyError) as exc:   # a damaged cache is rebuilt
             log.warning("ignoring unreadable response cache %s (%s)", path, exc)
+        else:
+            if memo is not None:
+                _DEFAULT_RESPONSES[memo] = response
+            return response
     response = tabulate_response(model, tuple(controls), n_levels=n_levels, jaw_max=jaw_max,
                                  n_samples=n_samples, points=tuple(points))
     if use_cache:

@@ -175,7 +175,7 @@ class FiducialResponse:
                        z["rest"], z["displacement"], z["upper"], z["levels"], pairs, inter)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _piecewise_nb(c, upper, disp, out):
     # disp (M, L, K): the response at each tabulated level; out (T, K)
     n_t, n_m = c.shape

@@ -22,7 +22,8 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
 
     For every ``(identity, expression)``: the face of identity seed ``identity`` renders the
     expression (:func:`synth.render.synthesize`), the video is analysed
-    (:func:`faceanalysis.analysis.pipeline.analyze`), and the estimated series drives the same
+    (:func:`faceanalysis.analysis.pipeline.analyze` with ``analysis_options``, by default the
+    snakes of 004 these rendered faces are drawn for), and the estimated series drives the same
     identity's model (or, with ``personalised``, the generic model warped onto the neutral
     frame) framed by the tracked head frames. The score is the distance between the
     resynthesised fiducials and the ground-truth projected fiducials.
@@ -41,7 +42,8 @@ def round_trip(cases, *, frames: int = 30, size: int = 256, head_motion: float =
     from synth.model import FaceModel
     from synth.render.sequence import render_sequence
 
-    options = ({"tracker_options": {"brow_mid": 0.556}} if analysis_options is None
+    options = ({"tracker": "snakes", "tracker_options": {"brow_mid": 0.556}}
+               if analysis_options is None
                else dict(analysis_options))
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:

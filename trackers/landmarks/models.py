@@ -43,7 +43,8 @@ LICENSE_NAME = "LICENSE_mediapipe.txt"
 _HOW_OFFLINE = ("install them offline with `faceanalysis models --wheel PATH` (or set "
                 "FACEANALYSIS_MODEL_WHEEL to a local copy of " + WHEEL_NAME + "), or point "
                 "FACEANALYSIS_MODELS to a folder that holds " + ", ".join(
-                    Path(p).name for p, _ in MODEL_FILES.values()))
+                    Path(p).name for p, _ in MODEL_FILES.values())
+                + "; or track without them (--tracker snakes, tracker='snakes')")
 _verified: dict[Path, dict[str, Path]] = {}   # hashes are checked once per process and folder
 
 

@@ -24,7 +24,20 @@ def surprise(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def analysed(surprise):
-    return analyze(surprise["video"])
+    # the snakes of 004 and the joint fit: the method these rendered faces are drawn for
+    # (the default, the landmark tracker with the mesh fit, is tested below)
+    return analyze(surprise["video"], tracker="snakes")
+
+
+def test_the_default_analysis_is_the_landmark_tracker_with_the_mesh_fit(surprise):
+    a = analyze(surprise["video"], end=6)
+    p = a.metadata["parameters"]
+    assert (p["tracker"], p["estimator"]) == ("landmarks", "mesh")
+    assert a.table["success"].all()
+    assert any(n.startswith("mesh_") for n in p["measurement_points"])
+    # the snakes keep the joint fit
+    assert analyze(surprise["video"], end=3, tracker="snakes").metadata[
+        "parameters"]["estimator"] == "joint"
 
 
 def test_table_has_the_documented_columns_and_bounds(analysed):
@@ -114,7 +127,7 @@ def test_results_folder_and_refusal_to_overwrite(surprise, tmp_path):
     assert names & {"overlay.mp4", "overlay.avi"}
     meta = json.loads((out / "analysis.json").read_text())
     assert meta["quality"]["frames_total"] == 6
-    assert meta["parameters"]["estimator"] == "joint"
+    assert meta["parameters"]["estimator"] == "mesh"      # the default, with the landmarks
     before = (out / "contractions.csv").read_bytes()
     with pytest.raises(FileExistsError, match="--overwrite"):
         analyze_to_folder(surprise["video"], out, end=6)
@@ -275,7 +288,7 @@ def test_faded_furrow_ends_do_not_hide_the_jaw(tmp_path):
 
     files = render_sequence(tmp_path, expression="surprise", frames=24, size=256, seed=7,
                             flow=False)
-    a = analyze(files["video"])
+    a = analyze(files["video"], tracker="snakes")
     faded = a.metadata["calibration"]["faded_furrow_ends"]
     assert set(faded) == {"furrow_bottom_l", "furrow_bottom_r"}
     for name, count in faded.items():
@@ -296,7 +309,7 @@ def _zygomaticus_laughing_and_crying(table):
 
 @pytest.mark.real_data
 def test_real_video_is_analysed_to_the_end(real_video_dir):
-    a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4")
+    a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4", tracker="snakes")
     t = a.table
     assert t["frame"].iloc[-1] >= 470
     assert t["success"].mean() > 0.8
@@ -321,10 +334,10 @@ def test_real_video_is_analysed_to_the_end(real_video_dir):
     "is bowed, the laugh's tilted back); in the crying part a hand over the mouth is "
     "followed as if it were the lips"))
 def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
-    # the requirement must hold for the default tracker and for a tolerance changed in
-    # its fifth digit, not for one rounding of one trajectory
+    # the requirement must hold for a tolerance changed in its fifth digit, not for one
+    # rounding of one trajectory
     for tol in (0.01, 0.01 * (1 + 1e-4), 0.01 * (1 - 1e-4)):
-        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4",
+        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4", tracker="snakes",
                     tracker_options={"tol": tol})
         laughing, crying = _zygomaticus_laughing_and_crying(a.table)
         assert laughing > crying + 0.05, (tol, crying, laughing)
@@ -332,7 +345,7 @@ def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
 
 @pytest.mark.real_data
 @pytest.mark.slow
-def test_real_video_the_mesh_estimator_reads_the_laugh_above_the_crying(real_video_dir):
+def test_real_video_the_default_analysis_reads_the_laugh_above_the_crying(real_video_dir):
     from trackers.landmarks import ensure_models
 
     try:
@@ -341,8 +354,9 @@ def test_real_video_the_mesh_estimator_reads_the_laugh_above_the_crying(real_vid
         pytest.skip(f"the landmark model is not available: {exc}")
     # as for the snakes above, over tolerances changed in their fifth digit
     for tol in (0.01, 0.01 * (1 + 1e-4), 0.01 * (1 - 1e-4)):
-        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4", estimator="mesh",
+        a = analyze(real_video_dir / "WolfgangLanger_Pexels.mp4",
                     tracker_options={"tol": tol})
+        assert a.metadata["parameters"]["estimator"] == "mesh"
         laughing, crying = _zygomaticus_laughing_and_crying(a.table)
         assert laughing > crying + 0.05, (tol, crying, laughing)
 
@@ -408,7 +422,7 @@ def test_real_frames_with_a_lost_contour_are_complete_and_resynthesisable(real_v
 
     # frames 600-720 of cap13_edit2.mp4: the mouth and furrow contours are lost on 30
     # tracked frames (before the fix their mouth and brow controls were empty)
-    a = analyze(real_video_dir / "cap13_edit2.mp4", start=600, end=720)
+    a = analyze(real_video_dir / "cap13_edit2.mp4", start=600, end=720, tracker="snakes")
     t = a.table
     tracked = t[t["success"] == 1]
     assert len(tracked) > 100
