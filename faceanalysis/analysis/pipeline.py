@@ -274,8 +274,8 @@ def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | 
 
 #: Added to the warnings that say the snakes did not hold the face: on real faces the
 #: landmark tracker places and holds them (docs/accuracy.md).
-_LANDMARK_HINT = ("; for a real face, try --estimator mesh (MediaPipe's face mesh holds the "
-                  "contours on their features)")
+_LANDMARK_HINT = ("; for a real face, use the landmark tracker (the default without "
+                  "--tracker snakes or --layout), which holds the contours on their features")
 
 #: The default neutral frame waits at most this many seconds after the first tracked frame
 #: for one that sees every point (:func:`_neutral_row`); a point the neutral frame does not

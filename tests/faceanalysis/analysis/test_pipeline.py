@@ -228,7 +228,7 @@ def test_points_on_the_wrong_feature_are_named_and_left_out(surprise, furrows_mi
     assert np.isnan(a.measurements[:, cols]).all()
     assert "neutral frame 0" in caplog.text and suspect[0] in caplog.text
     # the snakes tracker lost the features: the warning points to the one that holds them
-    assert "try --estimator mesh" in caplog.text
+    assert "use the landmark tracker" in caplog.text
     kept = analyze(surprise["video"], layout=furrows_misplaced, end=10, suspect_points="keep")
     assert kept.metadata["calibration"]["suspect_points"] == suspect
     assert kept.metadata["calibration"]["excluded_points"] == []
