@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numba
 import numpy as np
 
 from trackers.head_search import _apply_similarity
@@ -38,7 +39,7 @@ from trackers.landmark_contours import (
     layout_from_landmarks,
 )
 from trackers.layout import CONTOUR_NAMES
-from trackers.polyline import resample_polyline
+from trackers.polyline import resample_trusted
 from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
@@ -130,19 +131,38 @@ def rotation_angles(src, dst) -> tuple[float, float]:
     >>> [round(v, 6) + 0.0 for v in rotation_angles(pts, pts @ Ry.T)]
     [0.0, 10.0]
     """
-    a = np.asarray(src, float)
-    b = np.asarray(dst, float)
-    a = a - a.mean(axis=0)
-    b = b - b.mean(axis=0)
-    a /= max(np.linalg.norm(a), 1e-12)
-    b /= max(np.linalg.norm(b), 1e-12)
+    a = np.ascontiguousarray(src, dtype=np.float64)
+    b = np.ascontiguousarray(dst, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape:
+        raise ValueError(f"src and dst must be two (n, 3) arrays, got {a.shape} and {b.shape}")
+    pitch, yaw = _kabsch_angles_nb(a, b)
+    return float(pitch), float(yaw)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _kabsch_angles_nb(a, b):
+    # compiled: on every frame of the landmark tracker, a dozen NumPy calls on 3x3
+    # arrays cost more than the arithmetic
+    a = a - _col_mean(a)
+    b = b - _col_mean(b)
+    a = a / max(np.sqrt(np.sum(a * a)), 1e-12)
+    b = b / max(np.sqrt(np.sum(b * b)), 1e-12)
     u, _, vt = np.linalg.svd(b.T @ a)
     d = np.sign(np.linalg.det(u @ vt))
-    R = u @ np.diag([1.0, 1.0, d]) @ vt
+    R = (u * np.array([1.0, 1.0, d])) @ vt
     pitch = np.degrees(np.arctan2(R[2, 1], R[2, 2]))
     # the nose (z < 0) goes to +x when the face turns toward the image's right: R[0, 2] < 0
-    yaw = np.degrees(np.arcsin(np.clip(-R[0, 2], -1.0, 1.0)))
-    return float(pitch), float(yaw)
+    yaw = np.degrees(np.arcsin(min(max(-R[0, 2], -1.0), 1.0)))
+    return pitch, yaw
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _col_mean(x):
+    out = np.zeros((1, x.shape[1]))
+    for i in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            out[0, j] += x[i, j]
+    return out / x.shape[0]
 
 
 class AnchoredTracker:
@@ -261,6 +281,8 @@ class AnchoredTracker:
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
             self.landmarks.prefetch(next_frame)
+        if lm is not None and not (np.isfinite(lm.points).all() and np.isfinite(lm.z).all()):
+            lm = None
         if lm is None:
             self._gap = True
             return None
@@ -357,8 +379,9 @@ class AnchoredTracker:
             if curve is None:
                 continue
             sl = t.system.contour_slice(k)
-            pts = resample_polyline(curve, sl.stop - sl.start,
-                                    closed=t.layout.contours[name].closed)
+            # the curves are finite: track() takes landmarks that are not for no face
+            pts = resample_trusted(np.asarray(curve, dtype=np.float64), sl.stop - sl.start,
+                                   t.layout.contours[name].closed)
             off = self._offsets.get(name)
             if off is not None:
                 pts = pts + (a * off).view(np.float64).reshape(-1, 2)   # (real, imag) rows

@@ -197,6 +197,8 @@ def test_rigid_similarity_and_rotation_angles():
     Rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
     pitch, yaw = rotation_angles(p3, 2.0 * p3 @ Rx.T + 5.0)
     assert abs(pitch - 12.0) < 1e-6 and abs(yaw) < 1e-6
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        rotation_angles(p3[:, :2], p3[:, :2])
 
 
 def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
