@@ -90,7 +90,7 @@ def test_frames_before_the_first_face_are_lost(tmp_path, redetect):
 
 def test_with_redetect_frames_without_a_face_are_lost_and_the_face_is_found_again(tmp_path):
     folder, _ = _blank_then_faces(tmp_path, 2, 3)
-    tr = track(folder, redetect=True)
+    tr = track(folder, redetect=True, tracker="snakes")
     assert tr.success.tolist() == [False, False, True, True, True]
     assert np.isnan(tr.heads[:2]).all() and np.isfinite(tr.heads[2:]).all()
 
