@@ -57,6 +57,7 @@ from faceanalysis.io.corpus import (
     output_names,
     short_hash,
 )
+from faceanalysis.io.logs import quiet_logger
 from faceanalysis.io.outputs import (
     ANALYSIS_JSON,
     CONTRACTIONS_CSV,
@@ -596,22 +597,10 @@ def _run_on_cluster(videos, names, todo, rows, root, options, task, overwrite, w
 
     with contextlib.ExitStack() as stack:
         if silence_logs is not False:
-            stack.enter_context(_quiet_logger("distributed", silence_logs))
+            # the cluster's chatter in this process: scheduler, nannies, client
+            stack.enter_context(quiet_logger("distributed", silence_logs))
         _run_futures(videos, names, todo, rows, root, options, task, overwrite, workers,
                      scheduler, progress, silence_logs)
-
-
-@contextlib.contextmanager
-def _quiet_logger(name: str, level: int):
-    """Raise a logger's level for the duration of a block (the cluster's chatter in this
-    process: scheduler, nannies, client)."""
-    log = logging.getLogger(name)
-    previous = log.level
-    log.setLevel(max(int(level), previous))
-    try:
-        yield
-    finally:
-        log.setLevel(previous)
 
 
 def _run_futures(videos, names, todo, rows, root, options, task, overwrite, workers,

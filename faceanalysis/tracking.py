@@ -43,6 +43,7 @@ __all__ = [
     "faded_furrow_ends",
     "measure_frame",
     "progress_bar",
+    "resolve_tracker",
     "thread_budget",
     "to_head_frame",
     "track",
@@ -335,6 +336,20 @@ TRACKERS = ("landmarks", "snakes")
 DEFAULT_TRACKER = "landmarks"
 
 
+def resolve_tracker(tracker: str | None, layout=None) -> str:
+    """The tracker :func:`track` runs for ``tracker`` (None: :data:`DEFAULT_TRACKER`, or
+    the snakes where a ``layout`` places them).
+
+    Examples
+    --------
+    >>> resolve_tracker(None), resolve_tracker(None, layout="face.json")
+    ('landmarks', 'snakes')
+    """
+    if tracker is None:
+        return "snakes" if layout is not None else DEFAULT_TRACKER
+    return tracker
+
+
 def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS),
           fps: float | None = None, start: int = 0, end: int | None = None, layout=None,
           tracker: str | None = None, tracker_options: dict | None = None,
@@ -408,8 +423,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         raise ValueError(f"unknown measurement points {unknown}; choose from "
                          f"{', '.join(POINT_CONTOUR)}")
     check_backend(backend, device)
-    if tracker is None:
-        tracker = "snakes" if layout is not None else DEFAULT_TRACKER
+    tracker = resolve_tracker(tracker, layout)
     if tracker not in TRACKERS:
         raise ValueError(f"unknown tracker {tracker!r}; choose from {', '.join(TRACKERS)}")
     if tracker == "landmarks" and layout is not None:

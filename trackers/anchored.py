@@ -39,7 +39,7 @@ from trackers.landmark_contours import (
     layout_from_landmarks,
 )
 from trackers.layout import CONTOUR_NAMES
-from trackers.polyline import resample_trusted
+from trackers.polyline import resample_polyline
 from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
@@ -143,8 +143,8 @@ def rotation_angles(src, dst) -> tuple[float, float]:
 def _kabsch_angles_nb(a, b):
     # compiled: on every frame of the landmark tracker, a dozen NumPy calls on 3x3
     # arrays cost more than the arithmetic
-    a = a - _col_mean(a)
-    b = b - _col_mean(b)
+    a = a - a.sum(axis=0) / a.shape[0]
+    b = b - b.sum(axis=0) / b.shape[0]
     a = a / max(np.sqrt(np.sum(a * a)), 1e-12)
     b = b / max(np.sqrt(np.sum(b * b)), 1e-12)
     u, _, vt = np.linalg.svd(b.T @ a)
@@ -155,14 +155,6 @@ def _kabsch_angles_nb(a, b):
     yaw = np.degrees(np.arcsin(min(max(-R[0, 2], -1.0), 1.0)))
     return pitch, yaw
 
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _col_mean(x):
-    out = np.zeros((1, x.shape[1]))
-    for i in range(x.shape[0]):
-        for j in range(x.shape[1]):
-            out[0, j] += x[i, j]
-    return out / x.shape[0]
 
 
 class AnchoredTracker:
@@ -281,8 +273,6 @@ class AnchoredTracker:
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
             self.landmarks.prefetch(next_frame)
-        if lm is not None and not (np.isfinite(lm.points).all() and np.isfinite(lm.z).all()):
-            lm = None
         if lm is None:
             self._gap = True
             return None
@@ -379,9 +369,8 @@ class AnchoredTracker:
             if curve is None:
                 continue
             sl = t.system.contour_slice(k)
-            # the curves are finite: track() takes landmarks that are not for no face
-            pts = resample_trusted(np.asarray(curve, dtype=np.float64), sl.stop - sl.start,
-                                   t.layout.contours[name].closed)
+            pts = resample_polyline(curve, sl.stop - sl.start,
+                                    closed=t.layout.contours[name].closed)
             off = self._offsets.get(name)
             if off is not None:
                 pts = pts + (a * off).view(np.float64).reshape(-1, 2)   # (real, imag) rows

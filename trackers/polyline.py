@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["resample_polyline", "resample_trusted"]
+__all__ = ["resample_polyline"]
 
 
 def resample_polyline(points, n: int | None = None, *, spacing: float | None = None,
@@ -55,25 +55,6 @@ def resample_polyline(points, n: int | None = None, *, spacing: float | None = N
     n = int(n)
     if n < 2:
         raise ValueError(f"n must be >= 2, got {n}")
-    out = np.empty((n, 2))
-    _resample_nb(pts, s, n, closed, out)
-    return out
-
-
-def resample_trusted(points: np.ndarray, n: int, closed: bool = False) -> np.ndarray:
-    """:func:`resample_polyline` to ``n`` nodes of an (m >= 2, 2) float64 array known to be
-    finite, without the checks (the same numbers): for callers that resample many curves
-    of one checked source every frame.
-
-    Raises
-    ------
-    ValueError
-        When the polyline has zero length.
-    """
-    pts = np.vstack([points, points[:1]]) if closed else points
-    s = _arc_length_nb(pts)
-    if not s[-1] > 0:
-        raise ValueError("polyline has zero length")
     out = np.empty((n, 2))
     _resample_nb(pts, s, n, closed, out)
     return out

@@ -43,7 +43,7 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
-from faceanalysis.tracking import Tracks, faded_furrow_ends, track
+from faceanalysis.tracking import Tracks, faded_furrow_ends, resolve_tracker, track
 from trackers.fiducials import HeadFrame
 
 log = logging.getLogger(__name__)
@@ -74,13 +74,9 @@ def default_estimator(tracker: str | None = None, *, layout=None, refine: bool =
     >>> default_estimator(), default_estimator("snakes"), default_estimator(refine=True)
     ('mesh', 'joint', 'joint')
     """
-    from faceanalysis.tracking import DEFAULT_TRACKER
-
     if refine:
         return "joint"
-    if tracker is None:
-        tracker = "snakes" if layout is not None else DEFAULT_TRACKER
-    return "mesh" if tracker == "landmarks" else "joint"
+    return "mesh" if resolve_tracker(tracker, layout) == "landmarks" else "joint"
 
 
 def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,

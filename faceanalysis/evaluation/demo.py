@@ -11,6 +11,7 @@ import logging
 import os
 from pathlib import Path
 
+from faceanalysis.io.logs import quiet_logger
 from faceanalysis.io.outputs import (
     ANALYSIS_JSON,
     CONTRACTIONS_CSV,
@@ -53,13 +54,8 @@ def run_demo(output: str | os.PathLike, *, expression: str = "surprise", frames:
         report = public(compare(files["truth"], analysis_dir))
         if compare_snakes:
             # a comparison, not the analysis: its warnings were the default's to give
-            logger = logging.getLogger("faceanalysis")
-            level = logger.level
-            logger.setLevel(logging.ERROR)
-            try:
+            with quiet_logger("faceanalysis", logging.ERROR):
                 snakes = analyze(files["video"], tracker="snakes")
-            finally:
-                logger.setLevel(level)
             report["snakes"] = public(compare(files["truth"], snakes.table))
         evaluation = write_text_atomic(out / EVALUATION_JSON, json.dumps(report, indent=1) + "\n")
         return {"video": Path(files["video"]), "truth": Path(files["truth"]),

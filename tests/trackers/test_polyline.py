@@ -34,14 +34,3 @@ def test_resample_polyline_interpolates_at_equal_arc_lengths(rng, closed):
         np.testing.assert_array_equal(got, np.c_[np.interp(t, s, q[:, 0]),
                                                  np.interp(t, s, q[:, 1])])
         np.testing.assert_array_equal(p, before)
-
-
-@pytest.mark.parametrize("closed", [False, True])
-def test_resample_trusted_gives_resample_polylines_numbers(rng, closed):
-    from trackers.polyline import resample_trusted
-
-    pts = np.cumsum(rng.normal(size=(17, 2)), axis=0)
-    assert np.array_equal(resample_trusted(pts, 23, closed), resample_polyline(pts, 23,
-                                                                               closed=closed))
-    with pytest.raises(ValueError, match="zero length"):
-        resample_trusted(np.zeros((4, 2)), 5)
