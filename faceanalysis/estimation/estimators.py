@@ -367,10 +367,9 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
     # the response's prediction at hundreds of points is a third of a step's cost
     current, res = objective(c)
     for _ in range(outer_iterations):
-        jac = response.jacobian(c) * sw[:, :, None]       # (T, K, M)
-        jt = jac.transpose(0, 2, 1)                        # (T, M, K)
-        hess = np.matmul(jt, jac) + np.diag(lam)
-        grad0 = np.matmul(jt, res[:, :, None])[:, :, 0] - lam * c - mu
+        hess, grad0 = response.normal_equations(c, sw, res)
+        hess += np.diag(lam)
+        grad0 -= lam * c + mu
         if quadratic is not None:
             hess = hess + qh_t
             grad0 = grad0 + qg - np.einsum("tmn,tn->tm", qh_t, c)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import logging
 
+import numba
 import numpy as np
 
 from faceanalysis._version import __version__
@@ -286,15 +287,50 @@ def head_alignment(neutral, points, *, rigid=RIGID_3D, rounds: int = ALIGN_ROUND
     ref = np.asarray(neutral, dtype=float)
     p = np.asarray(points, dtype=float)
     rig = np.asarray(rigid, dtype=np.intp)
-    s, rot, tr = _weighted_similarity(ref[rig], p[:, rig], np.ones((len(p), len(rig))))
     use = _OFF_SILHOUETTE
     size = float(np.sqrt(np.mean(np.sum((ref[use, :2] - ref[use, :2].mean(0)) ** 2, axis=1))))
     scale = ALIGN_SCALE * max(size, 1e-9)
-    for _ in range(rounds):
-        moved = s[:, None, None] * np.einsum("nk,tjk->tnj", ref[use], rot) + tr[:, None]
-        r = np.linalg.norm(moved - p[:, use], axis=2)
-        s, rot, tr = _weighted_similarity(ref[use], p[:, use], 1.0 / (1.0 + (r / scale) ** 2))
+    s = np.empty(len(p))
+    rot = np.empty((len(p), 3, 3))
+    tr = np.empty((len(p), 3))
+    if len(p):
+        # frame by frame, compiled: the rounds' dozen array operations on (T, 400, 3)
+        # stacks cost more than their arithmetic
+        _align_nb(np.ascontiguousarray(ref[rig]), np.ascontiguousarray(p[:, rig]),
+                  np.ascontiguousarray(ref[use]), np.ascontiguousarray(p[:, use]),
+                  float(scale), int(rounds), s, rot, tr)
     return s, rot, tr
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _similarity_nb(a, b, w):
+    # the weighted similarity (scale, rotation, translation) carrying a onto b, as
+    # _weighted_similarity for one frame
+    w = w / np.sum(w)
+    ma = w @ a
+    mb = w @ b
+    a0 = a - ma
+    b0 = b - mb
+    var = np.sum(w * np.sum(a0 * a0, axis=1))
+    u, sv, vt = np.linalg.svd((b0 * w.reshape(-1, 1)).T @ a0)
+    d = np.ones(3)
+    d[2] = np.sign(np.linalg.det(u @ vt))
+    rot = u @ (d.reshape(-1, 1) * vt)
+    s = np.sum(sv * d) / max(var, 1e-12)
+    return s, rot, mb - s * (rot @ ma)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _align_nb(ref_rig, p_rig, ref_use, p_use, scale, rounds, s_out, rot_out, tr_out):
+    for t in range(p_rig.shape[0]):
+        s, rot, tr = _similarity_nb(ref_rig, p_rig[t], np.ones(ref_rig.shape[0]))
+        for _ in range(rounds):
+            moved = s * (ref_use @ rot.T) + tr
+            r = np.sqrt(np.sum((moved - p_use[t]) ** 2, axis=1))
+            s, rot, tr = _similarity_nb(ref_use, p_use[t], 1.0 / (1.0 + (r / scale) ** 2))
+        s_out[t] = s
+        rot_out[t] = rot
+        tr_out[t] = tr
 
 
 def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,

@@ -107,13 +107,10 @@ class FiducialResponse:
         out = np.empty((c.shape[0], len(self.fiducials), 2))
         # one pass per frame over the tabulated segments instead of gathering the
         # (T, M, F, 2) segment ends: the joint fit predicts some 40 times per video
+        pairs, inter = self._pair_table
         _piecewise_nb(np.ascontiguousarray(c), self.upper,
                       self.displacement.reshape(len(self.muscles), self.n_levels, -1),
-                      out.reshape(c.shape[0], -1))
-        if self.pairs is not None and len(self.pairs):
-            u = c / self.upper
-            prod = u[:, self.pairs[:, 0]] * u[:, self.pairs[:, 1]]     # (T, P)
-            out += (prod @ self.interaction.reshape(len(self.pairs), -1)).reshape(out.shape)
+                      pairs, inter, out.reshape(c.shape[0], -1))
         return out
 
     def jacobian(self, c: np.ndarray) -> np.ndarray:
@@ -131,6 +128,64 @@ class FiducialResponse:
                 if len(rows):
                     slope[:, j] += (u[:, partners] / self.upper[j]) @ rows
         return jac
+
+    def normal_equations(self, c: np.ndarray, sw: np.ndarray,
+                         r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gauss-Newton normal equations of a weighted fit at ``c``: ``(J'J, J'r)``.
+
+        ``J`` is :meth:`jacobian` at ``c`` with each row (point coordinate) scaled by
+        ``sw``; the products are formed frame by frame without building ``J`` for all
+        frames at once, and a pair term whose partner is at rest (most of them, in a
+        sparse fit) costs nothing.
+
+        Parameters
+        ----------
+        c : ndarray, shape (T, M)
+            Controls (finite).
+        sw : ndarray, shape (T, F*2)
+            Per-frame row weights (the square roots of the least-squares weights).
+        r : ndarray, shape (T, F*2)
+            Weighted residuals.
+
+        Returns
+        -------
+        hess : ndarray, shape (T, M, M)
+        grad : ndarray, shape (T, M)
+
+        Examples
+        --------
+        >>> levels = np.linspace(0, 1, 3)
+        >>> disp = np.zeros((2, 3, 2, 2))
+        >>> disp[0, :, :, 1] = levels[:, None]
+        >>> disp[1, :, :, 0] = 2 * levels[:, None]
+        >>> resp = FiducialResponse(("a", "b"), ("p", "q"), np.zeros((2, 2)), disp,
+        ...                         np.ones(2), levels)
+        >>> h, g = resp.normal_equations(np.zeros((1, 2)), np.ones((1, 4)), np.ones((1, 4)))
+        >>> h[0].tolist(), g[0].tolist()
+        ([[2.0, 0.0], [0.0, 8.0]], [2.0, 4.0])
+        """
+        n_m, n_k = len(self.muscles), 2 * len(self.fiducials)
+        c = np.ascontiguousarray(c, dtype=float)
+        sw = np.ascontiguousarray(sw, dtype=float)
+        r = np.ascontiguousarray(r, dtype=float)
+        if c.ndim != 2 or c.shape[1] != n_m or sw.shape != (len(c), n_k) \
+                or r.shape != sw.shape:
+            raise ValueError(f"c, sw and r must have shapes (T, {n_m}), (T, {n_k}) and "
+                             f"(T, {n_k}), got {c.shape}, {sw.shape} and {r.shape}")
+        hess = np.empty((len(c), n_m, n_m))
+        grad = np.empty((len(c), n_m))
+        pairs, inter = self._pair_table
+        _normal_nb(c, self.upper, self._slopes, pairs, inter, sw, r, hess, grad)
+        return hess, grad
+
+    @functools.cached_property
+    def _pair_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The interaction pairs (P, 2) and their terms (P, F*2), empty without any."""
+        n_k = 2 * len(self.fiducials)
+        if self.pairs is None or not len(self.pairs):
+            return np.zeros((0, 2), np.intp), np.zeros((0, n_k))
+        return (np.ascontiguousarray(self.pairs, dtype=np.intp),
+                np.ascontiguousarray(self.interaction.reshape(len(self.pairs), n_k)))
 
     @functools.cached_property
     def _pair_groups(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -176,8 +231,10 @@ class FiducialResponse:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _piecewise_nb(c, upper, disp, out):
-    # disp (M, L, K): the response at each tabulated level; out (T, K)
+def _piecewise_nb(c, upper, disp, pairs, inter, out):
+    # disp (M, L, K): the response at each tabulated level; inter (P, K) the pair terms;
+    # out (T, K). A control at rest adds nothing, nor does any pair it belongs to: in a
+    # sparse fit, most of them
     n_t, n_m = c.shape
     n_l, n_k = disp.shape[1], disp.shape[2]
     for t in range(n_t):
@@ -185,8 +242,78 @@ def _piecewise_nb(c, upper, disp, out):
             out[t, k] = 0.0
         for m in range(n_m):
             s = min(max(c[t, m] / upper[m], 0.0), 1.0) * (n_l - 1)
+            if s == 0.0:
+                continue
             i = min(int(np.floor(s)), n_l - 2)
             f = s - i
             g = 1.0 - f
             for k in range(n_k):
                 out[t, k] += g * disp[m, i, k] + f * disp[m, i + 1, k]
+        for p in range(pairs.shape[0]):
+            w = (c[t, pairs[p, 0]] / upper[pairs[p, 0]]) * (c[t, pairs[p, 1]] / upper[pairs[p, 1]])
+            if w != 0.0:
+                for k in range(n_k):
+                    out[t, k] += w * inter[p, k]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _normal_nb(c, upper, slopes, pairs, inter, sw, r, hess, grad):
+    # slopes (M, L-1, K), inter (P, K): per frame, the weighted Jacobian's rows for each
+    # control (contiguous in K), then J'J (upper triangle, mirrored) and J'r
+    n_t, n_m = c.shape
+    n_s, n_k = slopes.shape[1], slopes.shape[2]
+    a = np.empty((n_m, n_k))
+    u = np.empty(n_m)
+    for t in range(n_t):
+        for m in range(n_m):
+            u[m] = c[t, m] / upper[m]
+            s = min(max(u[m], 0.0), 1.0) * n_s
+            i = min(int(np.floor(s)), n_s - 1)
+            for k in range(n_k):
+                a[m, k] = slopes[m, i, k]
+        # d/dc_a of u_a u_b W_ab = u_b W_ab / upper_a (and symmetrically for b)
+        for p in range(pairs.shape[0]):
+            pa, pb = pairs[p, 0], pairs[p, 1]
+            if u[pb] != 0.0:
+                f = u[pb] / upper[pa]
+                for k in range(n_k):
+                    a[pa, k] += f * inter[p, k]
+            if u[pa] != 0.0:
+                f = u[pa] / upper[pb]
+                for k in range(n_k):
+                    a[pb, k] += f * inter[p, k]
+        for m in range(n_m):
+            acc = 0.0
+            for k in range(n_k):
+                a[m, k] *= sw[t, k]
+                acc += a[m, k] * r[t, k]
+            grad[t, m] = acc
+        # four rows of J' at a time: each pass over a row of J feeds four sums
+        m = 0
+        while m < n_m:
+            for n in range(m, n_m):
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                a3 = 0.0
+                if m + 3 < n_m:
+                    for k in range(n_k):
+                        ank = a[n, k]
+                        a0 += a[m, k] * ank
+                        a1 += a[m + 1, k] * ank
+                        a2 += a[m + 2, k] * ank
+                        a3 += a[m + 3, k] * ank
+                else:
+                    for k in range(n_k):
+                        ank = a[n, k]
+                        a0 += a[m, k] * ank
+                        if m + 1 < n_m:
+                            a1 += a[m + 1, k] * ank
+                        if m + 2 < n_m:
+                            a2 += a[m + 2, k] * ank
+                acc = (a0, a1, a2, a3)
+                for i in range(4):
+                    if m + i <= n:
+                        hess[t, m + i, n] = acc[i]
+                        hess[t, n, m + i] = acc[i]
+            m += 4
