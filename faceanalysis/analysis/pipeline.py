@@ -336,12 +336,14 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
     if suspect:
         log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
                     "where the face model puts %s (a contour on the wrong feature?); %s. "
-                    "Check the overlay (--overlay), or give another --neutral frame or a "
-                    "corrected --layout%s", video, int(tracks.frames[k]), ", ".join(suspect),
+                    "Check the overlay (--overlay), or give another --neutral frame%s",
+                    video, int(tracks.frames[k]), ", ".join(suspect),
                     "s" if len(suspect) == 1 else "", MAX_POINT_RESIDUAL,
                     "it" if len(suspect) == 1 else "them",
                     "left out of the estimation" if excluded else "kept",
-                    _LANDMARK_HINT if tracks.tracker == "snakes" else "")
+                    # a layout places only the snakes' contours
+                    " or a corrected --layout" + _LANDMARK_HINT if tracks.tracker == "snakes"
+                    else "")
     calib = {"neutral_frame": int(tracks.frames[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
              "suspect_points": suspect, "excluded_points": excluded,

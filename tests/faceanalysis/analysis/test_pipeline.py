@@ -228,7 +228,17 @@ def test_points_on_the_wrong_feature_are_named_and_left_out(surprise, furrows_mi
     assert np.isnan(a.measurements[:, cols]).all()
     assert "neutral frame 0" in caplog.text and suspect[0] in caplog.text
     # the snakes tracker lost the features: the warning points to the one that holds them
-    assert "use the landmark tracker" in caplog.text
+    assert "use the landmark tracker" in caplog.text and "--layout" in caplog.text
+    # the landmark tracker places its contours itself: no layout to correct
+    from dataclasses import replace
+
+    from faceanalysis.analysis.pipeline import _calibrate
+
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="faceanalysis.analysis.pipeline"):
+        _calibrate(replace(a.tracks, tracker="landmarks"), 0, a.response, "exclude", "v.mp4")
+    assert suspect[0] in caplog.text and "--neutral" in caplog.text
+    assert "--layout" not in caplog.text and "landmark tracker" not in caplog.text
     kept = analyze(surprise["video"], layout=furrows_misplaced, end=10, suspect_points="keep")
     assert kept.metadata["calibration"]["suspect_points"] == suspect
     assert kept.metadata["calibration"]["excluded_points"] == []
