@@ -246,6 +246,35 @@ def test_response_predicts_piecewise_linear_plus_interactions(rng):
         resp.predict(np.zeros((2, 3)))
 
 
+@pytest.mark.parametrize("n_controls", [1, 4, 5, 6, 7])
+def test_normal_equations_are_those_of_the_weighted_jacobian(rng, n_controls):
+    # the products run four controls at a time: every remainder of four
+    levels = np.linspace(0, 1, 5)
+    disp = rng.normal(size=(n_controls, 5, 6, 2))
+    disp[:, 0] = 0.0
+    upper = rng.uniform(0.5, 2.0, n_controls)
+    pairs = np.array([(a, b) for a in range(n_controls) for b in range(a + 1, n_controls)],
+                     dtype=np.intp).reshape(-1, 2)
+    inter = rng.normal(size=(len(pairs), 6, 2)) * 0.1
+    resp = FiducialResponse(tuple(f"m{i}" for i in range(n_controls)),
+                            tuple(f"p{i}" for i in range(6)), np.zeros((6, 2)), disp, upper,
+                            levels, pairs if len(pairs) else None,
+                            inter if len(pairs) else None)
+    c = rng.uniform(-0.2, 1.2, size=(40, n_controls)) * upper   # outside the box too
+    c[rng.uniform(size=c.shape) < 0.4] = 0.0                  # at rest: pair terms skipped
+    sw = rng.uniform(0, 2, size=(40, 12))
+    sw[:, 3] = 0.0                                            # a point not seen
+    r = rng.normal(size=(40, 12))
+    jac = resp.jacobian(c) * sw[:, :, None]
+    hess, grad = resp.normal_equations(c, sw, r)
+    np.testing.assert_allclose(hess, np.einsum("tkm,tkn->tmn", jac, jac), rtol=1e-12,
+                               atol=1e-12)
+    np.testing.assert_allclose(grad, np.einsum("tkm,tk->tm", jac, r), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(hess, hess.transpose(0, 2, 1))
+    with pytest.raises(ValueError, match="shapes"):
+        resp.normal_equations(c, sw[:, :6], r)
+
+
 def test_joint_fit_leaves_the_blas_thread_setting_alone(rng):
     from threadpoolctl import threadpool_info
 
