@@ -247,19 +247,70 @@ def _weighted_similarity(src, dst, w):
     """:func:`similarity_3d` of ``src`` onto each of the ``dst`` with weights ``w``, for a
     stack of frames: ``dst`` (T, N, 3), ``w`` (T, N); returns scales (T,), rotations
     (T, 3, 3) and translations (T, 3)."""
-    w = w / np.sum(w, axis=1, keepdims=True)
-    ma = w @ src                                               # (T, 3)
-    mb = np.einsum("tn,tnk->tk", w, dst)
-    a0 = src[None] - ma[:, None]
-    b0 = dst - mb[:, None]
-    var = np.einsum("tn,tnk,tnk->t", w, a0, a0)
-    u, sv, vt = np.linalg.svd(np.einsum("tn,tni,tnj->tij", w, b0, a0))
+    n_t = len(dst)
+    ma, mb = np.empty((n_t, 3)), np.empty((n_t, 3))
+    var, cov = np.empty(n_t), np.empty((n_t, 3, 3))
+    _moments_nb(np.ascontiguousarray(src, dtype=float), np.ascontiguousarray(dst, dtype=float),
+                np.ascontiguousarray(w, dtype=float), ma, mb, var, cov)
+    u, sv, vt = np.linalg.svd(cov)
     sign = np.sign(np.linalg.det(u @ vt))
-    d = np.ones((len(w), 3))
+    d = np.ones((n_t, 3))
     d[:, 2] = sign
     rot = u @ (d[:, :, None] * vt)
     s = np.sum(sv * d, axis=1) / np.maximum(var, 1e-12)
     return s, rot, mb - s[:, None] * np.einsum("tij,tj->ti", rot, ma)
+
+
+# The weighted moments and the residual weights loop over every frame's hundreds of points in
+# compiled code (a dozen array operations on (T, N, 3) stacks cost more than their arithmetic);
+# the 3x3 SVDs stay batched in NumPy, whose compiled-linear-algebra counterpart takes Numba
+# tens of seconds to compile on first use.
+@numba.njit(cache=True, nogil=True)
+def _moments_nb(src, dst, w, ma, mb, var, cov):
+    n_t, n = w.shape
+    for t in range(n_t):
+        tot = 0.0
+        for i in range(n):
+            tot += w[t, i]
+        inv = 1.0 / tot
+        for k in range(3):
+            sa = 0.0
+            sb = 0.0
+            for i in range(n):
+                sa += w[t, i] * src[i, k]
+                sb += w[t, i] * dst[t, i, k]
+            ma[t, k] = sa * inv
+            mb[t, k] = sb * inv
+        v = 0.0
+        for j in range(3):
+            for k in range(3):
+                cov[t, j, k] = 0.0
+        for i in range(n):
+            wi = w[t, i] * inv
+            a0 = src[i, 0] - ma[t, 0]
+            a1 = src[i, 1] - ma[t, 1]
+            a2 = src[i, 2] - ma[t, 2]
+            v += wi * (a0 * a0 + a1 * a1 + a2 * a2)
+            for j in range(3):
+                b = wi * (dst[t, i, j] - mb[t, j])
+                cov[t, j, 0] += b * a0
+                cov[t, j, 1] += b * a1
+                cov[t, j, 2] += b * a2
+        var[t] = v
+
+
+@numba.njit(cache=True, nogil=True)
+def _cauchy_weights_nb(ref, p, s, rot, tr, scale, w):
+    # 1 / (1 + (r / scale)^2) of each point's residual r from the similarity's prediction
+    n_t, n = w.shape
+    for t in range(n_t):
+        for i in range(n):
+            r2 = 0.0
+            for j in range(3):
+                m = s[t] * (rot[t, j, 0] * ref[i, 0] + rot[t, j, 1] * ref[i, 1]
+                            + rot[t, j, 2] * ref[i, 2]) + tr[t, j] - p[t, i, j]
+                r2 += m * m
+            w[t, i] = 1.0 / (1.0 + r2 / (scale * scale))
 
 
 def head_alignment(neutral, points, *, rigid=RIGID_3D, rounds: int = ALIGN_ROUNDS):
@@ -290,47 +341,14 @@ def head_alignment(neutral, points, *, rigid=RIGID_3D, rounds: int = ALIGN_ROUND
     use = _OFF_SILHOUETTE
     size = float(np.sqrt(np.mean(np.sum((ref[use, :2] - ref[use, :2].mean(0)) ** 2, axis=1))))
     scale = ALIGN_SCALE * max(size, 1e-9)
-    s = np.empty(len(p))
-    rot = np.empty((len(p), 3, 3))
-    tr = np.empty((len(p), 3))
-    if len(p):
-        # frame by frame, compiled: the rounds' dozen array operations on (T, 400, 3)
-        # stacks cost more than their arithmetic
-        _align_nb(np.ascontiguousarray(ref[rig]), np.ascontiguousarray(p[:, rig]),
-                  np.ascontiguousarray(ref[use]), np.ascontiguousarray(p[:, use]),
-                  float(scale), int(rounds), s, rot, tr)
+    s, rot, tr = _weighted_similarity(ref[rig], p[:, rig], np.ones((len(p), len(rig))))
+    ref_use = np.ascontiguousarray(ref[use])
+    p_use = np.ascontiguousarray(p[:, use])
+    w = np.empty((len(p), len(use)))
+    for _ in range(rounds):
+        _cauchy_weights_nb(ref_use, p_use, s, rot, tr, float(scale), w)
+        s, rot, tr = _weighted_similarity(ref_use, p_use, w)
     return s, rot, tr
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _similarity_nb(a, b, w):
-    # the weighted similarity (scale, rotation, translation) carrying a onto b, as
-    # _weighted_similarity for one frame
-    w = w / np.sum(w)
-    ma = w @ a
-    mb = w @ b
-    a0 = a - ma
-    b0 = b - mb
-    var = np.sum(w * np.sum(a0 * a0, axis=1))
-    u, sv, vt = np.linalg.svd((b0 * w.reshape(-1, 1)).T @ a0)
-    d = np.ones(3)
-    d[2] = np.sign(np.linalg.det(u @ vt))
-    rot = u @ (d.reshape(-1, 1) * vt)
-    s = np.sum(sv * d) / max(var, 1e-12)
-    return s, rot, mb - s * (rot @ ma)
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _align_nb(ref_rig, p_rig, ref_use, p_use, scale, rounds, s_out, rot_out, tr_out):
-    for t in range(p_rig.shape[0]):
-        s, rot, tr = _similarity_nb(ref_rig, p_rig[t], np.ones(ref_rig.shape[0]))
-        for _ in range(rounds):
-            moved = s * (ref_use @ rot.T) + tr
-            r = np.sqrt(np.sum((moved - p_use[t]) ** 2, axis=1))
-            s, rot, tr = _similarity_nb(ref_use, p_use[t], 1.0 / (1.0 + (r / scale) ** 2))
-        s_out[t] = s
-        rot_out[t] = rot
-        tr_out[t] = tr
 
 
 def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,

@@ -311,9 +311,15 @@ def _normal_nb(c, upper, slopes, pairs, inter, sw, r, hess, grad):
                             a1 += a[m + 1, k] * ank
                         if m + 2 < n_m:
                             a2 += a[m + 2, k] * ank
-                acc = (a0, a1, a2, a3)
-                for i in range(4):
-                    if m + i <= n:
-                        hess[t, m + i, n] = acc[i]
-                        hess[t, n, m + i] = acc[i]
+                hess[t, m, n] = a0
+                hess[t, n, m] = a0
+                if m + 1 <= n:
+                    hess[t, m + 1, n] = a1
+                    hess[t, n, m + 1] = a1
+                if m + 2 <= n:
+                    hess[t, m + 2, n] = a2
+                    hess[t, n, m + 2] = a2
+                if m + 3 <= n:
+                    hess[t, m + 3, n] = a3
+                    hess[t, n, m + 3] = a3
             m += 4
