@@ -117,3 +117,23 @@ def test_the_estimator_tells_the_brows_apart_and_not_the_levators():
     assert not (blind[brows] <= IDENTIFIABLE_LIMIT).any()     # unobserved: NaN
     with pytest.raises(ValueError, match="noise"):
         estimator_errors(response, -1.0)
+
+
+def test_estimator_errors_are_remembered_per_question_and_not_shared():
+    from faceanalysis.estimation import identifiability as ident
+
+    response = model_response()
+    first = estimator_errors(response, 0.02, draws=4)
+    first.iloc[:] = -1.0                                     # the caller's copy
+    again = estimator_errors(response, 0.02, draws=4)
+    ident._ERRORS.clear()
+    fresh = estimator_errors(response, 0.02, draws=4)
+    np.testing.assert_array_equal(again, fresh)
+    assert (fresh.dropna() >= 0).all()
+    # another fit, other points or another seed ask another question
+    weights = np.ones(len(response.fiducials))
+    weights[0] = 10.0
+    for kwargs in ({"sparsity": 0.0}, {"weights": weights}, {"seed": 1},
+                   {"points": response.fiducials[2:]}):
+        other = estimator_errors(response, 0.02, draws=4, **kwargs)
+        assert not np.allclose(other, fresh, equal_nan=True), kwargs
