@@ -15,6 +15,7 @@ control's range.
 
 from __future__ import annotations
 
+import threading
 import weakref
 
 import numpy as np
@@ -191,13 +192,14 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
         raise ValueError(f"noise={noise} must be a non-negative number of cm")
     # the simulation is deterministic: a short video or a photograph (the reference noise,
     # every point seen) asks the same question as the last one did
-    memo = _ERRORS.setdefault(response, {})
     key = None
     if isinstance(seed, (int, np.integer)):
         key = (float(noise), None if points is None else tuple(points), int(draws), int(seed),
                _fingerprint(fit_options))
-        if key in memo:
-            return memo[key].copy()
+        with _ERRORS_LOCK:
+            known = _ERRORS.get(response, {}).get(key)
+        if known is not None:
+            return known.copy()
     rng = np.random.default_rng(seed)
     n, upper = len(response.muscles), np.asarray(response.upper, dtype=float)
     c = np.zeros((n * draws, n))
@@ -218,14 +220,17 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
     err = np.sqrt(np.mean(((est - c) ** 2).reshape(n, draws, n), axis=1))      # (m, control)
     out = pd.Series(np.diag(err) / upper, index=pd.Index(response.muscles, name="control"))
     if key is not None:
-        if len(memo) >= _MEMO_SIZE:
-            memo.pop(next(iter(memo)))
-        memo[key] = out.copy()
+        with _ERRORS_LOCK:
+            memo = _ERRORS.setdefault(response, {})
+            if len(memo) >= _MEMO_SIZE:
+                memo.pop(next(iter(memo)))
+            memo[key] = out.copy()
     return out
 
 
 #: Per response, the last few :func:`estimator_errors` results by their arguments.
 _ERRORS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_ERRORS_LOCK = threading.Lock()      # batch workers may share a process
 _MEMO_SIZE = 8
 
 
