@@ -69,12 +69,13 @@ def _pair(folder: Path, person: int, second: int) -> Path:
     return d
 
 
-def _hand_shift(person: int, second: int) -> tuple[float, float]:
-    """Mouth-corner and brow shift (mean, IOD) between the hand-placed points of a person's
-    neutral photograph and those of type ``second``, after the similarity that superposes
-    their eyes and noses: how far the second photograph is from the first by hand."""
+def _hand_aligned(person: int, second: int) -> tuple[np.ndarray, np.ndarray]:
+    """The hand-placed points of a person's neutral photograph, and those of type ``second``
+    carried onto them by the similarity that superposes their eyes and noses (pixels)."""
     import cv2
     from bench_landmark_tracking import _read_asf
+
+    from trackers.anchored import rigid_similarity
 
     def points(t):
         img = next(IMM.glob(f"{person}-{t}?.jpg"))
@@ -82,10 +83,17 @@ def _hand_shift(person: int, second: int) -> tuple[float, float]:
 
     first, other = points(1), points(second)
     rigid = [*range(13, 29), *range(47, 58)]                  # eyes and nose
-    za, zb = (p[rigid, 0] + 1j * p[rigid, 1] for p in (other, first))
-    a = np.sum(np.conj(za - za.mean()) * (zb - zb.mean())) / np.sum(np.abs(za - za.mean()) ** 2)
-    moved = a * (other[:, 0] + 1j * other[:, 1] - za.mean()) + zb.mean()
-    d = np.abs(moved - (first[:, 0] + 1j * first[:, 1]))
+    a, b = rigid_similarity(other[rigid], first[rigid])
+    moved = a * (other[:, 0] + 1j * other[:, 1]) + b
+    return first, np.c_[moved.real, moved.imag]
+
+
+def _hand_shift(person: int, second: int) -> tuple[float, float]:
+    """Mouth-corner and brow shift (mean, IOD) between the hand-placed points of a person's
+    neutral photograph and those of type ``second`` (:func:`_hand_aligned`): how far the
+    second photograph is from the first by hand."""
+    first, moved = _hand_aligned(person, second)
+    d = np.hypot(*(moved - first).T)
     iod = np.hypot(*(first[13:21].mean(0) - first[21:29].mean(0)))
     return float(d[[39, 43]].mean() / iod), float(d[29:39].mean() / iod)
 
@@ -94,32 +102,19 @@ def _hand_fit(analysis, person: int, second: int) -> tuple[np.ndarray, np.ndarra
     """Contractions (``mesh`` fit, response order) of the second photograph of ``analysis``
     (a two-frame sequence: neutral, then type ``second``) from the hand-placed points'
     motion, and from the tracked face mesh's at the same landmarks."""
-    import cv2
-    from bench_landmark_tracking import _read_asf
-
     from faceanalysis.estimation.mesh_points import (
         MESH_POINT_PREFIX,
         mesh_displacements,
         to_model_units,
     )
-    from faceanalysis.estimation.registry import CONTOUR_WEIGHT, mesh_fit, mesh_response
-
-    def points(t):
-        img = next(IMM.glob(f"{person}-{t}?.jpg"))
-        return _read_asf(img.with_suffix(".asf"), cv2.imread(str(img)).shape)
+    from faceanalysis.estimation.registry import mesh_fit, mesh_response
 
     response = mesh_response()
     names = response.fiducials
     cols = np.array([j for j, n in enumerate(names) if n.startswith(MESH_POINT_PREFIX)])
     idx = np.array([int(names[j].removeprefix(MESH_POINT_PREFIX)) for j in cols])
-    first, other = points(1), points(second)
-    # the second photograph's points carried onto the first's by the similarity of the
-    # eyes and nose, as _hand_shift does
-    rigid = [*range(13, 29), *range(47, 58)]
-    za, zb = (p[rigid, 0] + 1j * p[rigid, 1] for p in (other, first))
-    a = np.sum(np.conj(za - za.mean()) * (zb - zb.mean())) / np.sum(np.abs(za - za.mean()) ** 2)
-    moved = a * (other[:, 0] + 1j * other[:, 1] - za.mean()) + zb.mean()
-    hand = np.c_[moved.real, moved.imag] - first
+    first, moved = _hand_aligned(person, second)
+    hand = moved - first
     iod = np.hypot(*(first[13:21].mean(0) - first[21:29].mean(0)))
     tracks = analysis.tracks
     lm0 = np.asarray(tracks.landmarks[0], float)[idx, :2]
@@ -133,8 +128,7 @@ def _hand_fit(analysis, person: int, second: int) -> tuple[np.ndarray, np.ndarra
     d_ours = np.full_like(d_hand, np.nan)
     d_ours[0, use] = to_model_units(px, lm0[near[ok]], head, cal)[0]
     # the unseen points weigh nothing, so the prior is scaled to the points seen
-    w = np.where(np.isfinite(d_hand[0]).all(axis=1), 1.0, 0.0) * np.array(
-        [1.0 if n.startswith(MESH_POINT_PREFIX) else CONTOUR_WEIGHT for n in names])
+    w = np.isfinite(d_hand[0]).all(axis=1).astype(float)
     return tuple(mesh_fit(d, response, weights=w)[0][0] for d in (d_hand, d_ours))
 
 

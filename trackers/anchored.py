@@ -26,6 +26,7 @@ feature, but it is smooth and off by pixels on crisp edges, where snakes are exa
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numba
@@ -135,26 +136,41 @@ def rotation_angles(src, dst) -> tuple[float, float]:
     b = np.ascontiguousarray(dst, dtype=np.float64)
     if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape:
         raise ValueError(f"src and dst must be two (n, 3) arrays, got {a.shape} and {b.shape}")
-    pitch, yaw = _kabsch_angles_nb(a, b)
-    return float(pitch), float(yaw)
+    u, _, vt = np.linalg.svd(_kabsch_covariance_nb(a, b))
+    d = 1.0 if np.linalg.det(u @ vt) >= 0 else -1.0
+    R = (u * (1.0, 1.0, d)) @ vt
+    pitch = math.degrees(math.atan2(R[2, 1], R[2, 2]))
+    # the nose (z < 0) goes to +x when the face turns toward the image's right: R[0, 2] < 0
+    yaw = math.degrees(math.asin(min(max(-R[0, 2], -1.0), 1.0)))
+    return pitch, yaw
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _kabsch_angles_nb(a, b):
-    # compiled: on every frame of the landmark tracker, a dozen NumPy calls on 3x3
-    # arrays cost more than the arithmetic
-    a = a - a.sum(axis=0) / a.shape[0]
-    b = b - b.sum(axis=0) / b.shape[0]
-    a = a / max(np.sqrt(np.sum(a * a)), 1e-12)
-    b = b / max(np.sqrt(np.sum(b * b)), 1e-12)
-    u, _, vt = np.linalg.svd(b.T @ a)
-    d = np.sign(np.linalg.det(u @ vt))
-    R = (u * np.array([1.0, 1.0, d])) @ vt
-    pitch = np.degrees(np.arctan2(R[2, 1], R[2, 2]))
-    # the nose (z < 0) goes to +x when the face turns toward the image's right: R[0, 2] < 0
-    yaw = np.degrees(np.arcsin(min(max(-R[0, 2], -1.0), 1.0)))
-    return pitch, yaw
-
+def _kabsch_covariance_nb(a, b):
+    # b'a of the centred point sets, each scaled to unit size: on every frame of the
+    # landmark tracker, the dozen NumPy calls this takes cost more than the arithmetic.
+    # The 3x3 SVD stays in NumPy: Numba's linear algebra takes seconds to compile.
+    n = a.shape[0]
+    ma = np.zeros(3)
+    mb = np.zeros(3)
+    for i in range(n):
+        for k in range(3):
+            ma[k] += a[i, k]
+            mb[k] += b[i, k]
+    sa = 0.0
+    sb = 0.0
+    for i in range(n):
+        for k in range(3):
+            sa += (a[i, k] - ma[k] / n) ** 2
+            sb += (b[i, k] - mb[k] / n) ** 2
+    scale = 1.0 / (max(np.sqrt(sa), 1e-12) * max(np.sqrt(sb), 1e-12))
+    h = np.zeros((3, 3))
+    for i in range(n):
+        for j in range(3):
+            bj = b[i, j] - mb[j] / n
+            for k in range(3):
+                h[j, k] += bj * (a[i, k] - ma[k] / n)
+    return h * scale
 
 
 class AnchoredTracker:
