@@ -275,16 +275,19 @@ class AnchoredTracker:
         """
         index = self.index
         self.index += 1
-        lm = self.landmarks.track(frame)
+        lm = placed = self.landmarks.track(frame)
+        if lm is not None and (self.tracker is None or lm.detected):
+            # the later frames are compared with this one (the head's similarity, pitch
+            # and yaw, the contours' offsets from their curves, the estimators' neutral),
+            # and their points come from crops of the last frame's landmarks: its
+            # landmarks are those tracking settles on (against the detector's box's, a
+            # still real face moved by 1.3-3 px on the next frame). The contours are
+            # placed from the detector's box's, which lie nearer the features on a
+            # single photograph (IMM mouth corners 0.030 against 0.032 IOD).
+            lm = self.landmarks.settle(frame) or lm
         if lm is not None and self.tracker is None:
-            # the head's later frames (2-D similarity, pitch and yaw) are measured against
-            # where tracking settles on this frame: the later frames' points come from
-            # crops of the last frame's landmarks, and against this frame's own (read from
-            # the detector's box) a still real head moved by 1.1-1.4 px and pitched by
-            # 1 degree on the second frame
-            settled = self.landmarks.settle(frame) or lm
-            ref_rigid = settled.points[_RIGID_INDEX]
-            ref_rigid3 = np.c_[ref_rigid, settled.z[_RIGID_INDEX]]
+            ref_rigid = lm.points[_RIGID_INDEX]
+            ref_rigid3 = np.c_[ref_rigid, lm.z[_RIGID_INDEX]]
         if next_frame is not None and self.prefetch and hasattr(self.landmarks, "prefetch"):
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
@@ -299,7 +302,7 @@ class AnchoredTracker:
         iod = float(np.hypot(*np.subtract(*eyes)))
         if self.tracker is None:
             h, w = frame.shape[:2]
-            layout = layout_from_landmarks(lm.points, (w, h))
+            layout = layout_from_landmarks(placed.points, (w, h))
             springs = self.springs
             if isinstance(springs, dict):
                 springs = dict(springs)
@@ -312,13 +315,17 @@ class AnchoredTracker:
                                         channel_order=self.channel_order,
                                         springs=springs, redetect=False,
                                         **self.tracker_options)
-            targets = self._node_targets(curves, 1 + 0j)   # no offsets learnt yet
+            # no offsets learnt yet
+            targets = self._node_targets(landmark_curves(placed.points), 1 + 0j)
             # the chin boss is held where it was placed (the mesh has no outline of it)
             targets["chin_boss"] = self.tracker.system.contour_points(
                 self.tracker.names.index("chin_boss")).copy()
             res = self.tracker.track(frame, targets=targets)
             self._ref_rigid, self._ref_rigid3 = rigid, rigid3 = ref_rigid, ref_rigid3
-            self._learn_offsets(targets, res, iod)
+            # offsets from the settled landmarks' curves, the ones later frames' follow
+            settled = self._node_targets(curves, 1 + 0j)
+            settled["chin_boss"] = targets["chin_boss"]
+            self._learn_offsets(settled, res, iod)
             targets = self._node_targets(curves, 1 + 0j)
             # settle once more toward the offset targets: the first equilibrium held a
             # spring's pull toward the raw curves, which would otherwise be released
@@ -371,7 +378,7 @@ class AnchoredTracker:
         source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
         extra = dict(res.extra, head_source=source, presence=float(lm.presence),
                      head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
-                     detected=bool(lm.detected))
+                     detected=bool(placed.detected))
         return TrackResult(index, res.contours, quality, res.iterations, res.converged,
                            res.head, res.fiducials, extra)
 

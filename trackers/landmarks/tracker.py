@@ -190,28 +190,13 @@ class LandmarkTracker:
             face = faces[int(np.argmax(np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)))]
         points, presence = self._landmarks(image, face)
         if self.refine_first and presence >= self.min_presence:
-            refined = self._landmarks(image, points)
-            if refined[1] >= self.min_presence:
-                points, presence = refined
+            points, presence = self._converge(image, points, presence, max_runs=1)
         return points, presence
 
-    def settle(self, frame, *, max_runs: int = 5, shift: float = 0.25) -> Landmarks | None:
-        """The landmarks that tracking converges to on ``frame``, the last frame tracked.
-
-        Each tracking frame is read from the crop of the last frame's landmarks, so on a
-        still face the landmarks move over the first frames after a detection (a median
-        0.4-0.8 px on real faces) until the crop and the landmarks agree. This runs the
-        model on ``frame`` from its own landmarks until they move less than ``shift``
-        pixels (at most ``max_runs`` times) and tracks on from there. For references
-        that later tracking frames are compared against (the head's rigid points).
-
-        Returns None when no face is being tracked.
-        """
-        self._discard()
-        if self._previous is None:
-            return None
-        image = check_image(frame, self.channel_order)
-        points, presence = self._previous, None
+    def _converge(self, image, points, presence, max_runs: int = 5, shift: float = 0.25):
+        """Run the model from the crop of its own landmarks until they move less than
+        ``shift`` pixels (at most ``max_runs`` times); a run that loses the face is
+        not taken."""
         for _ in range(max_runs):
             again, p = self._landmarks(image, points)
             if p < self.min_presence:
@@ -220,6 +205,26 @@ class LandmarkTracker:
             points, presence = again, p
             if moved < shift:
                 break
+        return points, presence
+
+    def settle(self, frame, *, max_runs: int = 5, shift: float = 0.25) -> Landmarks | None:
+        """The landmarks that tracking converges to on ``frame``, the last frame tracked.
+
+        Each tracking frame is read from the crop of the last frame's landmarks, so on a
+        still face the landmarks move over the first frames after a detection until the
+        crop and the landmarks agree: on a still real face they moved by 1.3-3 px from
+        the detection frame to the next. This runs the model on ``frame`` from its own
+        landmarks until they move less than ``shift`` pixels (at most ``max_runs`` times)
+        and tracks on from there. For references that later tracking frames are compared
+        against.
+
+        Returns None when no face is being tracked.
+        """
+        self._discard()
+        if self._previous is None:
+            return None
+        image = check_image(frame, self.channel_order)
+        points, presence = self._converge(image, self._previous, None, max_runs, shift)
         return None if presence is None else self._accept(points, presence, False)
 
     def track(self, frame) -> Landmarks | None:

@@ -371,6 +371,27 @@ def test_real_video_the_default_analysis_reads_the_laugh_above_the_crying(real_v
         assert laughing > crying + 0.05, (tol, crying, laughing)
 
 
+@pytest.mark.real_data
+def test_a_still_real_face_reads_rest(real_video_dir, tmp_path):
+    from trackers.landmarks import ensure_models
+
+    try:
+        ensure_models()
+    except (OSError, RuntimeError) as exc:
+        pytest.skip(f"the landmark model is not available: {exc}")
+    ok, img = cv2.VideoCapture(str(real_video_dir / "cap13_edit2.mp4")).read()
+    assert ok
+    for i in range(6):
+        cv2.imwrite(str(tmp_path / f"{i:02d}.png"), img)
+    a = analyze(tmp_path, fps=30)
+    assert a.metadata["parameters"]["estimator"] == "mesh"
+    # the same frame six times: the neutral's landmarks are read as the later frames'
+    # are (from the last frame's crop), so nothing moved and no muscle acts; read from
+    # the detector's box, they lay 1.7 px off and levator labii read 0.07
+    assert np.nanmax(a.table[list(MUSCLES)].to_numpy(float)) < 0.02
+    assert np.max(a.fit_residual) < 0.02
+
+
 def _hide_left_brow(video, table, out, frames):
     """``video`` rewritten to ``out`` with the left brow covered by a flat box of the
     skin's colour on ``frames``: the tracker loses that contour there."""
