@@ -4,7 +4,8 @@ Three measurements (the issue "hold the nine contours on real faces"):
 
 * photographs, ``annotated/imm_dev`` (20 people, types 1-5): mouth-corner and brow
   error over the inter-ocular distance (eye centres from the hand-placed eye contours)
-  for the mesh's own points, the anchored tracker's fiducials and the snakes';
+  for the mesh's own points, the anchored tracker's fiducials and the snakes'; the
+  mesh's nose and jaw-line points;
   smile vs neutral (type 2 vs 1) from the tracked mouth width over the eye distance;
 * real clips, ``real/``: frames tracked and lost by ``track``;
 * rendered faces: the standard suite's sequences for a few identities, mean fiducial
@@ -73,6 +74,7 @@ def photographs(quick=False):
     brow = {k: [] for k in ("anchored", "snakes")}
     width = {k: {1: [], 2: []} for k in ("mesh", "anchored", "snakes", "hand-placed")}
     missed = {"anchored": 0, "snakes": 0}
+    meshes = []          # (person, hand-placed points, landmarks, iod) of types 1-2
     for person in people:
         for t in range(1, 6):
             path = next(folder.glob(f"{person}-{t}?.jpg"))
@@ -89,6 +91,8 @@ def photographs(quick=False):
             else:
                 fids["anchored"] = r.fiducials
                 lm = r.extra["landmarks"]
+                if t in (1, 2):
+                    meshes.append((person, gt, lm, iod))
                 fids["mesh"] = {n: lm[i].mean(0) for n, i in _MESH.items()}
             try:
                 fids["snakes"] = Tracker(detect_layout(img, channel_order="bgr"),
@@ -125,7 +129,48 @@ def photographs(quick=False):
     for kind, n in missed.items():
         figs.append(_fig(f"IMM types 1-5, {kind}", "photographs without a face found", n,
                          "images", False))
+    return figs + _nose_and_jaw(meshes)
+
+
+def _nose_and_jaw(meshes):
+    """Nose (IMM 47-57) and jaw-line (0-12) point errors of the landmark tracker's mesh.
+
+    The mesh has no points named as the database's are: each hand-placed point stands
+    for the landmark nearest it, by median distance over the first half of the people,
+    and is scored on the other half (and, in-sample, on all).
+    """
+    from trackers.landmarks.mesh import FACE_OVAL
+
+    people = sorted({m[0] for m in meshes})
+    train = set(people[:len(people) // 2])
+    figs = []
+    for part, idx in (("nose", range(47, 58)), ("jaw-line", range(13))):
+        idx = list(idx)
+        d = np.array([np.hypot(*(lm[None, :, :] - gt[idx][:, None, :]).transpose(2, 0, 1))
+                      / iod for _, gt, lm, iod in meshes])               # (photos, idx, 468)
+        fit = np.array([m[0] in train for m in meshes])
+        pick = np.argmin(np.median(d[fit], axis=0), axis=1)             # (idx,)
+        err = d[:, np.arange(len(idx)), pick].mean(axis=1)              # per photograph
+        figs.append(_fig(f"IMM types 1-2, people {min(people) + len(train)}-{max(people)}, "
+                         "landmarks", f"{part} point error (held out)", err[~fit].mean(),
+                         "IOD", False))
+        figs.append(_fig("IMM types 1-2, landmarks", f"{part} point error (in-sample)",
+                         err.mean(), "IOD", False))
+    # the jaw line's points slide along it with the pose and the annotator: their distance
+    # from the mesh's face oval says how well the line itself is found
+    oval = list(FACE_OVAL) + [FACE_OVAL[0]]
+    off = [np.mean([_to_polyline(gt[i], lm[oval]) for i in range(13)]) / iod
+           for _, gt, lm, iod in meshes]
+    figs.append(_fig("IMM types 1-2, landmarks", "jaw-line points' distance from the face oval",
+                     np.mean(off), "IOD", False))
     return figs
+
+
+def _to_polyline(p, line):
+    """Distance from point ``p`` to the polyline ``line`` (n, 2)."""
+    a, ab = line[:-1], np.diff(line, axis=0)
+    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    return float(np.hypot(*(a + t[:, None] * ab - p).T).min())
 
 
 def neutral_then_smile(quick=False):

@@ -31,6 +31,7 @@ import numpy as np
 from faceanalysis._version import __version__
 from faceanalysis.io.cache import cache_dir, digest_of, source_digest
 from faceanalysis.io.outputs import atomic_path
+from trackers.landmarks.mesh import FACE_OVAL
 
 log = logging.getLogger(__name__)
 
@@ -45,14 +46,11 @@ MESH_POINT_PREFIX = "mesh_"
 #: parts there, and a landmark put on the other lip would read the jaw backwards.
 SEAM_MARGIN = 0.15
 
-# MediaPipe's face oval (the silhouette: it slides over the surface as the head turns)
-# and the eyelid contours (the face model does not blink).
-_FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378,
-              400, 377, 152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21,
-              54, 103, 67, 109)
+# the eyelid contours (the face model does not blink); the face oval (FACE_OVAL) is the
+# silhouette, which slides over the surface as the head turns
 _EYELIDS = (263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,
             33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173)
-_OFF_SILHOUETTE = np.setdiff1d(np.arange(468), _FACE_OVAL)
+_OFF_SILHOUETTE = np.setdiff1d(np.arange(468), FACE_OVAL)
 #: The rigid points of the 3-D alignment: eye corners and the nose's bridge.
 RIGID_3D = (33, 133, 362, 263, 168, 6, 197, 195, 5, 4)
 
@@ -86,7 +84,7 @@ def _key(model) -> str:
         np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
         np.ascontiguousarray(model.mesh.triangles).tobytes(),
         repr(sorted(MODEL_FILES.items())).encode(),
-        repr((SEAM_MARGIN, _FACE_OVAL, _EYELIDS, _MIN_FACING, _RENDER_SIZE, NAMED_POINTS))
+        repr((SEAM_MARGIN, FACE_OVAL, _EYELIDS, _MIN_FACING, _RENDER_SIZE, NAMED_POINTS))
         .encode(),
         source_digest(("synth", "trackers"), ("faceanalysis.estimation.mesh_points",)).encode(),
     ])
@@ -117,7 +115,7 @@ def _compute_correspondence(model) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     facing = np.abs(normal[:, 2]) / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)
     mouth = np.asarray(mesh.curve_positions("mouth_line", rest))[:, :2]
-    excluded = set(_FACE_OVAL) | set(_EYELIDS)
+    excluded = set(FACE_OVAL) | set(_EYELIDS)
     out: dict[int, tuple[np.ndarray, np.ndarray]] = {
         i: (np.full(3, mesh.landmarks[name], dtype=np.intp), np.array([1.0, 0.0, 0.0]))
         for i, name in NAMED_POINTS.items()}

@@ -10,9 +10,15 @@ from trackers.landmarks.detection import FaceDetection
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["N_LANDMARKS", "face_landmarks", "roi_transform"]
+__all__ = ["FACE_OVAL", "N_LANDMARKS", "face_landmarks", "roi_transform"]
 
 N_LANDMARKS = 468
+#: The mesh's face oval, a closed loop from the forehead's top (10) round the subject's left
+#: (the image's right), under the chin (152) and back: the silhouette, which slides over
+#: the face's surface as the head turns.
+FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378,
+             400, 377, 152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21,
+             54, 103, 67, 109)
 _SIZE = 192
 _SCALE = 1.5             # crop side / longer side of the face box, as MediaPipe
 _EYES = (33, 263)        # outer eye corners, subject's right (image left) then left

@@ -97,16 +97,16 @@ def test_usable_landmarks_lie_on_the_model_skin_off_the_mouth_line():
     _models_or_skip()
     from faceanalysis.estimation.mesh_points import (
         _EYELIDS,
-        _FACE_OVAL,
         NAMED_POINTS,
         mesh_correspondence,
     )
     from synth import FaceModel
+    from trackers.landmarks.mesh import FACE_OVAL
 
     corr = mesh_correspondence()
     mesh = FaceModel.default().mesh
     assert len(corr) > 250
-    assert not set(corr) & (set(_FACE_OVAL) | set(_EYELIDS))
+    assert not set(corr) & (set(FACE_OVAL) | set(_EYELIDS))
     for i, name in NAMED_POINTS.items():
         assert corr[i][0][0] == mesh.landmarks[name]
     bary = np.array([b for _, b in corr.values()])
