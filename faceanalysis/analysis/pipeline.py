@@ -110,10 +110,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         Frame range ``[start, end)``.
     neutral : int, optional
         Frame (absolute index) showing the neutral face, used for calibration;
-        default: the first tracked frame that sees every measurement point within
-        :data:`LATE_REFERENCE_S` seconds of the first tracked frame, else the first tracked
-        frame (a point it misses takes its neutral position from the first frame within
-        that time that sees it).
+        default: the first tracked frame (with the snakes, the first tracked frame that
+        sees every measurement point within :data:`LATE_REFERENCE_S` seconds of it, if
+        any); a point it misses takes its neutral position from the first frame within
+        that time that sees it.
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
@@ -281,18 +281,23 @@ LATE_REFERENCE_S = 1.0
 
 
 def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
-    """Row of the neutral frame: the given one, else the first tracked frame that sees
-    every point within :data:`LATE_REFERENCE_S` of the first tracked frame, else the first
-    tracked frame.
+    """Row of the neutral frame: the given one; else, with the landmark tracker, the first
+    tracked frame; else the first tracked frame that sees every point within
+    :data:`LATE_REFERENCE_S` of the first tracked frame, else the first tracked frame.
 
-    The wait is short: a frame that sees every point much later could be an expression,
-    which would bias every value; a point the neutral frame misses takes its neutral
-    position from a frame just after it instead (:func:`_late_references`), which biases
-    that point at most. The first tracked frame is not taken when a complete one follows
-    within the wait: the contours settle on their features over the first frames.
+    The snakes settle on their features over the first frames, so a complete frame soon
+    after the first is taken. The wait is short: a frame that sees every point much later
+    could be an expression, which would bias every value; a point the neutral frame misses
+    takes its neutral position from a frame just after it instead
+    (:func:`_late_references`), which biases that point at most. The landmark tracker
+    places its contours from the first frame, and what it misses there is mostly a feature
+    the face does not show at rest: a furrow that a smile deepens (on two of 20 IMM
+    neutral-then-smile pairs, the smile was the first complete frame and read as neutral).
     """
     if neutral is None:
         first = int(np.flatnonzero(tracks.success)[0])
+        if tracks.tracker == "landmarks":
+            return first
         complete = tracks.success & np.isfinite(tracks.points).all(axis=(1, 2))
         rows = np.flatnonzero(complete & _within(tracks, first, inclusive=True))
         return int(rows[0]) if rows.size else first

@@ -29,8 +29,8 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "flow: dense optical flow on the model's per-muscle flow templates")
     group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
-                            "(default: the first tracked frame that sees every point, "
-                            "waiting at most 1 s)")
+                            "(default: the first tracked frame; with --tracker snakes, "
+                            "the first that sees every point, waiting at most 1 s)")
     group.add_argument("--tracker", choices=("landmarks", "snakes"),
                        help="landmarks (default): MediaPipe's face mesh finds the face on "
                             "every frame and holds the snakes; frames without a face are lost "

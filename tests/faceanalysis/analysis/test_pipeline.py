@@ -392,6 +392,29 @@ def test_a_still_real_face_reads_rest(real_video_dir, tmp_path):
     assert np.max(a.fit_residual) < 0.02
 
 
+@pytest.mark.real_data
+def test_a_photographed_smile_is_not_taken_for_the_neutral_face(tmp_path):
+    from tests.conftest import SHARED_REAL
+    from trackers.landmarks import ensure_models
+
+    imm = SHARED_REAL.parent / "annotated" / "imm_dev"
+    if not imm.is_dir():
+        pytest.skip(f"IMM photographs not found in {imm}")
+    try:
+        ensure_models()
+    except (OSError, RuntimeError) as exc:
+        pytest.skip(f"the landmark model is not available: {exc}")
+    # person 30's right furrow shows on the smile only: the smile was the first frame that
+    # saw every point, and was taken for the neutral face
+    for t in (1, 2):
+        img = cv2.imread(str(next(imm.glob(f"30-{t}?.jpg"))))
+        cv2.imwrite(str(tmp_path / f"{t}.png"), img)
+    a = analyze(tmp_path, fps=1.0)
+    assert a.metadata["calibration"]["neutral_frame"] == 0
+    z = (a.table["zygomaticus_major_l"] + a.table["zygomaticus_major_r"]) / 2
+    assert z.iloc[0] == 0 and z.iloc[1] > 0.1
+
+
 def _hide_left_brow(video, table, out, frames):
     """``video`` rewritten to ``out`` with the left brow covered by a flat box of the
     skin's colour on ``frames``: the tracker loses that contour there."""
@@ -540,6 +563,9 @@ def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_lat
     points = tracks.points.copy()
     points[0, j] = np.nan
     assert _neutral_row(replace(tracks, points=points), None) == 1
+    # the landmark tracker does not wait: what it misses on the first frame is mostly a
+    # feature the face does not show at rest (a furrow that a smile deepens)
+    assert _neutral_row(replace(tracks, points=points, tracker="landmarks"), None) == 0
     # no frame sees every point (the corner is missed on even frames, a brow on odd ones):
     # the first frame is neutral and the corner takes its position from the second
     points = tracks.points.copy()
