@@ -139,6 +139,7 @@ def _nose_and_jaw(meshes):
     for the landmark nearest it, by median distance over the first half of the people,
     and is scored on the other half (and, in-sample, on all).
     """
+    from synth.mesh_plane import _seg_dist  # points' distances from a polyline
     from trackers.landmarks.mesh import FACE_OVAL
 
     people = sorted({m[0] for m in meshes})
@@ -159,18 +160,10 @@ def _nose_and_jaw(meshes):
     # the jaw line's points slide along it with the pose and the annotator: their distance
     # from the mesh's face oval says how well the line itself is found
     oval = list(FACE_OVAL) + [FACE_OVAL[0]]
-    off = [np.mean([_to_polyline(gt[i], lm[oval]) for i in range(13)]) / iod
-           for _, gt, lm, iod in meshes]
+    off = [_seg_dist(gt[:13], lm[oval])[0].mean() / iod for _, gt, lm, iod in meshes]
     figs.append(_fig("IMM types 1-2, landmarks", "jaw-line points' distance from the face oval",
                      np.mean(off), "IOD", False))
     return figs
-
-
-def _to_polyline(p, line):
-    """Distance from point ``p`` to the polyline ``line`` (n, 2)."""
-    a, ab = line[:-1], np.diff(line, axis=0)
-    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
-    return float(np.hypot(*(a + t[:, None] * ab - p).T).min())
 
 
 def neutral_then_smile(quick=False):
