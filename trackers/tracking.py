@@ -53,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from trackers.anchors import similarity_from_pairs
-from trackers.contour_ends import _CORNER_FAN, _move_end_nb, _refine_end_nb
+from trackers.contour_ends import _CORNER_FAN, _move_end_nb, _refine_end_nb, _trim_start_nb
 from trackers.contour_fields import ContourFields
 from trackers.fiducials import HeadFrame, apex_fraction, brow_axis_frame, fiducials
 from trackers.head_motion import FeatureAnchors
@@ -62,6 +62,7 @@ from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
 from trackers.mouth import mouth_corners
 from trackers.polyline import resample_polyline
 from trackers.quality import ContourQuality, TrackResult, _polyline_length, _shape_change
+from trackers.sampling import bilinear_nb
 from trackers.snake_types import Contour, SnakeParams
 from trackers.snakes import ContourSystem, paper_equivalent_strength
 
@@ -84,6 +85,14 @@ def _retry_now(streak: int) -> bool:
     if streak <= REINIT_EVERY:
         return streak & (streak - 1) == 0
     return streak % REINIT_EVERY == 0
+
+
+def _off_feature(ref, P, ox, oy) -> bool:
+    """Whether the first node of ``ref`` lies off the ravine its contour follows: the
+    potential there is less than a quarter as deep as the median along the contour."""
+    v = np.array([bilinear_nb(P, float(x), float(y), ox, oy) for x, y in ref])
+    mid = np.nanmedian(v)
+    return bool(mid < 0 and np.isfinite(v[0]) and v[0] > 0.25 * mid)
 
 
 class Tracker(HeadFrameSearch, ContourFields):
@@ -403,10 +412,22 @@ class Tracker(HeadFrameSearch, ContourFields):
                     continue
                 # refine_end without its checks: same kernel, same arguments
                 ref = np.ascontiguousarray(new if end == 0 else new[::-1])
-                ok, x, y = _refine_end_nb(ref, P, float(ox), float(oy), sigma,
-                                          mode == "centre", g, gox, goy, True,
-                                          _CORNER_FAN if mode == "corner" else 0.0,
-                                          mode == "line")
+                args = (P, float(ox), float(oy), sigma, mode == "centre", g, gox, goy, True,
+                        _CORNER_FAN if mode == "corner" else 0.0, mode == "line")
+                ok, x, y = _refine_end_nb(ref, *args)
+                if (not ok and fresh and mode == "centre"
+                        and _off_feature(ref, P, float(ox), float(oy))):
+                    # a band just placed may overshoot its end (a mesh's brow running
+                    # on past a thin brow's tail): the end's reference depth, taken
+                    # 1-2.5 sigma inside, is then skin and no end is found. Search
+                    # again from further inside
+                    for cut in (2.5 * sigma, 5.0 * sigma):
+                        inner = _trim_start_nb(ref, cut)
+                        if len(inner) < 4:
+                            break
+                        ok, x, y = _refine_end_nb(inner, *args)
+                        if ok:
+                            break
                 target = anchor[st[k] if end == 0 else st[k + 1] - 1]
                 held = self._held_ends.get((name, end)) if hold else None
                 if held is not None:

@@ -63,6 +63,34 @@ def test_prefetching_the_next_frame_changes_no_result(face_truth):
     assert runs[True][3] is None and runs[True][4].extra["detected"]
 
 
+def test_a_large_face_is_tracked_shrunk_and_reported_in_the_input_pixels(face_truth):
+    img, _ = face_truth
+    frames = [img, _shift(img, 2, 1), np.full_like(img, 128), _shift(img, -3, 2)]
+    # each pixel repeated 2 x 2: shrinking by 2 (area mean) gives the frame back exactly
+    big = [np.repeat(np.repeat(f, 2, axis=0), 2, axis=1) for f in frames]
+    small = list(AnchoredTracker(max_iod=None).run(frames))
+    tracker = AnchoredTracker(max_iod=60.0)   # this face's eyes lie 55 px apart, 110 there
+    large = list(tracker.run(big))
+    assert tracker.downscale == 2
+    assert large[2] is None and small[2] is None
+    for a, b in zip(small, large):
+        if a is None:
+            continue
+        for n in a.fiducials:
+            assert np.allclose((np.asarray(a.fiducials[n]) + 0.5) * 2 - 0.5, b.fiducials[n])
+        for n in a.contours:
+            assert np.allclose((a.contours[n] + 0.5) * 2 - 0.5, b.contours[n])
+        assert np.allclose((a.extra["landmarks"] + 0.5) * 2 - 0.5, b.extra["landmarks"])
+        assert b.head.scale == pytest.approx(2 * a.head.scale)
+        assert b.head.x == pytest.approx((a.head.x + 0.5) * 2 - 0.5)
+        assert b.extra["head_yaw"] == pytest.approx(a.extra["head_yaw"])
+    # a face within the limit is tracked at its own size
+    plain = AnchoredTracker(max_iod=1000.0)
+    assert plain.track(big[0]) is not None and plain.downscale == 1
+    with pytest.raises(ValueError, match="max_iod"):
+        AnchoredTracker(max_iod=0)
+
+
 def test_a_still_face_stays_still(face_truth):
     # the springs pull toward the landmark curves moved by the first frame's offsets:
     # on a face that does not move, nothing should creep
