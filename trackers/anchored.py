@@ -329,7 +329,6 @@ class AnchoredTracker:
         if next_frame is not None and self.prefetch and hasattr(self.landmarks, "prefetch"):
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
-            self._ahead = None
             ahead = self._shrunk(next_frame)
             self._ahead = (next_frame, ahead)
             self.landmarks.prefetch(ahead)

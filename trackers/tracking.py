@@ -62,7 +62,7 @@ from trackers.layout import CONTOUR_NAMES, FaceLayout, detect_layout
 from trackers.mouth import mouth_corners
 from trackers.polyline import resample_polyline
 from trackers.quality import ContourQuality, TrackResult, _polyline_length, _shape_change
-from trackers.sampling import bilinear_nb
+from trackers.sampling import sample_or_nan
 from trackers.snake_types import Contour, SnakeParams
 from trackers.snakes import ContourSystem, paper_equivalent_strength
 
@@ -90,7 +90,7 @@ def _retry_now(streak: int) -> bool:
 def _off_feature(ref, P, ox, oy) -> bool:
     """Whether the first node of ``ref`` lies off the ravine its contour follows: the
     potential there is less than a quarter as deep as the median along the contour."""
-    v = np.array([bilinear_nb(P, float(x), float(y), ox, oy) for x, y in ref])
+    v = sample_or_nan(P, ref, (ox, oy))
     mid = np.nanmedian(v)
     return bool(mid < 0 and np.isfinite(v[0]) and v[0] > 0.25 * mid)
 
