@@ -15,9 +15,11 @@ Two things make them measurement points:
   :data:`SEAM_MARGIN` of the mouth line (where the upper and lower lip part, so that a
   point on the wrong side would read a jaw) are left out. The result is cached on disk.
 * **how each one moved** (:func:`mesh_displacements`): the frame's landmarks are carried
-  back onto the neutral frame's by the 3-D similarity that best superposes the rigid
-  points (eye corners and nose bridge), so that a turned or bowed head leaves only the
-  face's own motion, which is then taken into model units by the calibration.
+  back onto the neutral frame's by the 3-D similarity that best superposes the face
+  (robustly, from the eye corners and nose bridge) and by the horizontal stretch and shears
+  of the image that the landmark model adds to a turning head (:func:`image_stretch`), so
+  that a turned or bowed head leaves mostly the face's own motion, which is then taken into
+  model units by the calibration.
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ from trackers.landmarks.mesh import FACE_OVAL
 log = logging.getLogger(__name__)
 
 __all__ = ["MESH_POINT_PREFIX", "NAMED_POINTS", "SEAM_MARGIN", "head_alignment",
-           "mesh_correspondence", "mesh_displacements", "mesh_indices", "mesh_point_names",
-           "similarity_3d", "surface_points", "to_model_units"]
+           "image_stretch", "mesh_correspondence", "mesh_displacements", "mesh_indices",
+           "mesh_point_names", "similarity_3d", "surface_points", "to_model_units"]
 
 #: Name of face-mesh landmark ``i`` as a measurement point: ``f"mesh_{i}"``.
 MESH_POINT_PREFIX = "mesh_"
@@ -349,14 +351,152 @@ def head_alignment(neutral, points, *, rigid=RIGID_3D, rounds: int = ALIGN_ROUND
     return s, rot, tr
 
 
+def image_stretch(predicted, observed, *, rounds: int = ALIGN_ROUNDS):
+    """The small linear map of the image that the 3-D similarity leaves: a horizontal
+    stretch and the two shears, about the face's centre, fitted robustly per frame.
+
+    A rigid head seen by the landmark model does not move its points by a similarity
+    alone: its depths are a guess (their scale most of all) and a real camera is not
+    orthographic, so a turned or moving head also stretches the face sideways and shears
+    it in the model's output. The map ``observed ~ centre + M (predicted - centre) +
+    shift`` has ``M = I + [[a, b], [c, 0]]``: the vertical stretch is left out because
+    an opening jaw and raised brows stretch the face vertically themselves (with it, the
+    jaw of rendered faces read 2.0 degrees off instead of 1.5). Each point weighs
+    ``1 / (1 + (r / s)^2)`` of its residual, as in :func:`head_alignment`.
+
+    Parameters
+    ----------
+    predicted : ndarray, shape (T, 468, 2)
+        Where the similarity puts the neutral frame's landmarks in each frame's image.
+    observed : ndarray, shape (T, 468, 2)
+        Where the landmark model put them.
+    rounds : int, keyword-only
+        Reweighting rounds.
+
+    Returns
+    -------
+    (ndarray (T, 2, 2), ndarray (T, 2), ndarray (T, 2))
+        ``M``, the centre (the predicted points' mean off the silhouette) and the shift.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> pred = rng.normal(0.0, 50.0, (1, 468, 2))
+    >>> m_true = np.array([[1.03, 0.01], [-0.02, 1.0]])
+    >>> c = pred[0, _OFF_SILHOUETTE].mean(axis=0)
+    >>> obs = c + (pred - c) @ m_true.T + [2.0, -1.0]
+    >>> m, centre, shift = image_stretch(pred, obs)
+    >>> np.allclose(m[0], m_true), np.allclose(shift[0], [2.0, -1.0])
+    (True, True)
+    """
+    pred = np.ascontiguousarray(predicted, dtype=float)
+    obs = np.ascontiguousarray(observed, dtype=float)
+    if pred.shape != obs.shape or pred.ndim != 3 or pred.shape[1:] != (468, 2):
+        raise ValueError(f"predicted and observed must both have shape (T, 468, 2), got "
+                         f"{pred.shape} and {obs.shape}")
+    n_t = len(pred)
+    m, centre, shift = np.empty((n_t, 2, 2)), np.empty((n_t, 2)), np.empty((n_t, 2))
+    _stretch_nb(pred, obs, _OFF_SILHOUETTE.astype(np.intp), max(int(rounds), 1),
+                float(ALIGN_SCALE), m, centre, shift)
+    return m, centre, shift
+
+
+@numba.njit(cache=True, nogil=True)
+def _solve3(g, h):
+    # Cramer's rule: numba's own linear algebra costs seconds of compilation on first use
+    d = (g[0, 0] * (g[1, 1] * g[2, 2] - g[1, 2] * g[2, 1])
+         - g[0, 1] * (g[1, 0] * g[2, 2] - g[1, 2] * g[2, 0])
+         + g[0, 2] * (g[1, 0] * g[2, 1] - g[1, 1] * g[2, 0]))
+    x0 = (h[0] * (g[1, 1] * g[2, 2] - g[1, 2] * g[2, 1])
+          - g[0, 1] * (h[1] * g[2, 2] - g[1, 2] * h[2])
+          + g[0, 2] * (h[1] * g[2, 1] - g[1, 1] * h[2])) / d
+    x1 = (g[0, 0] * (h[1] * g[2, 2] - g[1, 2] * h[2])
+          - h[0] * (g[1, 0] * g[2, 2] - g[1, 2] * g[2, 0])
+          + g[0, 2] * (g[1, 0] * h[2] - h[1] * g[2, 0])) / d
+    x2 = (g[0, 0] * (g[1, 1] * h[2] - h[1] * g[2, 1])
+          - g[0, 1] * (g[1, 0] * h[2] - h[1] * g[2, 0])
+          + h[0] * (g[1, 0] * g[2, 1] - g[1, 1] * g[2, 0])) / d
+    return x0, x1, x2
+
+
+@numba.njit(cache=True, nogil=True)
+def _stretch_nb(pred, obs, use, rounds, rel_scale, m, centre, shift):
+    # per frame: x residual = a u + b v + sx, y residual = c u + sy, (u, v) the predicted
+    # point about the centre over the face's RMS radius; Cauchy-reweighted least squares
+    n = use.shape[0]
+    for t in range(pred.shape[0]):
+        cx = 0.0
+        cy = 0.0
+        for i in range(n):
+            cx += pred[t, use[i], 0]
+            cy += pred[t, use[i], 1]
+        cx /= n
+        cy /= n
+        size = 0.0
+        for i in range(n):
+            du = pred[t, use[i], 0] - cx
+            dv = pred[t, use[i], 1] - cy
+            size += du * du + dv * dv
+        size = max(np.sqrt(size / n), 1e-9)
+        s2 = (rel_scale * size) ** 2
+        a = b = c = sx = sy = 0.0
+        gx = np.empty((3, 3))
+        hx = np.empty(3)
+        for _ in range(rounds):
+            gx[:] = 0.0
+            hx[:] = 0.0
+            g00 = g01 = g11 = h0 = h1 = 0.0
+            for i in range(n):
+                k = use[i]
+                u = (pred[t, k, 0] - cx) / size
+                v = (pred[t, k, 1] - cy) / size
+                rx = obs[t, k, 0] - pred[t, k, 0]
+                ry = obs[t, k, 1] - pred[t, k, 1]
+                ex = rx - (a * u + b * v + sx)
+                ey = ry - (c * u + sy)
+                w = 1.0 / (1.0 + (ex * ex + ey * ey) / s2)
+                gx[0, 0] += w * u * u
+                gx[0, 1] += w * u * v
+                gx[0, 2] += w * u
+                gx[1, 1] += w * v * v
+                gx[1, 2] += w * v
+                gx[2, 2] += w
+                hx[0] += w * u * rx
+                hx[1] += w * v * rx
+                hx[2] += w * rx
+                g00 += w * u * u
+                g01 += w * u
+                g11 += w
+                h0 += w * u * ry
+                h1 += w * ry
+            gx[1, 0] = gx[0, 1]
+            gx[2, 0] = gx[0, 2]
+            gx[2, 1] = gx[1, 2]
+            a, b, sx = _solve3(gx, hx)
+            det = g00 * g11 - g01 * g01
+            c = (g11 * h0 - g01 * h1) / det
+            sy = (g00 * h1 - g01 * h0) / det
+        m[t, 0, 0] = 1.0 + a / size
+        m[t, 0, 1] = b / size
+        m[t, 1, 0] = c / size
+        m[t, 1, 1] = 1.0
+        centre[t, 0] = cx
+        centre[t, 1] = cy
+        shift[t, 0] = sx
+        shift[t, 1] = sy
+
+
 def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
-                       rounds: int = ALIGN_ROUNDS) -> np.ndarray:
+                       rounds: int = ALIGN_ROUNDS, stretch: bool = True) -> np.ndarray:
     """Motion of face-mesh landmarks since the neutral frame, with the head's taken out.
 
     Each frame's 468 landmarks (x, y, z; pixels) are carried onto the neutral frame's by
     the inverse of the 3-D similarity that carries the neutral frame's landmarks onto the
     frame's (:func:`head_alignment`), so what is left is the face's own motion, expressed
-    in the neutral frame's image (pixels, x right, y down).
+    in the neutral frame's image (pixels, x right, y down). With ``stretch`` (the default),
+    the horizontal stretch and shears that the similarity leaves in the frame's image
+    (:func:`image_stretch`) are taken out as well, and what is left of each point's image
+    motion is taken back through the similarity's in-plane part.
 
     Parameters
     ----------
@@ -368,6 +508,8 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
         Landmarks to return.
     rigid, rounds
         See :func:`head_alignment`.
+    stretch : bool, keyword-only
+        Take out the image's horizontal stretch and shears as well (:func:`image_stretch`).
 
     Returns
     -------
@@ -382,9 +524,20 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
     seen = [t for t, pts in enumerate(landmarks) if pts is not None]
     p = np.stack([np.asarray(landmarks[t], dtype=float) for t in seen])
     s, rot, tr = head_alignment(ref, p, rigid=rigid, rounds=rounds)
-    # into the neutral pose: R^T (p - t) / s
-    back = np.einsum("tnj,tjk->tnk", p[:, idx] - tr[:, None], rot) / s[:, None, None]
-    out[seen] = back[..., :2] - ref[idx, :2]
+    if not stretch:
+        # into the neutral pose: R^T (p - t) / s
+        back = np.einsum("tnj,tjk->tnk", p[:, idx] - tr[:, None], rot) / s[:, None, None]
+        out[seen] = back[..., :2] - ref[idx, :2]
+        return out
+    # (matrix products, not einsum: these are the estimation's largest array operations)
+    predicted = ref @ np.swapaxes(s[:, None, None] * rot[:, :2], 1, 2) + tr[:, None, :2]
+    m, centre, shift = image_stretch(predicted, p[..., :2], rounds=rounds)
+    expected = ((predicted[:, idx] - centre[:, None]) @ np.swapaxes(m, 1, 2)
+                + (centre + shift)[:, None])
+    # what is left, seen in the image, taken back into the neutral frame's: the image moves
+    # m s R_xy per unit of a neutral displacement in the face's plane
+    jac = np.einsum("tij,tjk->tik", m, s[:, None, None] * rot[:, :2, :2])
+    out[seen] = (p[:, idx, :2] - expected) @ np.swapaxes(np.linalg.inv(jac), 1, 2)
     return out
 
 

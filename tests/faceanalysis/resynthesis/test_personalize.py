@@ -104,5 +104,6 @@ def test_expression_transfer_to_another_subject(subject, tmp_path):
     # at the source's neutral frame the model sits on the subject's neutral fiducials
     k = int(np.argmax(other.table["success"].to_numpy() == 1))
     assert np.hypot(*(states[k].fiducials - info.fiducials).T).max() < 1.0
-    # and the expression moves it
-    assert np.abs(states[-1].vertices - states[k].vertices).max() > 0.1
+    # and the expression moves it (at its apex: the surprise is over by the last frame)
+    apex = len(states) // 2
+    assert np.abs(states[apex].vertices - states[k].vertices).max() > 0.1
