@@ -86,6 +86,15 @@ def test_a_sideways_stretch_and_shear_of_the_whole_face_are_not_motion():
     assert np.abs(plain[1] - truth).max() > 1.0
 
 
+def test_image_stretch_refuses_points_that_are_not_two_face_meshes():
+    from faceanalysis.estimation.mesh_points import image_stretch
+
+    with pytest.raises(ValueError, match="shape"):
+        image_stretch(np.zeros((2, 468, 2)), np.zeros((2, 400, 2)))
+    with pytest.raises(ValueError, match="shape"):
+        image_stretch(np.zeros((468, 2)), np.zeros((468, 2)))
+
+
 def test_rigid_points_do_not_include_what_an_expression_moves():
     assert not {61, 291, 0, 17, 13, 14} & set(RIGID_3D)
 
