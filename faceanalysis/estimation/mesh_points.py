@@ -526,7 +526,7 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
     s, rot, tr = head_alignment(ref, p, rigid=rigid, rounds=rounds)
     if not stretch:
         # into the neutral pose: R^T (p - t) / s
-        back = np.einsum("tnj,tjk->tnk", p[:, idx] - tr[:, None], rot) / s[:, None, None]
+        back = (p[:, idx] - tr[:, None]) @ rot / s[:, None, None]
         out[seen] = back[..., :2] - ref[idx, :2]
         return out
     # (matrix products, not einsum: these are the estimation's largest array operations)
@@ -536,7 +536,7 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
                 + (centre + shift)[:, None])
     # what is left, seen in the image, taken back into the neutral frame's: the image moves
     # m s R_xy per unit of a neutral displacement in the face's plane
-    jac = np.einsum("tij,tjk->tik", m, s[:, None, None] * rot[:, :2, :2])
+    jac = m @ (s[:, None, None] * rot[:, :2, :2])
     out[seen] = (p[:, idx, :2] - expected) @ np.swapaxes(np.linalg.inv(jac), 1, 2)
     return out
 
