@@ -6,7 +6,8 @@ face model into the head frame on the neutral frame
 units and runs one of the estimators of :mod:`faceanalysis.estimation.registry`. Every
 estimator's result then goes through the same checks: the face model's prediction at
 the estimate against the measured points (the fit residual), which caps the frame's
-confidence.
+confidence, and the head's turn out of the image plane since the neutral frame, which caps
+it too.
 """
 
 from __future__ import annotations
@@ -56,8 +57,16 @@ log = logging.getLogger(__name__)
 #: other features put frames beyond it.
 MAX_FIT_RESIDUAL = 0.5
 
-__all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "analyze", "analyze_to_folder",
-           "default_estimator", "reestimate"]
+#: A frame whose head is turned out of the image plane by more than this from the neutral
+#: frame's pose (degrees, the hypotenuse of the differences in ``head_pitch`` and
+#: ``head_yaw``) reads the turn partly as muscles, and its ``confidence`` is lowered to
+#: ``MAX_HEAD_TURN / turn``. On the IMM photographs (20 people), a second neutral photograph
+#: up to 9 degrees from the first reads like a frontal one (largest muscle a median 0.12);
+#: from 17.5 degrees on, none of the 40 turned ones reads rest (median 0.35).
+MAX_HEAD_TURN = 15.0
+
+__all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "MAX_HEAD_TURN", "analyze",
+           "analyze_to_folder", "default_estimator", "reestimate"]
 
 
 def default_estimator(tracker: str | None = None, *, layout=None, refine: bool = False) -> str:
@@ -239,6 +248,13 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     "lowered; check the overlay (--overlay)%s", video, fit["frames_over_limit"],
                     int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"],
                     _LANDMARK_HINT if tracks.tracker == "snakes" else "")
+    turned = fit["head_turn"]["frames_over_limit"]
+    if turned > 0.1 * max(int(tracks.success.sum()), 1):
+        log.warning("%s: on %d of %d tracked frames the head is turned more than %.0f degrees "
+                    "out of the image plane from the neutral frame's pose (up to %.0f): a "
+                    "turned head reads partly as muscles, so their confidence is lowered; "
+                    "compare frames of similar pose (head_pitch, head_yaw)", video, turned,
+                    int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
     if ident["not_identifiable"]:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
                     "%s from the other controls: their values lean on the prior that "
@@ -435,7 +451,9 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     and listed in ``parameters['controls_at_rest']``; lost frames are NaN. A tracked
     frame has a value for every control: one that the frame's points do not observe
     (NaN from the estimator) is held (:func:`_hold_unobserved`), counted in
-    ``parameters['controls_held']`` and lowers the frame's confidence.
+    ``parameters['controls_held']`` and lowers the frame's confidence. So do a fit residual
+    over :data:`MAX_FIT_RESIDUAL` and a head turned more than :data:`MAX_HEAD_TURN` from
+    the neutral frame's pose (``fit['head_turn']``).
     """
     table = table.copy()
     success = table["success"].to_numpy() == 1
@@ -459,7 +477,11 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     in_response = np.column_stack([
         values[m].to_numpy(float) if m in values.columns else np.full(len(table), np.nan)
         for m in response.muscles])
+    turn = _head_turn(table, parameters.get("neutral_frame"))
+    with np.errstate(divide="ignore"):
+        track_conf = np.fmin(track_conf, MAX_HEAD_TURN / turn)   # fmin: no pose, no cap
     residual, confidence, fit = _model_fit(disp, response, in_response, success, track_conf)
+    fit["head_turn"] = _turn_summary(turn[success])
     table["confidence"] = confidence * observed
     parameters["estimated_controls"] = estimated
     parameters["controls_at_rest"] = [m for m in controls if m not in estimated]
@@ -512,6 +534,35 @@ def _hold_unobserved(values: np.ndarray, success: np.ndarray) -> tuple[np.ndarra
     held = np.where(last >= 0, values[np.maximum(last, 0), cols], 0.0)
     filled = np.where(observed, values, np.where(success[:, None], held, np.nan))
     return filled, observed
+
+
+def _head_turn(table: pd.DataFrame, neutral_frame) -> np.ndarray:
+    """Per row, degrees the head is turned out of the image plane from the neutral frame's
+    pose (the hypotenuse of the pitch and yaw differences); NaN without a pose.
+
+    Examples
+    --------
+    >>> t = pd.DataFrame({"frame": [0, 1, 2], "head_pitch": [1.0, 4.0, np.nan],
+    ...                   "head_yaw": [2.0, 6.0, 0.0]})
+    >>> _head_turn(t, 0).tolist()
+    [0.0, 5.0, nan]
+    """
+    turn = np.full(len(table), np.nan)
+    if not set(POSE_COLUMNS) <= set(table.columns):
+        return turn
+    rows = np.flatnonzero(table["frame"].to_numpy() == neutral_frame)
+    if not rows.size:
+        return turn
+    pose = table[list(POSE_COLUMNS)].to_numpy(float)
+    return np.hypot(*(pose - pose[rows[0]]).T)
+
+
+def _turn_summary(turn: np.ndarray) -> dict:
+    """``model_fit.head_turn`` of ``analysis.json``: the limit, the tracked frames beyond
+    it and the largest turn (None without a pose)."""
+    t = turn[np.isfinite(turn)]
+    return {"limit_deg": MAX_HEAD_TURN, "frames_over_limit": int((t > MAX_HEAD_TURN).sum()),
+            "max_deg": float(t.max()) if t.size else None}
 
 
 def _model_fit(disp, response, values, success, track_conf):

@@ -590,3 +590,36 @@ def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_lat
     meas, cal, calib = _calibrate(never, 0, response, "exclude", "clip")
     assert calib["late_references"] == {}
     assert np.isnan(cal.model_displacements(meas, tracks.heads)[:, j]).all()
+
+
+def test_a_head_turned_out_of_the_image_plane_lowers_the_confidence(tmp_path, caplog):
+    from faceanalysis.analysis.pipeline import MAX_HEAD_TURN
+    from synth.model import FaceModel
+    from synth.render.camera import HeadPose, default_camera
+    from synth.render.renderer import Renderer
+    from synth.render.texture import paint_skin_texture
+
+    # a face at rest, frontal on three frames, then turned 30 degrees on two: nothing
+    # but the head moves, yet a turned head reads partly as muscles
+    model = FaceModel.default()
+    rest = np.asarray(model.mesh.vertices, dtype=float)
+    renderer = Renderer(model.mesh, texture=paint_skin_texture(model.mesh, 0, size=512),
+                        camera=default_camera(256, 256))
+    for i, yaw in enumerate((0, 0, 0, 30, 30)):
+        image = renderer.render(rest, pose=HeadPose(yaw=yaw)).image
+        cv2.imwrite(str(tmp_path / f"frame_{i:02d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    with caplog.at_level("WARNING"):
+        a = analyze(tmp_path, fps=10.0)
+    t = a.table
+    assert t["success"].all()
+    turn = np.hypot(t["head_pitch"] - t["head_pitch"][0], t["head_yaw"] - t["head_yaw"][0])
+    assert (turn[3:] > 20).all() and (turn[:3] < 2).all(), turn.tolist()
+    conf = t["confidence"].to_numpy()
+    assert (conf[3:] <= MAX_HEAD_TURN / turn[3:] + 1e-12).all()
+    assert (conf <= a.track_confidence + 1e-12).all()
+    head_turn = a.metadata["model_fit"]["head_turn"]
+    assert head_turn["frames_over_limit"] == 2 and head_turn["max_deg"] > 20
+    assert "turned more than 15 degrees" in caplog.text
+    # an estimator run again on the same tracking keeps the cap
+    again = reestimate(a, "joint")
+    assert (again.table["confidence"].to_numpy()[3:] <= MAX_HEAD_TURN / turn[3:] + 1e-12).all()
