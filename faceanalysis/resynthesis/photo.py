@@ -46,10 +46,13 @@ MESH_LANDMARKS: dict[str, int] = {
     "nose_tip": 1, "subnasale": 2, "lip_upper_centre": 0, "lip_lower_centre": 17,
 }
 
-#: Fiducials a photograph may lack: the top of the nasolabial furrow often shows no edge on
-#: a neutral face and the tracker marks its contour lost; the fit then goes without it (the
-#: subnasale, nose tip and mouth corners around it still hold the warp).
-OPTIONAL_FIDUCIALS: frozenset[str] = frozenset({"furrow_top_l", "furrow_top_r"})
+#: Fiducials a photograph may lack, and the fit then goes without. The top of the nasolabial
+#: furrow often shows no edge on a neutral face and the tracker marks its contour lost (the
+#: subnasale, nose tip and mouth corners around it still hold the warp). The chin boss has
+#: no outline on some chins and its contour may be lost too; the lips' and mouth corners'
+#: points then place the fitted chin (on IMM people 21-26 fitted without their tracked chin,
+#: 1.4-6.5 px from it, where the chin lies 34-41 px below the mouth).
+OPTIONAL_FIDUCIALS: frozenset[str] = frozenset({"furrow_top_l", "furrow_top_r", "chin"})
 
 
 @dataclass(eq=False)
@@ -103,7 +106,7 @@ def _tracked_points(path: Path) -> tuple[np.ndarray, dict]:
     if required:
         raise ValueError(f"{path}: the face's {', '.join(required)} could not be placed")
     if missing:
-        log.warning("%s: the face's %s could not be placed (no furrow on the neutral "
+        log.warning("%s: the face's %s could not be placed (no edge there on the neutral "
                     "face?); fitted without", path, ", ".join(missing))
     points = {n: fid[i] for i, n in enumerate(FIDUCIALS) if n not in missing}
     mesh = np.asarray(tracks.landmarks[0], dtype=float)

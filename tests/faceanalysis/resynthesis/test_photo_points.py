@@ -1,4 +1,5 @@
-"""photo_face's points: a photograph whose nasolabial furrow shows no edge is still fitted."""
+"""photo_face's points: a photograph whose nasolabial furrow or chin boss shows no edge is
+still fitted."""
 
 from __future__ import annotations
 
@@ -28,8 +29,9 @@ class _Tracks(SimpleNamespace):
         return 1
 
 
-@pytest.mark.parametrize("lost", [["furrow_top_l"], ["furrow_top_l", "furrow_top_r"]])
-def test_a_lost_furrow_top_is_left_out_of_the_fit(monkeypatch, tmp_path, lost):
+@pytest.mark.parametrize("lost", [["furrow_top_l"], ["furrow_top_l", "furrow_top_r"],
+                                  ["chin"], ["furrow_top_r", "chin"]])
+def test_a_lost_furrow_top_or_chin_is_left_out_of_the_fit(monkeypatch, tmp_path, lost):
     monkeypatch.setattr(tracking, "track", _fake_track(lost))
     _, points = photo._tracked_points(tmp_path / "face.png")
     assert not set(lost) & set(points)
