@@ -157,7 +157,8 @@ def imm(quick: bool = False) -> list[Figure]:
                         "max": float(t[list(MUSCLES)].iloc[1].max()),
                         "zyg": [float((t["zygomaticus_major_l"] + t["zygomaticus_major_r"])
                                       .iloc[i] / 2) for i in (0, 1)],
-                        "au12": [float(t["AU12_r"].iloc[i]) for i in (0, 1)]}
+                        "au12": [float(t["AU12_r"].iloc[i]) for i in (0, 1)],
+                        "confidence": float(t["confidence"].iloc[1])}
     figs = []
     for second, label in ((5, "side-lit neutral"), (2, "smile")):
         shifts = np.array([_hand_shift(p, second) for p in people])
@@ -203,6 +204,10 @@ def imm(quick: bool = False) -> list[Figure]:
                                  (turned <= 0.1).sum(), f"of {n}", True))
                 figs.append(_fig(case, f"neutral turned to the {side}: median largest muscle",
                                  np.median(turned), "", False))
+                # the turn lowers the frame's confidence (MAX_HEAD_TURN)
+                figs.append(_fig(case, f"neutral turned to the {side}: median confidence",
+                                 np.median([r[p, second]["confidence"] for p in group]), "",
+                                 False))
             for key, name in (("zyg", "zygomaticus major"), ("au12", "AU12_r")):
                 smile = np.array([r[p, 2][key][1] for p in group])
                 first = np.array([r[p, 2][key][0] for p in group])
@@ -247,6 +252,12 @@ def clips(quick: bool = False) -> list[Figure]:
             first = a.table[list(MUSCLES)].iloc[:10].to_numpy(float)
             figs.append(_fig(case, "largest muscle on the first 10 frames", np.nanmax(first),
                              "", False))
+            if est == "mesh":
+                # the tracking is the same for every estimator: one figure per clip
+                figs.append(_fig(f"{name}, landmarks",
+                                 "tracked frames turned over the head-turn limit (confidence "
+                                 "lowered)", 100.0 * fit["head_turn"]["frames_over_limit"]
+                                 / max(tracked, 1), "%", False))
             figs.append(_fig(case, "analysis rate (tracking + estimation, decode excluded)",
                              len(a.table) / elapsed, "frames/s", True, 100.0))
             figs.append(_fig(case, "controls not identifiable",
