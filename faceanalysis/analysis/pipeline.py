@@ -248,7 +248,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     "lowered; check the overlay (--overlay)%s", video, fit["frames_over_limit"],
                     int(tracks.success.sum()), MAX_FIT_RESIDUAL, fit["median_cm"],
                     _LANDMARK_HINT if tracks.tracker == "snakes" else "")
-    turned = fit["head_turn"]["frames_over_limit"]
+    turned = fit["head_turn"]["frames_over_limit"] or 0
     if turned > 0.1 * max(int(tracks.success.sum()), 1):
         log.warning("%s: on %d of %d tracked frames the head is turned more than %.0f degrees "
                     "out of the image plane from the neutral frame's pose (up to %.0f): a "
@@ -559,10 +559,12 @@ def _head_turn(table: pd.DataFrame, neutral_frame) -> np.ndarray:
 
 def _turn_summary(turn: np.ndarray) -> dict:
     """``model_fit.head_turn`` of ``analysis.json``: the limit, the tracked frames beyond
-    it and the largest turn (None without a pose)."""
+    it and the largest turn (both None without a pose: the snakes tracker's)."""
     t = turn[np.isfinite(turn)]
+    if not t.size:
+        return {"limit_deg": MAX_HEAD_TURN, "frames_over_limit": None, "max_deg": None}
     return {"limit_deg": MAX_HEAD_TURN, "frames_over_limit": int((t > MAX_HEAD_TURN).sum()),
-            "max_deg": float(t.max()) if t.size else None}
+            "max_deg": float(t.max())}
 
 
 def _model_fit(disp, response, values, success, track_conf):

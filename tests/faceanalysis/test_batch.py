@@ -467,6 +467,14 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
         assert meta["quality"] == reference.metadata["quality"]
         assert row["mean_zygomaticus_major_l"] == pytest.approx(
             reference.table["zygomaticus_major_l"].mean(), abs=1e-6)
+        # and what says how far to trust them
+        assert row["mean_confidence"] == pytest.approx(
+            reference.metadata["quality"]["mean_confidence"])
+        fit = reference.metadata["model_fit"]
+        assert row["frames_over_fit_limit"] == fit["frames_over_limit"]
+        turned = fit["head_turn"]["frames_over_limit"]
+        assert (pd.isna(row["frames_turned"]) if turned is None
+                else row["frames_turned"] == turned)
     # the smiling clip smiles more than the frowning one, in the summary as in the truth
     smile, brows = (by_video.loc[str(v)] for v in face_corpus["good"])
     assert smile["mean_zygomaticus_major_l"] > brows["mean_zygomaticus_major_l"]

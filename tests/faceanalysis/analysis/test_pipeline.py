@@ -72,6 +72,8 @@ def test_the_model_explains_a_rendered_face(analysed):
     assert np.isfinite(analysed.fit_residual[ok]).all()
     # within the limit the confidence is the tracker's own
     assert np.allclose(analysed.table["confidence"], analysed.track_confidence)
+    # the snakes measure no pitch or yaw: no head turn is counted
+    assert fit["head_turn"]["frames_over_limit"] is None
 
 
 def test_points_the_model_cannot_explain_lower_the_confidence(analysed):
