@@ -167,13 +167,12 @@ def _summarise(folder: Path) -> dict:
     record = {"frames": frames, "frames_lost": frames_lost, "duration_s": duration}
     # what says how far to trust the means: the tracker's mean confidence, the frames the
     # face model does not explain, and those whose head is turned beyond its limit
-    fit = metadata.get("model_fit", {}) if isinstance(metadata, dict) else {}
+    fit = metadata.get("model_fit") if isinstance(metadata, dict) else None
     fit = fit if isinstance(fit, dict) else {}
-    turn = fit.get("head_turn", {})
+    turn = fit.get("head_turn") if isinstance(fit.get("head_turn"), dict) else {}
     record["mean_confidence"] = _finite_or_nan(quality.get("mean_confidence"))
     record["frames_over_fit_limit"] = _finite_or_nan(fit.get("frames_over_limit"))
-    record["frames_turned"] = _finite_or_nan(
-        turn.get("frames_over_limit") if isinstance(turn, dict) else None)
+    record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
     for column in table.columns:
         if _is_contraction_column(column) and pd.api.types.is_numeric_dtype(table[column]):
             values = table[column].to_numpy(dtype=float)[success]
@@ -318,7 +317,7 @@ def _summary_frame(rows: list[dict]) -> pd.DataFrame:
     frame["resumed"] = frame["resumed"].fillna(False).astype(bool)
     for column in ("frames", "frames_lost", "frames_over_fit_limit", "frames_turned"):
         if column in frame:
-            frame[column] = pd.to_numeric(frame[column]).round().astype("Int64")
+            frame[column] = pd.to_numeric(frame[column]).astype("Int64")
     frame["error"] = frame["error"].fillna("")
     return frame
 
