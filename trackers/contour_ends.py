@@ -26,7 +26,7 @@ _CORNER_FAN = float(np.deg2rad(45.0))
 
 def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int = 0,
                gray=None, gray_origin=None, inset: bool = True, fan: float = 0.0,
-               step: bool = False):
+               step: bool = False, steady: bool = False):
     """Relocate one end of an open contour on the end of the dark line it follows.
 
     The potential is sampled along the contour (inside) and along its end tangent
@@ -68,6 +68,10 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
         rises less than half-way from the line to the skin beside it (a line that
         merely weakens) is no end. For line ends beyond which the ravine runs on
         into shading or texture (the furrows' tops).
+    steady : bool
+        Return an end from which the search would stay put (see :func:`_steady_end`),
+        as the tracker does: where the end found depends on where the search starts,
+        relocating it again from the end found would move it back.
 
     Returns
     -------
@@ -110,9 +114,12 @@ def refine_end(points, potential, sigma: float, *, origin=(0.0, 0.0), end: int =
     has_gray = gray is not None
     g = np.ascontiguousarray(gray, dtype=np.float32) if has_gray else np.zeros((2, 2), np.float32)
     go = origin if gray_origin is None else gray_origin
-    ok, x, y = _refine_end_nb(np.ascontiguousarray(p), P, float(origin[0]), float(origin[1]),
-                              float(sigma), bool(inset), g, float(go[0]), float(go[1]),
-                              has_gray, float(np.deg2rad(fan)), bool(step))
+    p = np.ascontiguousarray(p)
+    args = (P, float(origin[0]), float(origin[1]), float(sigma), bool(inset), g,
+            float(go[0]), float(go[1]), has_gray, float(np.deg2rad(fan)), bool(step))
+    ok, x, y = _refine_end_nb(p, *args)
+    if ok and steady:
+        x, y = _steady_end(p, x, y, args, float(sigma), False)
     return np.array([x, y]) if ok else None
 
 
@@ -439,11 +446,12 @@ def _trim_start_nb(p, s):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _move_end_nb(ref, qx, qy, sigma, settle):
+def _move_end_nb(ref, qx, qy, sigma, settle, exact=False):
     """Contour ``ref`` (its end to move first) with that end moved to ``(qx, qy)``:
     extended along the end, or cut back where the end now lies (by at most 2 sigma a
-    frame unless ``settle``). An empty array when the move is refused (too small, too
-    far, or cutting away half the contour)."""
+    frame unless ``settle``): at the node nearest to it, or with ``exact`` at the
+    point of the polyline nearest to it. An empty array when the move is refused (too
+    small, too far, or cutting away half the contour)."""
     n = ref.shape[0]
     none = np.empty((0, 2))
     dx, dy = qx - ref[0, 0], qy - ref[0, 1]
@@ -467,6 +475,16 @@ def _move_end_nb(ref, qx, qy, sigma, settle):
             if d < best:
                 best = d
                 cut = arc
+            if exact and i + 1 < n:
+                ex, ey = ref[i + 1, 0] - ref[i, 0], ref[i + 1, 1] - ref[i, 1]
+                seg2 = ex * ex + ey * ey
+                if seg2 > 1e-24:
+                    u = ((qx - ref[i, 0]) * ex + (qy - ref[i, 1]) * ey) / seg2
+                    if 0.0 < u < 1.0:
+                        d = np.hypot(ref[i, 0] + u * ex - qx, ref[i, 1] + u * ey - qy)
+                        if d < best:
+                            best = d
+                            cut = arc + u * np.sqrt(seg2)
         if cut > 0.45 * arc:
             return none
         if cut > 2.0 * sigma and not settle:
@@ -490,3 +508,56 @@ def _move_end_nb(ref, qx, qy, sigma, settle):
     if out.shape[0] < 2 or _length_nb(out, False) < 2.0:
         return none
     return out
+
+
+#: Iterations of the bisection that finds a steady end between a contour's end and an
+#: end found past it (:func:`_steady_end`).
+STEADY_END_STEPS = 4
+
+
+def _steady_end(ref, x, y, args, sigma, settle):
+    """A contour end that searching again from where it is would leave in place.
+
+    ``(x, y)`` is the end :func:`refine_end`'s kernel found for the polyline ``ref``
+    (its end first; ``args`` the kernel's other arguments). Where a band's end is
+    ambiguous (a brow's inner head running into the shading beside the nose), the end
+    found depends on where the search starts and can overshoot: started short, it
+    lands past the place, started past it, short. Relocated afresh on each frame, such
+    an end swings between the two from one frame to the next on a still face, and the
+    fit reads the swing as a muscle switching on and off. The search is run once more
+    from the end found; when it goes back by more than a quarter of ``sigma``, the end
+    is put where the search from it stays put, found by bisection between the two
+    (the probes cut the contour exactly, not at a node).
+    """
+    moved = _move_end_nb(ref, x, y, sigma, settle, True)
+    if moved.shape[0] < 4:
+        return x, y
+    ok, x2, y2 = _refine_end_nb(moved, *args)
+    if not ok:
+        return x, y
+    j = min(3, len(ref) - 1)
+    t = ref[0] - ref[j]
+    t = t / max(float(np.hypot(*t)), 1e-9)
+    s1 = float((x - ref[0, 0]) * t[0] + (y - ref[0, 1]) * t[1])
+    s2 = float((x2 - ref[0, 0]) * t[0] + (y2 - ref[0, 1]) * t[1])
+    if abs(s2 - s1) <= 0.25 * sigma or (s2 - s1) * s1 >= 0:
+        return x, y
+    # the search from s1 points back toward 0 and the one from 0 toward s1: the end
+    # that stays put lies between; across the line, interpolate between the two
+    lo, hi = 0.0, 1.0
+    for _ in range(STEADY_END_STEPS):
+        m = 0.5 * (lo + hi)
+        qx, qy = ref[0, 0] + m * (x - ref[0, 0]), ref[0, 1] + m * (y - ref[0, 1])
+        moved = _move_end_nb(ref, qx, qy, sigma, settle, True) if m * abs(s1) > 1e-3 else ref
+        if moved.shape[0] < 4:
+            break
+        ok, xm, ym = _refine_end_nb(moved, *args)
+        if not ok:
+            break
+        sm = float((xm - ref[0, 0]) * t[0] + (ym - ref[0, 1]) * t[1])
+        if (sm - m * s1) * s1 > 0:
+            lo = m
+        else:
+            hi = m
+    m = 0.5 * (lo + hi)
+    return ref[0, 0] + m * (x - ref[0, 0]), ref[0, 1] + m * (y - ref[0, 1])

@@ -53,7 +53,13 @@ from __future__ import annotations
 import numpy as np
 
 from trackers.anchors import similarity_from_pairs
-from trackers.contour_ends import _CORNER_FAN, _move_end_nb, _refine_end_nb, _trim_start_nb
+from trackers.contour_ends import (
+    _CORNER_FAN,
+    _move_end_nb,
+    _refine_end_nb,
+    _steady_end,
+    _trim_start_nb,
+)
 from trackers.contour_fields import ContourFields
 from trackers.fiducials import HeadFrame, apex_fraction, brow_axis_frame, fiducials
 from trackers.head_motion import FeatureAnchors
@@ -428,6 +434,8 @@ class Tracker(HeadFrameSearch, ContourFields):
                         ok, x, y = _refine_end_nb(inner, *args)
                         if ok:
                             break
+                if ok:
+                    x, y = _steady_end(ref, x, y, args, sigma, fresh)
                 target = anchor[st[k] if end == 0 else st[k + 1] - 1]
                 held = self._held_ends.get((name, end)) if hold else None
                 if held is not None:
@@ -450,6 +458,9 @@ class Tracker(HeadFrameSearch, ContourFields):
                         ok, x, y = True, ref[0, 0] + along * tx, ref[0, 1] + along * ty
                 if not ok:
                     continue
+                # a held end is put exactly at its place: cut at the nearest node, a
+                # retraction shorter than half a node spacing would be lost, and the
+                # relaxation would carry the end outward frame by frame
                 ref = _move_end_nb(ref, x, y, sigma, fresh)
                 if ref.shape[0] == 0:
                     continue

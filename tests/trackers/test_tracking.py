@@ -319,6 +319,7 @@ def test_first_frame_settles_when_contours_stop_short_of_their_ravines():
 
 @pytest.mark.parametrize("hold", [0.0, 0.5])
 def test_end_hold_keeps_a_relocated_end_until_the_image_moves_it_farther(monkeypatch, hold):
+    import trackers.contour_ends as contour_ends
     import trackers.tracking as tracking
 
     lay = layout_from_eyes(*EYES, (256, 256))
@@ -341,6 +342,8 @@ def test_end_hold_keeps_a_relocated_end_until_the_image_moves_it_farther(monkeyp
         return real(ref, *args)
 
     monkeypatch.setattr(tracking, "_refine_end_nb", scripted)
+    # the steady-end check searches again from the end found: the same scripted search
+    monkeypatch.setattr(contour_ends, "_refine_end_nb", scripted)
 
     def end_after(at):
         found["at"] = at
