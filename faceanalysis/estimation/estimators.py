@@ -142,7 +142,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    sparsity: float = SPARSITY, outer_iterations: int = 4,
                    inner_iterations: int = 120,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
-                   robust_rounds: int = 2, debias: bool = False,
+                   robust_rounds: int = 2, debias: bool | float = False,
                    quadratic: tuple[np.ndarray, np.ndarray] | None = None,
                    threads: int | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
@@ -187,10 +187,17 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         less. None: plain least squares.
     robust_rounds : int, keyword-only
         Reweighting rounds.
-    debias : bool, keyword-only
-        Refit, on each frame, the controls the sparse fit left off rest without the
-        sparsity prior (the others held at rest; a relaxed lasso): the prior then only
-        chooses which muscles act, and does not also shrink how much.
+    debias : bool or float, keyword-only
+        Refit, on each frame, the controls the sparse fit left off rest (the others
+        held at rest), so that the prior chooses which muscles act and does not also
+        shrink how much. True: without the prior (a relaxed lasso). A number ``g`` in
+        (0, 1]: with each control's prior weighed by ``max(0, 1 - c / (g * upper))`` of
+        its sparse value ``c``, the slope of the minimax concave penalty there (a
+        one-step local linear approximation, Zou & Li 2008): values the prior barely
+        let off rest keep most of it, values of ``g`` of the range or more none. The
+        relaxed lasso jumps from rest to a full refit where the evidence crosses the
+        prior's threshold, so a muscle near it switches on and off from frame to
+        frame; this refit rises from rest continuously.
     quadratic : (ndarray (M, M), ndarray (T, M)), keyword-only, optional
         A second measurement's least squares in the controls, ``c'Hc - 2 g_t'c`` per
         frame (``H = A'A``, ``g_t = A'y_t`` of a linear model ``y = A c``, e.g. the dense
@@ -229,6 +236,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     """
     if robust is not None and not (np.isfinite(robust) and robust > 0):
         raise ValueError(f"robust must be a positive threshold or None, got {robust}")
+    if debias is not True and debias is not False and not 0 < debias <= 1:
+        raise ValueError(f"debias must be True, False or a number in (0, 1], got {debias!r}")
     d_all = _check_displacements(displacements, response)
     n_t = d_all.shape[0]
     # frames are independent problems: in chunks, the Jacobians of many points stay small
@@ -289,10 +298,15 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         if debias:
             if robust is not None:
                 fw = _huber_weights(d, response, c, robust)
+            c0 = np.nan_to_num(c)
+            # the prior's share per control and frame: none (the relaxed lasso), or
+            # the minimax concave penalty's slope at the sparse value
+            share = (None if debias is True
+                     else np.clip(1.0 - c0 / (float(debias) * response.upper), 0.0, 1.0))
             c = np.where(np.isfinite(c), _estimate_joint(
-                d, response, weights, regularization, 0.0, max(1, outer_iterations // 2),
-                inner_iterations, np.nan_to_num(c), fw, support=np.nan_to_num(c) > 0,
-                quadratic=quadratic), c)
+                d, response, weights, regularization, 0.0 if share is None else sparsity,
+                max(1, outer_iterations // 2), inner_iterations, c0, fw, support=c0 > 0,
+                quadratic=quadratic, prior_share=share), c)
         return c
 
 
@@ -304,7 +318,7 @@ def _huber_weights(d, response, c, robust):
 
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
                     outer_iterations, inner_iterations, initial, frame_weights=None,
-                    support=None, quadratic=None):
+                    support=None, quadratic=None, prior_share=None):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -332,6 +346,8 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
     scale = np.mean((full * np.repeat(np.sqrt(w), 2)) ** 2) * n_f * 2
     lam = regularization * scale / upper**2               # per control
     mu = sparsity * scale / upper
+    if prior_share is not None:
+        mu = mu * np.asarray(prior_share, dtype=float)[valid]     # per frame and control
     # A control none of whose motion falls on the seen points is not observed there.
     sw_prior = np.repeat(np.sqrt(w)[None, :] * seen[valid], 2, axis=1)
     seen_norm = np.sqrt((sw_prior**2) @ (full**2).T)                    # (T, M)

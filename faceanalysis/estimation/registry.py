@@ -117,13 +117,15 @@ def _joint(obs: Observations, *, refine: bool = False) -> pd.DataFrame:
 #: pair at 0.2, 0.5 and 1.0 through the response: each contour point weighs as much as 5
 #: face-mesh points (they are 16 against 356 and follow edges the mesh smooths over); the
 #: sparsity prior is 5 times the ``joint`` fit's; the muscles it leaves active are
-#: refitted without it, so that the prior chooses which muscles act and does not also
-#: shrink how much; and the box-constrained steps are solved with 400 projected-gradient
-#: iterations (with 120, as ``joint``, the hundreds of points leave them short: a full
-#: frontalis inner read 0.77; with 400 every simulated pair is within 0.02). A stronger
-#: prior (0.025) or a tighter Huber threshold (0.02 cm) let more side-lit neutrals read
-#: rest, but only by ignoring real motion (a full corrugator read 0.33).
-MESH_FIT = {"sparsity": 2e-2, "robust": 0.1, "debias": True, "inner_iterations": 400}
+#: refitted with the prior weighed down by how far it let them off rest (gone from a
+#: fifth of the range on: ``debias=0.2``), so that it chooses which muscles act and does
+#: not also shrink how much, without the relaxed lasso's jump from rest to a full refit
+#: that switched a muscle near its threshold on and off from frame to frame; and the
+#: box-constrained steps are solved with 400 projected-gradient iterations (with 120, as
+#: ``joint``, the hundreds of points leave them short: a full frontalis inner read 0.77).
+#: A stronger prior (0.025) or a tighter Huber threshold (0.02 cm) let more side-lit
+#: neutrals read rest, but only by ignoring real motion (a full corrugator read 0.33).
+MESH_FIT = {"sparsity": 2e-2, "robust": 0.1, "debias": 0.2, "inner_iterations": 400}
 #: Weight of each contour point against each face-mesh point in the ``mesh`` fit.
 CONTOUR_WEIGHT = 5.0
 

@@ -341,6 +341,24 @@ def test_debias_keeps_the_prior_choice_and_drops_its_shrinkage(rng):
     assert (relaxed[0, [0, 1, 3]] == 0).all()
 
 
+def test_concave_debias_rises_from_rest_where_the_relaxed_lasso_jumps(rng):
+    # a muscle whose evidence grows by 0.01 a frame through the prior's threshold
+    resp = _response(rng)
+    c = np.zeros((51, 4))
+    c[:, 2] = np.linspace(0, 0.5, 51)
+    d = resp.predict(c)
+    relaxed = estimate_joint(d, resp, sparsity=0.2, robust=None, debias=True)[:, 2]
+    concave = estimate_joint(d, resp, sparsity=0.2, robust=None, debias=0.2)[:, 2]
+    assert np.diff(relaxed).max() > 0.1                # rest to 0.13 in one frame
+    assert np.diff(concave).max() < 0.025              # at most 2.5 times the truth's step
+    np.testing.assert_array_equal(concave[:25] == 0, relaxed[:25] == 0)   # same choice
+    # past a fifth of the range the prior is gone: the value is the relaxed lasso's
+    np.testing.assert_allclose(concave[40:], relaxed[40:], atol=0.01)
+    np.testing.assert_allclose(concave[40:], c[40:, 2], atol=0.01)
+    with pytest.raises(ValueError, match="debias must be"):
+        estimate_joint(d, resp, debias=1.5)
+
+
 def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
     import faceanalysis.estimation.estimators as est
 

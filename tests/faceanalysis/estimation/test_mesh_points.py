@@ -263,7 +263,8 @@ def test_fused_estimator_reads_the_smile_the_mesh_misses(jaw_and_smile):
     def zyg(t):
         return (t["zygomaticus_major_l"] + t["zygomaticus_major_r"]).to_numpy() / 2
 
-    assert zyg(fused)[smile_apex] > 0.5 > zyg(mesh)[smile_apex] + 0.3
+    # the full smile: fused reads over half of it, the mesh alone under a quarter
+    assert zyg(fused)[smile_apex] > 0.5 > 2 * zyg(mesh)[smile_apex]
     assert fused["jaw_rotation"][jaw_apex] > mesh["jaw_rotation"][jaw_apex]
     assert fused.loc[:1, list(MUSCLES)].max().max() <= 0.1
     params = reestimate(a, "fused").metadata["parameters"]
