@@ -41,6 +41,7 @@ from faceanalysis.io.table import (
     MUSCLES,
     POSE_COLUMNS,
     empty_table,
+    head_turn,
     with_au_columns,
     with_identifiable_columns,
 )
@@ -477,7 +478,7 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     in_response = np.column_stack([
         values[m].to_numpy(float) if m in values.columns else np.full(len(table), np.nan)
         for m in response.muscles])
-    turn = _head_turn(table, parameters.get("neutral_frame"))
+    turn = head_turn(table, parameters.get("neutral_frame"))
     with np.errstate(divide="ignore"):
         track_conf = np.fmin(track_conf, MAX_HEAD_TURN / turn)   # fmin: no pose, no cap
     residual, confidence, fit = _model_fit(disp, response, in_response, success, track_conf)
@@ -534,27 +535,6 @@ def _hold_unobserved(values: np.ndarray, success: np.ndarray) -> tuple[np.ndarra
     held = np.where(last >= 0, values[np.maximum(last, 0), cols], 0.0)
     filled = np.where(observed, values, np.where(success[:, None], held, np.nan))
     return filled, observed
-
-
-def _head_turn(table: pd.DataFrame, neutral_frame) -> np.ndarray:
-    """Per row, degrees the head is turned out of the image plane from the neutral frame's
-    pose (the hypotenuse of the pitch and yaw differences); NaN without a pose.
-
-    Examples
-    --------
-    >>> t = pd.DataFrame({"frame": [0, 1, 2], "head_pitch": [1.0, 4.0, np.nan],
-    ...                   "head_yaw": [2.0, 6.0, 0.0]})
-    >>> _head_turn(t, 0).tolist()
-    [0.0, 5.0, nan]
-    """
-    turn = np.full(len(table), np.nan)
-    if not set(POSE_COLUMNS) <= set(table.columns):
-        return turn
-    rows = np.flatnonzero(table["frame"].to_numpy() == neutral_frame)
-    if not rows.size:
-        return turn
-    pose = table[list(POSE_COLUMNS)].to_numpy(float)
-    return np.hypot(*(pose - pose[rows[0]]).T)
 
 
 def _turn_summary(turn: np.ndarray) -> dict:

@@ -34,7 +34,7 @@ from faceanalysis.io.outputs import (
     remove_new_folders,
 )
 from faceanalysis.io.report import write_analysis
-from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, write_contractions
+from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, head_turn, write_contractions
 from faceanalysis.tracking import Tracks
 from faceanalysis.viz.plots import plot_contractions
 from synth.render.video import VideoWriter
@@ -100,6 +100,7 @@ class Analysis:
         """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given. Controls
         the points cannot tell apart are drawn faded."""
         kwargs.setdefault("not_identifiable", _not_identifiable(self.metadata))
+        kwargs.setdefault("turned", _turned(self.table, self.metadata))
         return plot_contractions(self.table, path, **kwargs)
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
@@ -215,7 +216,8 @@ class OutputFolder:
         paths = {"contractions": write_contractions(table, self.contractions_csv)}
         if plot:
             fig = plot_contractions(table, self.contractions_png, title=title,
-                                    not_identifiable=_not_identifiable(metadata))
+                                    not_identifiable=_not_identifiable(metadata),
+                                    turned=_turned(table, metadata))
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)
@@ -231,6 +233,20 @@ def _identity(path: Path) -> tuple | None:
     if not stat.S_ISREG(st.st_mode):
         return None                  # a link or a folder of the user's: never removed
     return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _turned(table: pd.DataFrame, metadata: Mapping) -> np.ndarray | None:
+    """Per row, whether the head is turned beyond ``analysis.json``'s
+    ``model_fit.head_turn.limit_deg`` from the neutral frame's pose (None: not known)."""
+    if not isinstance(metadata, Mapping):
+        return None
+    fit = metadata.get("model_fit")
+    limit = (fit.get("head_turn") or {}).get("limit_deg") if isinstance(fit, Mapping) else None
+    neutral = (metadata.get("parameters") or {}).get("neutral_frame")
+    if limit is None or neutral is None:
+        return None
+    with np.errstate(invalid="ignore"):
+        return head_turn(table, neutral) > float(limit)
 
 
 def _not_identifiable(metadata: Mapping) -> tuple[str, ...]:

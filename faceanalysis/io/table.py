@@ -57,6 +57,7 @@ __all__ = [
     "au_intensities",
     "contraction_columns",
     "empty_table",
+    "head_turn",
     "read_contractions",
     "required_columns",
     "with_au_columns",
@@ -133,6 +134,27 @@ def heads_from_table(table: pd.DataFrame) -> np.ndarray:
     if "success" in table.columns:
         h[table["success"].to_numpy() == 0] = np.nan
     return h
+
+
+def head_turn(table: pd.DataFrame, neutral_frame) -> np.ndarray:
+    """Per row, degrees the head is turned out of the image plane from the neutral frame's
+    pose (the hypotenuse of the pitch and yaw differences); NaN without a pose.
+
+    Examples
+    --------
+    >>> t = pd.DataFrame({"frame": [0, 1, 2], "head_pitch": [1.0, 4.0, np.nan],
+    ...                   "head_yaw": [2.0, 6.0, 0.0]})
+    >>> head_turn(t, 0).tolist()
+    [0.0, 5.0, nan]
+    """
+    turn = np.full(len(table), np.nan)
+    if not set(POSE_COLUMNS) <= set(table.columns):
+        return turn
+    rows = np.flatnonzero(table["frame"].to_numpy() == neutral_frame)
+    if not rows.size:
+        return turn
+    pose = table[list(POSE_COLUMNS)].to_numpy(float)
+    return np.hypot(*(pose - pose[rows[0]]).T)
 
 
 def contraction_columns() -> list[str]:

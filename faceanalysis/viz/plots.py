@@ -93,14 +93,16 @@ _FADED = 0.35
 def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
                       muscles: Sequence[str] | None = None, title: str | None = None,
                       layout: str = "auto", dpi: int = 150,
-                      not_identifiable: Sequence[str] = ()) -> Figure:
+                      not_identifiable: Sequence[str] = (),
+                      turned: Sequence[bool] | np.ndarray | None = None) -> Figure:
     """Plot muscle contractions over time, one line per muscle.
 
     Left and right muscles of a pair share a colour: solid for the subject's
     left (``_l``), dashed for the right (``_r``). ``jaw_rotation`` is drawn in
     degrees, on a secondary axis (``layout="single"``) or in its own bottom panel
     (``layout="stacked"``). Frames where tracking failed (``success == 0``) are
-    shaded grey.
+    shaded grey; those whose head is turned too far for the estimates (``turned``)
+    hatched.
 
     Parameters
     ----------
@@ -125,6 +127,11 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         Controls the tracked points cannot tell apart (``analysis.json``
         ``identifiability``): drawn faded, and the legend says so, so that a reader does
         not take them for measurements as good as the others.
+    turned : sequence of bool, keyword-only, optional
+        Per row of ``df``, whether the head is turned out of the image plane beyond
+        what the estimates hold for (:data:`faceanalysis.analysis.pipeline.MAX_HEAD_TURN`
+        from the neutral frame's pose; their ``confidence`` is lowered): hatched, so that
+        a reader does not read them as a frontal face's values.
 
     Returns
     -------
@@ -149,6 +156,11 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
     """
     if layout not in ("auto", "single", "stacked"):
         raise ValueError(f"layout must be 'auto', 'single' or 'stacked', got {layout!r}")
+    if turned is not None:
+        turned = np.asarray(turned, dtype=bool)
+        if turned.shape != (len(df),):
+            raise ValueError(f"turned must have one value per row of the table ({len(df)}), "
+                             f"got shape {turned.shape}")
     if "timestamp" not in df and "frame" not in df:
         raise ValueError("table has neither a 'frame' nor a 'timestamp' column")
     chosen = _choose_muscles(df, muscles)
@@ -238,6 +250,15 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                                color="#999999", alpha=0.3, lw=0, zorder=0)
             handles.append(Patch(color="#999999", alpha=0.3,
                                  label=f"lost frames ({int((~(success > 0)).sum())})"))
+    if turned is not None and "success" in df:
+        turned = turned & (pd.to_numeric(df["success"], errors="coerce").to_numpy(float) > 0)
+    if turned is not None and turned.any():
+        for ax in axes:
+            ax.broken_barh(_lost_spans(x, turned), (0, 1), transform=ax.get_xaxis_transform(),
+                           facecolor="none", edgecolor="#c08a3e", hatch="///", alpha=0.5,
+                           lw=0, zorder=0)
+        handles.append(Patch(facecolor="none", edgecolor="#c08a3e", hatch="///", alpha=0.5,
+                             label=f"head turned ({int(turned.sum())})"))
     for ax in axes:
         ax.grid(True, color="#dddddd", lw=0.6)
         ax.set_axisbelow(True)

@@ -622,6 +622,9 @@ def test_a_head_turned_out_of_the_image_plane_lowers_the_confidence(tmp_path, ca
     head_turn = a.metadata["model_fit"]["head_turn"]
     assert head_turn["frames_over_limit"] == 2 and head_turn["max_deg"] > 20
     assert "turned more than 15 degrees" in caplog.text
+    # the plot hatches the two turned frames
+    legend = [x.get_text() for x in a.plot().legends[0].get_texts()]
+    assert "head turned (2)" in legend
     # an estimator run again on the same tracking keeps the cap
     again = reestimate(a, "joint")
     assert (again.table["confidence"].to_numpy()[3:] <= MAX_HEAD_TURN / turn[3:] + 1e-12).all()

@@ -130,3 +130,23 @@ def test_controls_the_points_cannot_tell_apart_are_drawn_faded(table):
     assert "faded: not identifiable" in labels
     plain = plot_contractions(table)
     assert "faded: not identifiable" not in [t.get_text() for t in plain.legends[0].get_texts()]
+
+
+def test_frames_with_the_head_turned_are_hatched(table):
+    turned = np.zeros(len(table), bool)
+    turned[50:60] = True
+    turned[22] = True                       # a lost frame: shaded as lost, not hatched
+    fig = plot_contractions(table, turned=turned)
+    ax = fig.axes[0]
+    assert len(ax.collections) == 2         # lost frames, then the turned ones
+    hatched = ax.collections[1]
+    assert hatched.get_hatch() == "///"
+    (path,) = hatched.get_paths()            # one run: frames 50-59, half a frame each side
+    x = path.vertices[:, 0]
+    np.testing.assert_allclose([x.min(), x.max()], [49.5 / 30, 59.5 / 30])
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "head turned (10)" in legend and "lost frames (5)" in legend
+    assert "head turned" not in " ".join(
+        t.get_text() for t in plot_contractions(table).legends[0].get_texts())
+    with pytest.raises(ValueError, match="turned must have one value per row"):
+        plot_contractions(table, turned=turned[:5])
