@@ -247,8 +247,10 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     """
     if robust is not None and not (np.isfinite(robust) and robust > 0):
         raise ValueError(f"robust must be a positive threshold or None, got {robust}")
-    if debias is not True and debias is not False and not 0 < debias <= 1:
+    if not (isinstance(debias, (bool, np.bool_))
+            or isinstance(debias, (int, float, np.floating)) and 0 < debias <= 1):
         raise ValueError(f"debias must be True, False or a number in (0, 1], got {debias!r}")
+    debias = debias if not isinstance(debias, np.bool_) else bool(debias)
     d_all = _check_displacements(displacements, response)
     n_t = d_all.shape[0]
     # frames are independent problems: in chunks, the Jacobians of many points stay small

@@ -355,8 +355,9 @@ def test_concave_debias_rises_from_rest_where_the_relaxed_lasso_jumps(rng):
     # past a fifth of the range the prior is gone: the value is the relaxed lasso's
     np.testing.assert_allclose(concave[40:], relaxed[40:], atol=0.01)
     np.testing.assert_allclose(concave[40:], c[40:, 2], atol=0.01)
-    with pytest.raises(ValueError, match="debias must be"):
-        estimate_joint(d, resp, debias=1.5)
+    for bad in (1.5, 0, "yes"):
+        with pytest.raises(ValueError, match="debias must be"):
+            estimate_joint(d, resp, debias=bad)
 
 
 def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
