@@ -63,13 +63,18 @@ DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l"
                    "furrow_r": 0.01, "nose_tip": 0.005, "upper_lip": 0.005,
                    "lower_lip": 0.005, "chin_boss": 0.01}
 
-#: Stiffer springs on the two end nodes of these contours: the mouth line's ends are the
+#: Stiffer springs on the two end nodes of these contours. The mouth line's ends are the
 #: mouth corners, which the mesh places better than the end of the dark line on real
 #: faces (a free end creeps inward along the line, and from one frame to the next it
 #: does not follow a widening smile: on neutral-then-smile photographs the corners were
 #: 0.057 inter-ocular distances off on the smile with the contour's spring, 0.036 with
-#: this one).
-END_SPRINGS = {"upper_lip": 0.5}
+#: this one). A brow's ends fade (its head into the shading beside the nose, its tail
+#: into the temple), and an image changed imperceptibly can settle them elsewhere along
+#: the line: cap13 turned by half a degree moved the left brow's outer end by a median
+#: 3.3 px, against 0.2 px with these springs, which hold the ends near the landmarks'
+#: (offset as on the first frame). On the IMM side-lit neutrals 13 of 20 then read rest
+#: instead of 10; at 0.5 the inner end of the right brow moved 2.7 px instead.
+END_SPRINGS = {"upper_lip": 0.5, "brow_l": 0.05, "brow_r": 0.05}
 
 #: Hysteresis on where along their lines the brows' and furrows' ends are relocated, in
 #: each contour's sigma (:class:`~trackers.tracking.Tracker`, ``end_hold``). Where a
