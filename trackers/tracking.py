@@ -458,9 +458,6 @@ class Tracker(HeadFrameSearch, ContourFields):
                         ok, x, y = True, ref[0, 0] + along * tx, ref[0, 1] + along * ty
                 if not ok:
                     continue
-                # a held end is put exactly at its place: cut at the nearest node, a
-                # retraction shorter than half a node spacing would be lost, and the
-                # relaxation would carry the end outward frame by frame
                 ref = _move_end_nb(ref, x, y, sigma, fresh)
                 if ref.shape[0] == 0:
                     continue

@@ -250,7 +250,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     if not (isinstance(debias, (bool, np.bool_))
             or isinstance(debias, (int, float, np.floating)) and 0 < debias <= 1):
         raise ValueError(f"debias must be True, False or a number in (0, 1], got {debias!r}")
-    debias = debias if not isinstance(debias, np.bool_) else bool(debias)
+    if isinstance(debias, np.bool_):
+        debias = bool(debias)                 # the refit tests ``debias is True``
     d_all = _check_displacements(displacements, response)
     n_t = d_all.shape[0]
     # frames are independent problems: in chunks, the Jacobians of many points stay small

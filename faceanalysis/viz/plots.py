@@ -53,12 +53,13 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 150) -> Path
     return path
 
 
-def _lost_spans(x: np.ndarray, lost: np.ndarray) -> list[tuple[float, float]]:
-    """``(start, width)`` of each run of lost frames, half a frame wider on each side."""
-    if not lost.any():
+def _spans(x: np.ndarray, marked: np.ndarray) -> list[tuple[float, float]]:
+    """``(start, width)`` of each run of marked frames (lost, turned), half a frame wider
+    on each side."""
+    if not marked.any():
         return []
     step = float(np.nanmedian(np.diff(x))) if len(x) > 1 else 1.0
-    idx = np.flatnonzero(lost)
+    idx = np.flatnonzero(marked)
     breaks = np.flatnonzero(np.diff(idx) != 1)
     starts = np.concatenate([[idx[0]], idx[breaks + 1]])
     ends = np.concatenate([idx[breaks], [idx[-1]]])
@@ -241,20 +242,21 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         handles.append(Line2D([], [], color="black", lw=1.3, ls=":",
                               label="jaw rotation (deg)"))
 
+    tracked = np.ones(len(df), bool)
     if "success" in df:
-        success = pd.to_numeric(df["success"], errors="coerce").to_numpy(float)
-        spans = _lost_spans(x, ~(success > 0))
+        tracked = pd.to_numeric(df["success"], errors="coerce").to_numpy(float) > 0
+        spans = _spans(x, ~tracked)
         if spans:
             for ax in axes:
                 ax.broken_barh(spans, (0, 1), transform=ax.get_xaxis_transform(),
                                color="#999999", alpha=0.3, lw=0, zorder=0)
             handles.append(Patch(color="#999999", alpha=0.3,
-                                 label=f"lost frames ({int((~(success > 0)).sum())})"))
-    if turned is not None and "success" in df:
-        turned = turned & (pd.to_numeric(df["success"], errors="coerce").to_numpy(float) > 0)
+                                 label=f"lost frames ({int((~tracked).sum())})"))
+    if turned is not None:
+        turned = turned & tracked         # a lost frame is shaded as lost, not hatched
     if turned is not None and turned.any():
         for ax in axes:
-            ax.broken_barh(_lost_spans(x, turned), (0, 1), transform=ax.get_xaxis_transform(),
+            ax.broken_barh(_spans(x, turned), (0, 1), transform=ax.get_xaxis_transform(),
                            facecolor="none", edgecolor="#c08a3e", hatch="///", alpha=0.5,
                            lw=0, zorder=0)
         handles.append(Patch(facecolor="none", edgecolor="#c08a3e", hatch="///", alpha=0.5,
