@@ -154,7 +154,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
                    robust_rounds: int = 2, debias: bool | float = False,
                    quadratic: tuple[np.ndarray, np.ndarray] | None = None,
-                   threads: int | None = None) -> np.ndarray:
+                   temporal: float = 0.0, threads: int | None = None) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -213,6 +213,17 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         A second measurement's least squares in the controls, ``c'Hc - 2 g_t'c`` per
         frame (``H = A'A``, ``g_t = A'y_t`` of a linear model ``y = A c``, e.g. the dense
         flow's templates), added to the objective; a frame whose ``g_t`` is NaN has none.
+    temporal : float, keyword-only
+        ``nu``, on the scale of ``lam``: the frames are first fitted one by one; then every
+        frame with two fitted neighbours is fitted again with
+        ``nu * sum_m ((c_m - n_m) / upper_m)^2`` added, ``n`` the mean of the neighbours'
+        first fits, over the controls both have (one block-Jacobi step of a
+        first-difference smoothness prior on the sequence). Where the points tell two
+        controls apart only weakly (levator labii and its alar twin), the frame-by-frame
+        fit picks between them at random from one frame to the next; the prior settles the
+        choice on the one its neighbours made, while a control the points determine barely
+        feels it. 0 (default): frames independent.
+        Frames are a sequence: pass independent samples with 0.
     threads : int, keyword-only, optional
         Frames are independent problems: a long video's are fitted in chunks, this many at
         once (default :func:`faceanalysis.tracking.thread_budget`; the same numbers for any
@@ -252,6 +263,37 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         raise ValueError(f"debias must be True, False or a number in (0, 1], got {debias!r}")
     if isinstance(debias, np.bool_):
         debias = bool(debias)                 # the refit tests ``debias is True``
+    if (isinstance(temporal, (bool, np.bool_))
+            or not isinstance(temporal, (int, float, np.integer, np.floating))
+            or not (np.isfinite(temporal) and temporal >= 0)):
+        raise ValueError(f"temporal must be a non-negative number, got {temporal!r}")
+    fit = dict(weights=weights, regularization=regularization, sparsity=sparsity,
+               outer_iterations=outer_iterations, inner_iterations=inner_iterations,
+               robust=robust, robust_rounds=robust_rounds, debias=debias,
+               quadratic=quadratic, threads=threads)
+    first = _fit_frames(displacements, response, initial=initial, **fit)
+    if not temporal or len(first) < 3:
+        return first
+    centre = np.full_like(first, np.nan)
+    centre[1:-1] = 0.5 * (first[:-2] + first[2:])           # NaN beside a lost frame
+    rows = np.isfinite(centre).any(axis=1) & np.isfinite(first).any(axis=1)
+    if not rows.any():
+        return first
+    if quadratic is not None:
+        fit["quadratic"] = (quadratic[0], np.asarray(quadratic[1], dtype=float)[rows])
+    out = first.copy()
+    out[rows] = _fit_frames(np.asarray(displacements, dtype=float)[rows], response,
+                            initial=np.nan_to_num(first[rows]),
+                            anchor=(float(temporal), centre[rows]), **fit)
+    return out
+
+
+def _fit_frames(displacements, response, *, weights, regularization, sparsity,
+                outer_iterations, inner_iterations, initial, robust, robust_rounds, debias,
+                quadratic, threads, anchor=None):
+    """:func:`estimate_joint` without its temporal prior: the frames fitted independently
+    (in chunks, on threads), each control drawn toward ``anchor = (nu, centre)`` where
+    ``centre`` is finite."""
     d_all = _check_displacements(displacements, response)
     n_t = d_all.shape[0]
     # frames are independent problems: in chunks, the Jacobians of many points stay small
@@ -270,13 +312,14 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                 np.broadcast_to(np.asarray(initial, dtype=float), (n_t, len(response.muscles))))
 
         def part(a):
-            return estimate_joint(
+            return _fit_frames(
                 d_all[a:a + chunk], response, weights=weights, regularization=regularization,
                 sparsity=sparsity, outer_iterations=outer_iterations,
                 inner_iterations=inner_iterations,
                 initial=None if init is None else init[a:a + chunk], robust=robust,
                 robust_rounds=robust_rounds, debias=debias,
-                quadratic=None if quadratic is None else (qh, qg[a:a + chunk]), threads=1)
+                quadratic=None if quadratic is None else (qh, qg[a:a + chunk]), threads=1,
+                anchor=None if anchor is None else (anchor[0], anchor[1][a:a + chunk]))
 
         if threads is None:
             from faceanalysis.tracking import thread_budget
@@ -300,7 +343,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         raise ValueError(f"robust_rounds must be >= 0, got {robust_rounds}")
     with _one_blas_thread():
         c = _estimate_joint(displacements, response, weights, regularization, sparsity,
-                            outer_iterations, inner_iterations, initial, quadratic=quadratic)
+                            outer_iterations, inner_iterations, initial, quadratic=quadratic,
+                            anchor=anchor)
         d = np.asarray(displacements, dtype=float)
         fw = None
         for _ in range(robust_rounds if robust is not None else 0):
@@ -308,7 +352,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
             c = np.where(np.isfinite(c), _estimate_joint(
                 d, response, weights, regularization, sparsity,
                 max(1, outer_iterations // 2),
-                inner_iterations, np.nan_to_num(c), fw, quadratic=quadratic), c)
+                inner_iterations, np.nan_to_num(c), fw, quadratic=quadratic, anchor=anchor), c)
         if debias:
             if robust is not None:
                 fw = _huber_weights(d, response, c, robust)
@@ -322,7 +366,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                 c = np.where(np.isfinite(c), _estimate_joint(
                     d, response, weights, regularization, 0.0 if share is None else sparsity,
                     max(1, outer_iterations // 2), inner_iterations, c0, fw, support=support,
-                    quadratic=quadratic, prior_share=share), c)
+                    quadratic=quadratic, prior_share=share, anchor=anchor), c)
         return c
 
 
@@ -334,7 +378,7 @@ def _huber_weights(d, response, c, robust):
 
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
                     outer_iterations, inner_iterations, initial, frame_weights=None,
-                    support=None, quadratic=None, prior_share=None):
+                    support=None, quadratic=None, prior_share=None, anchor=None):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -386,10 +430,18 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         qh_t = np.where(has[:, None, None], qh[None], 0.0)          # (T, M, M)
         observed = observed | (has[:, None] & (np.diag(qh) > 0)[None])
 
+    if anchor is not None:
+        # nu |(c - centre) / upper|^2 where the centre is known: a diagonal quadratic
+        centre = np.asarray(anchor[1], dtype=float)[valid]
+        nu = np.where(np.isfinite(centre), anchor[0] * scale / upper**2, 0.0)   # (T, M)
+        centre = np.nan_to_num(centre)
+
     def objective(cc):
         """Per frame, the objective at ``cc`` and the weighted residuals it sums."""
         r = dv - response.predict(cc).reshape(-1, n_f * 2) * sw
         val = np.einsum("tk,tk->t", r, r) + ((lam * cc + 2.0 * mu) * cc).sum(axis=1)
+        if anchor is not None:
+            val = val + (nu * (cc - centre) ** 2).sum(axis=1)
         if quadratic is not None:
             val = val + np.einsum("tm,tmn,tn->t", cc, qh_t, cc) - 2.0 * np.einsum(
                 "tm,tm->t", qg, cc)
@@ -402,6 +454,9 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         hess, grad0 = response.normal_equations(c, sw, res)
         hess += np.diag(lam)
         grad0 -= lam * c + mu
+        if anchor is not None:
+            hess[:, np.arange(n_m), np.arange(n_m)] += nu
+            grad0 -= nu * (c - centre)
         if quadratic is not None:
             hess = hess + qh_t
             grad0 = grad0 + qg - np.einsum("tmn,tn->tm", qh_t, c)

@@ -171,7 +171,8 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
     the response, with Gaussian noise of ``noise`` cm on each coordinate and the points not in
     ``points`` missing, are fitted by
     :func:`~faceanalysis.estimation.estimators.estimate_joint` (with ``fit_options``, e.g. the
-    ``sparsity`` and point ``weights`` an estimator used). Deterministic for a ``seed``.
+    ``sparsity`` and point ``weights`` an estimator used, frame by frame: without a temporal
+    prior). Deterministic for a ``seed``.
 
     Returns
     -------
@@ -216,7 +217,8 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
         if unknown:
             raise ValueError(f"unknown measurement point(s) {unknown}")
         d[:, [i for i, p in enumerate(response.fiducials) if p not in set(points)]] = np.nan
-    est = estimate_joint(d, response, **fit_options)
+    # the simulated frames are independent draws, not a sequence
+    est = estimate_joint(d, response, **{**fit_options, "temporal": 0.0})
     err = np.sqrt(np.mean(((est - c) ** 2).reshape(n, draws, n), axis=1))      # (m, control)
     out = pd.Series(np.diag(err) / upper, index=pd.Index(response.muscles, name="control"))
     if key is not None:

@@ -392,3 +392,55 @@ def test_a_second_measurement_enters_the_same_fit(rng):
     np.testing.assert_allclose(no_frame, alone)
     with pytest.raises(ValueError, match="quadratic"):
         estimate_joint(d, resp, quadratic=(np.eye(3), np.zeros((1, 3))))
+
+
+def _twins():
+    """Two controls whose points tell them apart only weakly, and a third of their own."""
+    levels = np.linspace(0, 1, 6)
+    disp = np.zeros((3, 6, 4, 2))
+    disp[0, :, 0] = np.outer(levels, [0.1, 0.5])
+    disp[0, :, 1] = np.outer(levels, [0.0, 0.3])
+    disp[1, :, 0] = np.outer(levels, [0.0, 0.5])
+    disp[1, :, 1] = np.outer(levels, [0.05, 0.3])
+    disp[2, :, 2] = np.outer(levels, [0.0, 0.6])
+    disp[2, :, 3] = np.outer(levels, [0.0, 0.4])
+    return FiducialResponse(("levator_labii_l", "levator_labii_nasi_l", "frontalis_inner_l"),
+                            ("p0", "p1", "p2", "p3"), np.zeros((4, 2)), disp, np.ones(3),
+                            levels)
+
+
+def test_temporal_prior_keeps_twins_from_trading_places_and_a_step_sharp():
+    resp = _twins()
+    c = np.zeros((60, 3))
+    c[:, :2] = 0.3                                    # both twins held, the third steps
+    c[30:, 2] = 0.6
+    d = resp.predict(c) + np.random.default_rng(3).normal(0, 0.02, (60, 4, 2))
+    alone = estimate_joint(d, resp, robust=None, debias=0.2)
+    seq = estimate_joint(d, resp, robust=None, debias=0.2, temporal=0.01)
+
+    def trading(e):
+        return np.abs(np.diff(e[:, 0] - e[:, 1])).mean()
+
+    assert trading(seq) < 0.6 * trading(alone)         # 0.21 against 0.38
+    # what the points do determine is not smoothed: the twins' sum, the step
+    np.testing.assert_allclose(seq[:, :2].sum(axis=1), alone[:, :2].sum(axis=1), atol=0.02)
+    assert seq[30, 2] > 0.6 - 0.03 and seq[29, 2] < 0.02
+    np.testing.assert_allclose(seq[:, 2], alone[:, 2], atol=0.01)
+
+
+def test_temporal_prior_needs_both_neighbours():
+    resp = _twins()
+    c = np.zeros((6, 3))
+    c[:, 0] = 0.4
+    d = resp.predict(c) + np.random.default_rng(1).normal(0, 0.02, (6, 4, 2))
+    d[3] = np.nan                                      # a lost frame
+    alone = estimate_joint(d, resp)
+    seq = estimate_joint(d, resp, temporal=0.5)
+    # the ends, and the frames beside the lost one, have no pair of neighbours to follow
+    np.testing.assert_array_equal(seq[[0, 2, 4, 5]], alone[[0, 2, 4, 5]])
+    assert np.isnan(seq[3]).all() and not np.array_equal(seq[1], alone[1])
+    # two frames (a photograph pair) are fitted as they are
+    np.testing.assert_array_equal(estimate_joint(d[:2], resp, temporal=0.5), alone[:2])
+    for bad in (-0.1, np.nan, True, "0.01"):
+        with pytest.raises(ValueError, match="temporal must be"):
+            estimate_joint(d, resp, temporal=bad)
