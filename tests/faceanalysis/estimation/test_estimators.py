@@ -432,6 +432,7 @@ def test_temporal_prior_needs_both_neighbours():
     resp = _twins()
     c = np.zeros((6, 3))
     c[:, 0] = 0.4
+    c[1, 0] = 0.6                                      # off its neighbours' mean
     d = resp.predict(c) + np.random.default_rng(1).normal(0, 0.02, (6, 4, 2))
     d[3] = np.nan                                      # a lost frame
     alone = estimate_joint(d, resp)
