@@ -29,6 +29,8 @@ from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_p
 from faceanalysis.estimation.registry import (
     ESTIMATORS,
     MESH_ESTIMATORS,
+    TEMPORAL,
+    TEMPORAL_ESTIMATORS,
     Observations,
     run_estimator,
 )
@@ -95,7 +97,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
             tracker: str | None = None, tracker_options: dict | None = None,
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
-            pose_correction: bool = True,
+            pose_correction: bool = True, temporal: float | None = None,
             overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
@@ -159,6 +161,13 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         the points' displacements (:func:`~faceanalysis.estimation.pose.correct_pose`),
         so that a bowed or turned head is not read as an expression. Whether it was
         applied is recorded in ``analysis.json`` (``parameters.pose_correction``).
+    temporal : float, keyword-only, optional
+        Weight of the prior that draws each frame's contractions toward its neighbours'
+        (``joint``, ``mesh`` and ``fused``; default
+        :data:`~faceanalysis.estimation.registry.TEMPORAL`, see
+        :func:`~faceanalysis.estimation.estimators.estimate_joint`); 0 fits every frame on
+        its own, for frames that are not a sequence (a folder of unrelated photographs).
+        Recorded in ``analysis.json`` (``parameters.temporal``).
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -186,6 +195,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     if refine and estimator != "joint":
         raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
+    est_options = _fit_options(estimator, refine, temporal)
     if estimator in MESH_ESTIMATORS:
         # they read the landmark tracker's face mesh
         if tracker not in (None, "landmarks"):
@@ -220,10 +230,11 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
                        options={"fps": fps, "start": start, "end": end}, calibration=cal)
-    est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
+    est = run_estimator(estimator, obs, **est_options)
 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
+        "temporal": est_options.get("temporal"),
         "neutral_frame": int(tracks.frames[k]),
         "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
@@ -271,6 +282,23 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)
+
+
+def _fit_options(estimator: str, refine: bool, temporal) -> dict:
+    """The options of ``estimator``'s fit: ``refine``, and the temporal prior's weight
+    (checked; the default where the estimator has the prior)."""
+    options = {"refine": True} if refine else {}
+    if temporal is not None:
+        if (isinstance(temporal, (bool, np.bool_))
+                or not isinstance(temporal, (int, float, np.integer, np.floating))
+                or not (np.isfinite(temporal) and temporal >= 0)):
+            raise ValueError(f"temporal must be a non-negative number, got {temporal!r}")
+        if estimator not in TEMPORAL_ESTIMATORS:
+            raise ValueError(f"temporal works with the {', '.join(TEMPORAL_ESTIMATORS)} "
+                             f"estimators, not {estimator!r}")
+    if estimator in TEMPORAL_ESTIMATORS:
+        options["temporal"] = float(TEMPORAL if temporal is None else temporal)
+    return options
 
 
 def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | None) -> None:
@@ -564,14 +592,20 @@ def _model_fit(disp, response, values, success, track_conf):
     return residual, confidence, summary
 
 
-def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> Analysis:
+def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
+               temporal: float | None = None) -> Analysis:
     """The same tracking and calibration, another estimator: a new :class:`Analysis`.
 
     Tracking dominates the cost of an analysis, so comparing estimators this way
     costs only the estimation (and, for ``flow``, the flow pass over the video).
+    ``temporal`` as in :func:`analyze`; by default the analysis's own (its
+    ``parameters.temporal``), else the estimator's default.
     """
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
+    if temporal is None and estimator in TEMPORAL_ESTIMATORS:
+        temporal = analysis.metadata.get("parameters", {}).get("temporal")
+    est_options = _fit_options(estimator, refine, temporal)
     if analysis.calibration is None or analysis.response is None:
         raise ValueError("this analysis has no calibration/response to re-estimate from")
     if estimator == "flow" and analysis.tracks is None:
@@ -594,11 +628,12 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False) -> A
     obs = Observations(tracks=tracks, response=analysis.response, displacements=disp,
                        neutral=k, options={n: params.get(n) for n in ("fps", "start", "end")},
                        calibration=analysis.calibration)
-    est = run_estimator(estimator, obs, **({"refine": True} if refine else {}))
+    est = run_estimator(estimator, obs, **est_options)
     track_conf = analysis.track_confidence
     if track_conf is None:
         track_conf = table["confidence"].to_numpy(float)
     parameters = {**params, "estimator": estimator, "refine": bool(refine),
+                  "temporal": est_options.get("temporal"),
                   "measurement_points": list(est.response.fiducials)}
     ident = assess(est.response, est.displacements, fit_options=est.fit_options)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,

@@ -6,7 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_output_options, add_quiet_option, non_negative_int
+from faceanalysis.cli._common import (
+    add_output_options,
+    add_quiet_option,
+    non_negative_float,
+    non_negative_int,
+)
 from faceanalysis.cli._input import add_input_options
 from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
@@ -43,6 +48,12 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--refine", action="store_true",
                        help="joint estimator: refine every frame through the face model itself "
                             "(more accurate where muscles interact, about ten times slower)")
+    group.add_argument("--temporal", type=non_negative_float, metavar="WEIGHT",
+                       help="joint, mesh, fused: weight of the prior that draws each frame's "
+                            "contractions toward its neighbours' (default 0.01), so that "
+                            "muscles the points barely tell apart do not trade places from "
+                            "frame to frame; 0 fits every frame on its own (frames that are "
+                            "not a sequence, e.g. a folder of unrelated photographs)")
     group.add_argument("--keep-suspect-points", action="store_true",
                        help="keep measurement points that the neutral frame puts far from "
                             "the calibrated face model (a contour on the wrong feature) in "
@@ -58,13 +69,16 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
 def check_analysis_options(args: argparse.Namespace) -> None:
     """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
     from faceanalysis.cli._common import UsageError
-    from faceanalysis.estimation.registry import MESH_ESTIMATORS
+    from faceanalysis.estimation.registry import MESH_ESTIMATORS, TEMPORAL_ESTIMATORS
 
     if args.estimator in MESH_ESTIMATORS and args.tracker == "snakes":
         raise UsageError(f"--estimator {args.estimator} reads the landmark tracker's face "
                          "mesh; drop --tracker snakes")
     if args.refine and args.estimator not in (None, "joint"):
         raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
+    if args.temporal is not None and args.estimator not in (None, *TEMPORAL_ESTIMATORS):
+        raise UsageError(f"--temporal goes with --estimator {', '.join(TEMPORAL_ESTIMATORS)}, "
+                         f"not {args.estimator}")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -94,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
-        refine=args.refine,
+        refine=args.refine, temporal=args.temporal,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
     q = result.metadata.get("quality", {})

@@ -54,7 +54,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 _ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "tracker", "layout",
-                     "overlay", "refine", "backend", "device")
+                     "overlay", "refine", "temporal", "backend", "device")
 
 
 def _options(args: argparse.Namespace) -> dict:

@@ -109,8 +109,13 @@ def _in_response_order(values: np.ndarray, obs: Observations) -> pd.DataFrame:
 TEMPORAL = 0.01
 
 
-def _joint(obs: Observations, *, refine: bool = False) -> pd.DataFrame:
-    values = estimate_joint(obs.displacements, obs.response, temporal=TEMPORAL)
+#: The estimators with the temporal prior (their ``temporal`` option).
+TEMPORAL_ESTIMATORS = ("joint", "mesh", "fused")
+
+
+def _joint(obs: Observations, *, refine: bool = False, temporal: float = TEMPORAL
+           ) -> pd.DataFrame:
+    values = estimate_joint(obs.displacements, obs.response, temporal=temporal)
     if refine:
         from faceanalysis.estimation.refine import refine_through_model
         from synth.model import FaceModel

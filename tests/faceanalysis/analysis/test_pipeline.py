@@ -40,6 +40,23 @@ def test_the_default_analysis_is_the_landmark_tracker_with_the_mesh_fit(surprise
         "parameters"]["estimator"] == "joint"
 
 
+def test_the_temporal_prior_is_recorded_and_can_be_turned_off(analysed):
+    assert analysed.metadata["parameters"]["temporal"] == 0.01
+    alone = reestimate(analysed, "joint", temporal=0)
+    assert alone.metadata["parameters"]["temporal"] == 0.0
+    # a re-estimate keeps the analysis's own setting; tw93 has no such prior
+    assert reestimate(alone, "joint").metadata["parameters"]["temporal"] == 0.0
+    assert reestimate(alone, "tw93").metadata["parameters"]["temporal"] is None
+    cols = list(MUSCLES)
+    a, b = (x.table[cols].to_numpy(float) for x in (analysed, alone))
+    np.testing.assert_allclose(a[[0, -1]], b[[0, -1]])      # the ends have one neighbour
+    assert np.nanmax(np.abs(a - b)) < 0.2
+    with pytest.raises(ValueError, match="temporal works with"):
+        reestimate(analysed, "tw93", temporal=0.01)
+    with pytest.raises(ValueError, match="temporal must be"):
+        reestimate(analysed, "joint", temporal=-1)
+
+
 def test_table_has_the_documented_columns_and_bounds(analysed):
     t = analysed.table
     assert list(t.columns) == contraction_columns()

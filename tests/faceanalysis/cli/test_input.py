@@ -57,6 +57,8 @@ def test_end_not_after_start_is_a_usage_error(run_cli, tmp_path, command, start,
 @pytest.mark.parametrize("options, message", [
     (("--estimator", "mesh", "--tracker", "snakes"), "--estimator mesh reads the landmark"),
     (("--estimator", "tw93", "--refine"), "--refine goes with --estimator joint"),
+    (("--estimator", "flow", "--temporal", "0"), "--temporal goes with --estimator joint"),
+    (("--temporal", "-0.5"), "--temporal: must be a number >= 0"),
 ])
 def test_analysis_options_that_cannot_go_together_are_usage_errors(run_cli, tmp_path, command,
                                                                    options, message):
