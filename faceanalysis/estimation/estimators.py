@@ -231,8 +231,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         controls apart only weakly (levator labii and its alar twin), the frame-by-frame
         fit picks between them at random from one frame to the next; the prior settles the
         choice on the one its neighbours made, while a control the points determine barely
-        feels it. 0 (default): frames independent.
-        Frames are a sequence: pass independent samples with 0.
+        feels it. The rows are taken as consecutive frames; 0 (default) fits each on its
+        own, as independent samples need.
     threads : int, keyword-only, optional
         Frames are independent problems: a long video's are fitted in chunks, this many at
         once (default :func:`faceanalysis.tracking.thread_budget`; the same numbers for any
