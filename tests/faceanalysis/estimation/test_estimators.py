@@ -372,6 +372,16 @@ def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
     np.testing.assert_allclose(estimate_joint(d, resp), whole, atol=1e-6)
 
 
+def test_a_short_sequence_is_shared_among_threads_with_the_same_result(rng):
+    resp = _response(rng)
+    c = rng.uniform(0, 0.6, (40, 4)) * resp.upper
+    d = resp.predict(c) + rng.normal(0, 0.01, (40, len(FIDS), 2))
+    for temporal in (0.0, 0.01):
+        np.testing.assert_allclose(estimate_joint(d, resp, threads=2, temporal=temporal),
+                                   estimate_joint(d, resp, threads=1, temporal=temporal),
+                                   atol=1e-6)
+
+
 def test_a_second_measurement_enters_the_same_fit(rng):
     # the chin is not seen, so the points alone cannot tell the jaw; a linear measurement
     # of it (as the dense flow gives) in the objective does
