@@ -367,9 +367,12 @@ def test_joint_fit_in_chunks_equals_one_pass(rng, monkeypatch):
     c = rng.uniform(0, 0.6, (40, 4)) * resp.upper
     d = resp.predict(c) + rng.normal(0, 0.01, (40, len(FIDS), 2))
     whole = estimate_joint(d, resp)
+    smooth = estimate_joint(d, resp, temporal=0.05)
     monkeypatch.setattr(est, "_CHUNK_ELEMENTS", 4 * 8 * 7)       # 7 frames a chunk
     # (a batch stops iterating when none of its frames gains: a chunk may stop sooner)
     np.testing.assert_allclose(estimate_joint(d, resp), whole, atol=1e-6)
+    # the temporal prior's centres are cut into the same chunks as its frames
+    np.testing.assert_allclose(estimate_joint(d, resp, temporal=0.05), smooth, atol=1e-6)
 
 
 def test_a_short_sequence_is_shared_among_threads_with_the_same_result(rng):
