@@ -100,12 +100,12 @@ def _in_response_order(values: np.ndarray, obs: Observations) -> pd.DataFrame:
     return pd.DataFrame(values, columns=list(obs.response.muscles))
 
 
-#: Weight of the temporal prior of the ``joint`` and ``mesh`` fits (``estimate_joint``'s
-#: ``temporal``): each frame is drawn toward its neighbours' fits, so that controls the points
-#: tell apart only weakly do not trade places from frame to frame. ``joint`` on the real
-#: clips (landmark tracker): single-frame spikes 676 / 261 / 99 without, 338 / 124 / 36 with;
-#: on the standard suite (snakes, 110 sequences) its median per-control RMSE 0.1105 without,
-#: 0.1117 with.
+#: Weight of the temporal prior of the ``joint``, ``mesh`` and ``fused`` fits
+#: (``estimate_joint``'s ``temporal``): each frame is drawn toward its neighbours' fits, so
+#: that controls the points tell apart only weakly do not trade places from frame to frame.
+#: ``joint`` on the real clips (landmark tracker): single-frame spikes 676 / 261 / 99
+#: without, 338 / 124 / 36 with; on the standard suite (snakes, 110 sequences) its median
+#: per-control RMSE 0.1105 without, 0.1117 with.
 TEMPORAL = 0.01
 
 
