@@ -246,7 +246,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     }
     table = _tracking_table(tracks)
     parameters["measurement_points"] = list(est.response.fiducials)
-    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
+    ident = _assess(est)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
                                          tracks.confidence, parameters, ident)
     # estimation: the fit, what the points can tell apart, the model's fit residual
@@ -267,11 +267,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     "turned head reads partly as muscles, so their confidence is lowered; "
                     "compare frames of similar pose (head_pitch, head_yaw)", video, turned,
                     int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
-    if ident["not_identifiable"]:
-        log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
-                    "%s from the other controls: their values lean on the prior that "
-                    "muscles rest (analysis.json: identifiability)", video, ident["noise_cm"],
-                    ident["noise_source"], ", ".join(ident["not_identifiable"]))
+    _warn_identifiability(video, ident)
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
@@ -282,6 +278,31 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)
+
+
+def _assess(est) -> dict:
+    """:func:`~faceanalysis.estimation.identifiability.assess` of an estimate: at the
+    tracking noise, and from the estimates themselves (controls that trade places)."""
+    values = np.column_stack([
+        est.values[m].to_numpy(float) if m in est.values.columns
+        else np.full(len(est.values), np.nan) for m in est.response.muscles])
+    return assess(est.response, est.displacements, fit_options=est.fit_options, values=values)
+
+
+def _warn_identifiability(video, ident: dict) -> None:
+    """One warning for the controls the noise hides, one for those that trade places."""
+    traded = {n for p in ident.get("traded", []) for n in p["controls"]}
+    noisy = [n for n in ident["not_identifiable"] if n not in traded]
+    if noisy:
+        log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
+                    "%s from the other controls: their values lean on the prior that "
+                    "muscles rest (analysis.json: identifiability)", video, ident["noise_cm"],
+                    ident["noise_source"], ", ".join(noisy))
+    for pair in ident.get("traded", []):
+        log.warning("%s: %s and %s trade places from frame to frame (their frame-to-frame "
+                    "jitter correlates %.2f): their sum is measured, not their split; both "
+                    "are flagged 0 in <control>_identifiable (analysis.json: identifiability)",
+                    video, *pair["controls"], pair["correlation"])
 
 
 def _fit_options(estimator: str, refine: bool, temporal) -> dict:
@@ -635,7 +656,7 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     parameters = {**params, "estimator": estimator, "refine": bool(refine),
                   "temporal": est_options.get("temporal"),
                   "measurement_points": list(est.response.fiducials)}
-    ident = assess(est.response, est.displacements, fit_options=est.fit_options)
+    ident = _assess(est)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
                                          track_conf, parameters, ident)
     metadata = dict(analysis.metadata)

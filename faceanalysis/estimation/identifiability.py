@@ -10,7 +10,8 @@ response, adds noise, and scores the ``joint`` fit. :func:`tracking_noise` measu
 video's noise from the frame-to-frame jitter of its points, and :func:`assess` puts them
 together for ``analysis.json``: a control is *identifiable* when the estimator's simulated
 error, at that noise and from the points seen, stays within :data:`IDENTIFIABLE_LIMIT` of the
-control's range.
+control's range, and when, in the video's own estimates, it does not trade places with another
+control (:func:`traded_pairs`).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import pandas as pd
 
 from faceanalysis.estimation.response import FiducialResponse
 
-__all__ = ["identifiability", "estimator_errors", "tracking_noise", "assess",
-           "IDENTIFIABLE_LIMIT", "REFERENCE_NOISE_CM"]
+__all__ = ["identifiability", "estimator_errors", "tracking_noise", "traded_pairs", "assess",
+           "IDENTIFIABLE_LIMIT", "REFERENCE_NOISE_CM", "TRADE_LIMIT"]
 
 #: Largest simulated RMS error of the ``joint`` estimate (a fraction of the control's range)
 #: at which a control counts as identifiable.
@@ -37,6 +38,16 @@ REFERENCE_NOISE_CM = 0.025
 MANY_POINTS = 32
 #: Second differences needed to measure a video's noise.
 MIN_SAMPLES = 30
+#: Correlation of two controls' frame-to-frame jitter at or below which they trade places
+#: (:func:`traded_pairs`). On the real clips with ``mesh``, levator labii and its alar twin
+#: reach -0.43 to -0.77 and the two mentalis -0.50 to -0.52; every other pair of active
+#: controls stays above -0.33 (with ``joint``, every pair above -0.36).
+TRADE_LIMIT = -0.5
+#: Second differences, on each of the two controls, needed to judge a pair
+#: (a 30-frame sequence's 28 give a correlation's standard error near 0.2).
+TRADE_SAMPLES = 100
+#: Standard deviation of a control's second differences below which it is taken as still.
+TRADE_SPREAD = 0.01
 
 
 def identifiability(response: FiducialResponse, *, level: float = 0.0,
@@ -247,8 +258,67 @@ def _fingerprint(value):
     return repr(value)
 
 
+def traded_pairs(values: np.ndarray, names, *, limit: float = TRADE_LIMIT,
+                 min_samples: int = TRADE_SAMPLES, min_spread: float = TRADE_SPREAD
+                 ) -> list[dict]:
+    """The pairs of controls that trade places from frame to frame in a video's estimates.
+
+    Where the points tell two controls apart only weakly, what the fit gives one on a frame
+    it takes from the other: their sum is measured, their split is noise. It shows in the
+    estimates themselves as jitter of opposite sign. For each control, the jitter is its
+    second difference ``c(t) - (c(t-1) + c(t+1)) / 2`` (slow, real changes barely enter it);
+    two controls whose jitter correlates at or below ``limit`` over at least
+    ``min_samples`` frames trade places. A control whose jitter's standard deviation is
+    under ``min_spread`` is still and is not judged.
+
+    Parameters
+    ----------
+    values : ndarray, shape (T, C)
+        Estimated controls of consecutive frames (NaN where lost).
+    names : sequence of str
+        The C control names.
+
+    Returns
+    -------
+    list of dict
+        ``{"controls": [a, b], "correlation": r}``, most negative first.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> split = rng.uniform(0.2, 0.4, 200)               # a sum of 0.6, split at random
+    >>> c = np.column_stack([split, 0.6 - split, np.linspace(0, 1, 200)])
+    >>> [p["controls"] for p in traded_pairs(c, ["a", "b", "c"])]
+    [['a', 'b']]
+    """
+    c = np.asarray(values, dtype=float)
+    if c.ndim != 2 or c.shape[1] != len(names):
+        raise ValueError(f"values must have shape (T, {len(names)}), got {c.shape}")
+    if c.shape[0] < 3:
+        return []
+    jitter = c[1:-1] - 0.5 * (c[:-2] + c[2:])                     # NaN beside a lost frame
+    ok = np.isfinite(jitter)
+    active = [j for j in range(c.shape[1])
+              if ok[:, j].sum() >= min_samples and np.std(jitter[ok[:, j], j]) >= min_spread]
+    out = []
+    for i, a in enumerate(active):
+        for b in active[i + 1:]:
+            both = ok[:, a] & ok[:, b]
+            if both.sum() < min_samples:
+                continue
+            x, y = jitter[both, a], jitter[both, b]
+            if x.std() == 0 or y.std() == 0:
+                continue
+            r = float(np.corrcoef(x, y)[0, 1])
+            if r <= limit:
+                out.append({"controls": [str(names[a]), str(names[b])],
+                            "correlation": round(r, 3)})
+    return sorted(out, key=lambda p: p["correlation"])
+
+
 def assess(response: FiducialResponse, displacements: np.ndarray, *,
-           min_seen: float = 0.5, fit_options: dict | None = None) -> dict:
+           min_seen: float = 0.5, fit_options: dict | None = None,
+           values: np.ndarray | None = None) -> dict:
     """Identifiability of every control from the points seen in a video, for
     ``analysis.json``.
 
@@ -262,6 +332,9 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
         count as seen.
     fit_options : dict, optional
         Options of the fit whose errors are simulated (see :func:`estimator_errors`).
+    values : ndarray, shape (T, C), optional
+        The video's estimates of ``response.muscles``: a control that trades places with
+        another in them (:func:`traded_pairs`) is not identifiable either.
 
     Returns
     -------
@@ -270,8 +343,9 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
         ``limit``, ``points_seen``, ``controls`` (name -> ``rmse``: the ``joint``
         estimator's simulated error at that noise from those points, as a fraction of the
         range, None where no seen point observes the control; ``independent``: the share
-        of its motion of the points no other control reproduces; ``identifiable``) and
-        ``not_identifiable`` (names).
+        of its motion of the points no other control reproduces; ``traded_with``: the
+        controls it trades places with; ``identifiable``), ``traded`` (the pairs of
+        :func:`traded_pairs`) and ``not_identifiable`` (names).
     """
     d = np.asarray(displacements, dtype=float)
     if d.ndim != 3 or d.shape[1:] != (len(response.fiducials), 2):
@@ -300,7 +374,13 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     else:
         controls = {name: {"rmse": None, "independent": 0.0, "identifiable": False}
                     for name in response.muscles}
+    traded = [] if values is None else traded_pairs(values, response.muscles)
+    for name in response.muscles:
+        controls[name]["traded_with"] = [o for p in traded for o in p["controls"]
+                                         if name in p["controls"] and o != name]
+        if controls[name]["traded_with"]:
+            controls[name]["identifiable"] = False
     return {"noise_cm": round(float(noise), 5), "noise_source": source,
             "noise_samples": samples, "limit": IDENTIFIABLE_LIMIT, "points_seen": seen,
-            "controls": controls,
+            "controls": controls, "traded": traded,
             "not_identifiable": [n for n in response.muscles if not controls[n]["identifiable"]]}

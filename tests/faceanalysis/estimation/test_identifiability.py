@@ -12,6 +12,7 @@ from faceanalysis.estimation.identifiability import (
     estimator_errors,
     identifiability,
     tracking_noise,
+    traded_pairs,
 )
 from faceanalysis.estimation.model_response import model_response
 
@@ -137,3 +138,44 @@ def test_estimator_errors_are_remembered_per_question_and_not_shared():
                    {"points": response.fiducials[2:]}):
         other = estimator_errors(response, 0.02, draws=4, **kwargs)
         assert not np.allclose(other, fresh, equal_nan=True), kwargs
+
+
+def test_two_controls_that_trade_places_are_found_and_slow_opposite_changes_are_not():
+    rng = np.random.default_rng(2)
+    t = np.arange(300)
+    split = rng.uniform(0.0, 0.3, 300)                   # the sum is 0.5, the split noise
+    smile = np.clip(np.sin(t / 40.0), 0, None)           # a smile, then a frown: slow and
+    frown = np.clip(-np.sin(t / 40.0), 0, None)          # opposite, but not a trade
+    c = np.column_stack([0.2 + split, 0.3 - split, smile, frown, np.zeros(300)])
+    c[:, 2:4] += rng.normal(0, 0.02, (300, 2))           # each jitters on its own
+    names = ["levator_labii_l", "levator_labii_nasi_l", "zyg", "dep", "still"]
+    pairs = traded_pairs(c, names)
+    assert [p["controls"] for p in pairs] == [["levator_labii_l", "levator_labii_nasi_l"]]
+    assert pairs[0]["correlation"] < -0.9
+    # too few frames to judge: nothing is claimed
+    assert traded_pairs(c[:60], names) == []
+    c[::3] = np.nan                                      # lost frames break the runs
+    assert traded_pairs(c, names) == []
+    with pytest.raises(ValueError, match="shape"):
+        traded_pairs(c, names[:3])
+
+
+def test_assess_flags_controls_that_trade_places_in_the_estimates():
+    response = model_response()
+    rng = np.random.default_rng(5)
+    d = rng.normal(0.0, 0.001, (200, len(response.fiducials), 2))
+    values = np.zeros((200, len(response.muscles)))
+    a, b = response.index("mentalis_l"), response.index("mentalis_r")
+    split = rng.uniform(0.0, 0.2, 200)
+    values[:, a], values[:, b] = 0.1 + split, 0.3 - split
+    plain = assess(response, d)
+    flagged = assess(response, d, values=values)
+    assert plain["traded"] == [] and flagged["traded"][0]["controls"] == ["mentalis_l",
+                                                                           "mentalis_r"]
+    assert plain["controls"]["mentalis_l"]["identifiable"]
+    for name, other in (("mentalis_l", "mentalis_r"), ("mentalis_r", "mentalis_l")):
+        assert flagged["controls"][name]["traded_with"] == [other]
+        assert not flagged["controls"][name]["identifiable"]
+        assert name in flagged["not_identifiable"]
+    rest = set(flagged["not_identifiable"]) - {"mentalis_l", "mentalis_r"}
+    assert rest == set(plain["not_identifiable"])
