@@ -298,11 +298,13 @@ def _warn_identifiability(video, ident: dict) -> None:
                     "%s from the other controls: their values lean on the prior that "
                     "muscles rest (analysis.json: identifiability)", video, ident["noise_cm"],
                     ident["noise_source"], ", ".join(noisy))
-    for pair in ident.get("traded", []):
-        log.warning("%s: %s and %s trade places from frame to frame (their frame-to-frame "
-                    "jitter correlates %.2f): their sum is measured, not their split; both "
-                    "are flagged 0 in <control>_identifiable (analysis.json: identifiability)",
-                    video, *pair["controls"], pair["correlation"])
+    if ident.get("traded"):
+        pairs = ", ".join(f"{a} / {b} ({r:.2f})" for (a, b), r in
+                          ((p["controls"], p["correlation"]) for p in ident["traded"]))
+        log.warning("%s: these controls trade places from frame to frame (their "
+                    "frame-to-frame jitter correlates as given): %s; a pair's sum is "
+                    "measured, not its split, and both are flagged 0 in "
+                    "<control>_identifiable (analysis.json: identifiability)", video, pairs)
 
 
 def _fit_options(estimator: str, refine: bool, temporal) -> dict:

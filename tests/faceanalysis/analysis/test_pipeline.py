@@ -645,3 +645,16 @@ def test_a_head_turned_out_of_the_image_plane_lowers_the_confidence(tmp_path, ca
     # an estimator run again on the same tracking keeps the cap
     again = reestimate(a, "joint")
     assert (again.table["confidence"].to_numpy()[3:] <= MAX_HEAD_TURN / turn[3:] + 1e-12).all()
+
+
+def test_the_warnings_name_noise_hidden_and_traded_controls_apart(caplog):
+    from faceanalysis.analysis.pipeline import _warn_identifiability
+
+    ident = {"noise_cm": 0.02, "noise_source": "measured",
+             "not_identifiable": ["risorius_l", "mentalis_l", "mentalis_r"],
+             "traded": [{"controls": ["mentalis_l", "mentalis_r"], "correlation": -0.61}]}
+    with caplog.at_level("WARNING"):
+        _warn_identifiability("clip.mp4", ident)
+    noise, trade = (r.getMessage() for r in caplog.records)
+    assert "cannot tell risorius_l from" in noise and "mentalis" not in noise
+    assert "mentalis_l / mentalis_r (-0.61)" in trade and "sum is measured" in trade
