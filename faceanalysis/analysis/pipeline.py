@@ -23,7 +23,7 @@ import pandas as pd
 from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
-from faceanalysis.estimation.estimators import fit_residual
+from faceanalysis.estimation.estimators import check_temporal, fit_residual
 from faceanalysis.estimation.identifiability import assess
 from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_points_3d
 from faceanalysis.estimation.registry import (
@@ -280,13 +280,19 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)
 
 
+def _response_array(values: pd.DataFrame, response: FiducialResponse) -> np.ndarray:
+    """An estimator's values as an array of ``response.muscles`` (NaN for a control it
+    does not estimate), shape (T, M)."""
+    return np.column_stack([
+        values[m].to_numpy(float) if m in values.columns else np.full(len(values), np.nan)
+        for m in response.muscles])
+
+
 def _assess(est) -> dict:
     """:func:`~faceanalysis.estimation.identifiability.assess` of an estimate: at the
     tracking noise, and from the estimates themselves (controls that trade places)."""
-    values = np.column_stack([
-        est.values[m].to_numpy(float) if m in est.values.columns
-        else np.full(len(est.values), np.nan) for m in est.response.muscles])
-    return assess(est.response, est.displacements, fit_options=est.fit_options, values=values)
+    return assess(est.response, est.displacements, fit_options=est.fit_options,
+                  values=_response_array(est.values, est.response))
 
 
 def _warn_identifiability(video, ident: dict) -> None:
@@ -312,10 +318,7 @@ def _fit_options(estimator: str, refine: bool, temporal) -> dict:
     (checked; the default where the estimator has the prior)."""
     options = {"refine": True} if refine else {}
     if temporal is not None:
-        if (isinstance(temporal, (bool, np.bool_))
-                or not isinstance(temporal, (int, float, np.integer, np.floating))
-                or not (np.isfinite(temporal) and temporal >= 0)):
-            raise ValueError(f"temporal must be a non-negative number, got {temporal!r}")
+        temporal = check_temporal(temporal)
         if estimator not in TEMPORAL_ESTIMATORS:
             raise ValueError(f"temporal works with the {', '.join(TEMPORAL_ESTIMATORS)} "
                              f"estimators, not {estimator!r}")
@@ -526,9 +529,7 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
         col_v = v[:, estimated.index(col)] if col in estimated else np.zeros(len(table))
         table[col] = np.where(success, col_v, np.nan)
     # the model's prediction at the estimate, whichever estimator made it
-    in_response = np.column_stack([
-        values[m].to_numpy(float) if m in values.columns else np.full(len(table), np.nan)
-        for m in response.muscles])
+    in_response = _response_array(values, response)
     turn = head_turn(table, parameters.get("neutral_frame"))
     with np.errstate(divide="ignore"):
         track_conf = np.fmin(track_conf, MAX_HEAD_TURN / turn)   # fmin: no pose, no cap

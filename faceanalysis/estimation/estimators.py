@@ -272,10 +272,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         raise ValueError(f"debias must be True, False or a number in (0, 1], got {debias!r}")
     if isinstance(debias, np.bool_):
         debias = bool(debias)                 # the refit tests ``debias is True``
-    if (isinstance(temporal, (bool, np.bool_))
-            or not isinstance(temporal, (int, float, np.integer, np.floating))
-            or not (np.isfinite(temporal) and temporal >= 0)):
-        raise ValueError(f"temporal must be a non-negative number, got {temporal!r}")
+    temporal = check_temporal(temporal)
     fit = dict(weights=weights, regularization=regularization, sparsity=sparsity,
                outer_iterations=outer_iterations, inner_iterations=inner_iterations,
                robust=robust, robust_rounds=robust_rounds, debias=debias,
@@ -301,6 +298,16 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                             initial=np.nan_to_num(first[rows]),
                             anchor=(float(temporal), centre[rows]), **fit)
     return out
+
+
+def check_temporal(temporal) -> float:
+    """``temporal`` (:func:`estimate_joint`) as a float; ValueError unless it is a finite
+    number >= 0 (not a bool)."""
+    if (isinstance(temporal, (bool, np.bool_))
+            or not isinstance(temporal, (int, float, np.integer, np.floating))
+            or not (np.isfinite(temporal) and temporal >= 0)):
+        raise ValueError(f"temporal must be a non-negative number, got {temporal!r}")
+    return float(temporal)
 
 
 def _fit_frames(displacements, response, *, weights, regularization, sparsity,
