@@ -323,7 +323,7 @@ def _fit_options(estimator: str, refine: bool, temporal) -> dict:
             raise ValueError(f"temporal works with the {', '.join(TEMPORAL_ESTIMATORS)} "
                              f"estimators, not {estimator!r}")
     if estimator in TEMPORAL_ESTIMATORS:
-        options["temporal"] = float(TEMPORAL if temporal is None else temporal)
+        options["temporal"] = TEMPORAL if temporal is None else temporal
     return options
 
 
