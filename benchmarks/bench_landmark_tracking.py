@@ -7,7 +7,8 @@ Three measurements (the issue "hold the nine contours on real faces"):
   for the mesh's own points, the anchored tracker's fiducials and the snakes'; the
   mesh's nose and jaw-line points;
   smile vs neutral (type 2 vs 1) from the tracked mouth width over the eye distance;
-* real clips, ``real/``: frames tracked and lost by ``track``;
+* real clips, ``real/``: frames tracked and lost by ``track`` (no face; a hand over the
+  mouth);
 * rendered faces: the standard suite's sequences for a few identities, mean fiducial
   error against the renderer's truth, per tracker.
 
@@ -247,6 +248,11 @@ def smile_zygomaticus(quick=False):
     return figs
 
 
+#: Frames (start, stop) of ``WolfgangLanger_Pexels.mp4`` on which a hand lies over the
+#: mouth, read off the frames one by one.
+HAND_OVER_MOUTH = (59, 228)
+
+
 def _blank_frames(path) -> np.ndarray:
     """Per frame of the video ``path``: whether it is black."""
     import cv2
@@ -277,6 +283,16 @@ def real_clips(quick=False):
         # a black frame (noface_face.mov's last) shows no face either
         other = other[~_blank_frames(folder / name)[other]]
         figs.append(_fig(name, "frames with a face tracked", tr.success[other].sum(),
+                         f"of {len(other)}", True))
+    # a hand covers the mouth on these frames (from the first frame it touches the lips
+    # to the last it lies over them, by inspection)
+    name, (lo, hi) = "WolfgangLanger_Pexels.mp4", HAND_OVER_MOUTH
+    if (folder / name).is_file():
+        tr = track(folder / name, tracker="landmarks")
+        figs.append(_fig(name, f"frames {lo}-{hi - 1} (a hand over the mouth) marked lost",
+                         (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
+        other = np.r_[0:lo, hi:len(tr)]
+        figs.append(_fig(name, "other frames tracked", tr.success[other].sum(),
                          f"of {len(other)}", True))
     return figs
 

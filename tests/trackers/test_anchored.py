@@ -278,21 +278,53 @@ def test_rigid_similarity_and_rotation_angles():
         rotation_angles(p3[:, :2], p3[:, :2])
 
 
+def _fingers(img, truth, y0, *, width=6):
+    """``img`` with high-contrast bars (fingers) across the mouth's width from row ``y0``
+    to below the chin."""
+    out = img.copy()
+    x0 = int(truth["mouth_corner_r"][0]) - 12
+    x1 = int(truth["mouth_corner_l"][0]) + 12
+    for k, y in enumerate(range(y0, int(truth["chin"][1]) + 12, width)):
+        out[y:y + width, x0:x1] = (235, 200, 180) if k % 2 else (70, 45, 35)
+    return out
+
+
 def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
     img, truth = face_truth
     tracker = AnchoredTracker()
     first = tracker.track(img)
     assert not any(first.quality[n].lost for n in ("upper_lip", "lower_lip", "chin_boss"))
-    # fingers: high-contrast bars across the mouth and the chin
-    covered = img.copy()
-    x0 = int(truth["mouth_corner_r"][0]) - 12
-    x1 = int(truth["mouth_corner_l"][0]) + 12
-    y0 = int(truth["mouth_corner_r"][1]) - 10
-    y1 = int(truth["chin"][1]) + 12
-    for k, y in enumerate(range(y0, y1, 6)):
-        covered[y:y + 6, x0:x1] = (235, 200, 180) if k % 2 else (70, 45, 35)
+    # fingers across the mouth and the chin
+    covered = _fingers(img, truth, int(truth["mouth_corner_r"][1]) - 10)
     res = tracker.track(covered)
     if res is None:
         pytest.skip("the mesh gave up on the covered face")
     assert all(res.quality[n].lost for n in ("upper_lip", "lower_lip", "chin_boss"))
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
+
+
+def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
+    img, truth = face_truth
+    lower = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
+    covered = _fingers(img, truth, int(truth["mouth_corner_r"][1]) - 10)
+    # fingers over the chin only, clear of the lips
+    on_chin = _fingers(img, truth, int(truth["mouth_corner_r"][1]) + 10, width=3)
+
+    def last(*frames):
+        tracker = AnchoredTracker()
+        for frame in frames:
+            res = tracker.track(frame)
+        if res is None:
+            pytest.skip("the mesh gave up on the covered face")
+        return res.quality
+
+    # on its own the lips are free of the fingers: the lower face is measured
+    q = last(img, on_chin)
+    assert not q["upper_lip"].lost and not q["lower_lip"].lost
+    # after the hand covered the mouth, the chin still on its fingers holds it lost
+    q = last(img, covered, on_chin)
+    assert all(q[n].lost for n in lower)
+    assert not q["brow_l"].lost and not q["brow_r"].lost
+    # a frame without the hand releases it
+    q = last(img, covered, img, on_chin)
+    assert not q["upper_lip"].lost and not q["lower_lip"].lost
