@@ -5,7 +5,7 @@ Three measurements (the issue "hold the nine contours on real faces"):
 * photographs, ``annotated/imm_dev`` (20 people, types 1-5): mouth-corner and brow
   error over the inter-ocular distance (eye centres from the hand-placed eye contours)
   for the mesh's own points, the anchored tracker's fiducials and the snakes'; the
-  mesh's nose and jaw-line points;
+  mesh's nose and jaw-line points; the lower lip's centre (tracker and mesh);
   smile vs neutral (type 2 vs 1) from the tracked mouth width over the eye distance;
 * real clips, ``real/``: frames tracked and lost by ``track`` (no face; a hand over the
   mouth);
@@ -57,6 +57,8 @@ def _auc(pos, neg) -> float:
 _IMM = {"mouth_corner_r": 39, "mouth_corner_l": 43, "brow_inner_l": 29, "brow_mid_l": 31,
         "brow_outer_l": 33, "brow_inner_r": 34, "brow_mid_r": 36, "brow_outer_r": 38}
 _MESH = {"mouth_corner_r": [61], "mouth_corner_l": [291]}
+# the lower lip's lowest point on its border (the mesh's is 17)
+_LOWER_LIP = 45
 
 
 def photographs(quick=False):
@@ -64,6 +66,7 @@ def photographs(quick=False):
 
     from trackers import detect_layout
     from trackers.anchored import AnchoredTracker
+    from trackers.fiducials import arc_point
     from trackers.tracking import Tracker
 
     folder = DATA / "annotated" / "imm_dev"
@@ -73,6 +76,7 @@ def photographs(quick=False):
     people = range(21, 31) if quick else range(21, 41)
     err = {k: {t: [] for t in range(1, 6)} for k in ("mesh", "anchored", "snakes")}
     brow = {k: [] for k in ("anchored", "snakes")}
+    lip = {k: [] for k in ("mesh", "anchored")}     # lower lip's centre, types 1-2
     width = {k: {1: [], 2: []} for k in ("mesh", "anchored", "snakes", "hand-placed")}
     missed = {"anchored": 0, "snakes": 0}
     meshes = []          # (person, hand-placed points, landmarks, iod) of types 1-2
@@ -95,6 +99,10 @@ def photographs(quick=False):
                 if t in (1, 2):
                     meshes.append((person, gt, lm, iod))
                 fids["mesh"] = {n: lm[i].mean(0) for n, i in _MESH.items()}
+                if t in (1, 2):
+                    lip["anchored"].append(np.hypot(*np.subtract(
+                        arc_point(r.contours["lower_lip"], 0.5), gt[_LOWER_LIP])) / iod)
+                    lip["mesh"].append(np.hypot(*(lm[17] - gt[_LOWER_LIP])) / iod)
             try:
                 fids["snakes"] = Tracker(detect_layout(img, channel_order="bgr"),
                                          channel_order="bgr").track(img).fiducials
@@ -127,6 +135,9 @@ def photographs(quick=False):
     for kind, v in brow.items():
         figs.append(_fig(f"IMM types 1-2, {kind}", "brow point error", np.mean(v), "IOD",
                          False))
+    for kind, v in lip.items():
+        figs.append(_fig(f"IMM types 1-2, {kind}", "lower lip's centre error", np.mean(v),
+                         "IOD", False))
     for kind, n in missed.items():
         figs.append(_fig(f"IMM types 1-5, {kind}", "photographs without a face found", n,
                          "images", False))
