@@ -335,12 +335,15 @@ class _FlowStep:
     def __call__(self, image, head) -> np.ndarray:
         h = head_array(head)
         have_head = bool(np.isfinite(h).all() and h[2] > 0)
-        if self.stabilization == "head" or self.prev is None:
-            if not have_head:
-                return np.full((*self.grid.shape, 2), np.nan)
+        if have_head:
+            # each tracked frame starts from its own head frame: started from the last
+            # frame's alignment, the correction fed back on itself, and on a still face
+            # held at an expression it swung by 0.1-0.2 px from one frame to the next
             M = np.vstack([self.crop.matrix(h), [0.0, 0.0, 1.0]])
+        elif self.stabilization == "head" or self.prev is None:
+            return np.full((*self.grid.shape, 2), np.nan)
         else:
-            M = self.prev                     # continuity: last frame's alignment
+            M = self.prev                     # no head frame: bridged from the last one
         cur = self._prep(image, M)
         fl = self._flow(cur)
         if self.stabilization == "flow":
@@ -380,13 +383,12 @@ def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis
     normalize : bool
         Local contrast normalisation of the crops (robust to illumination change).
     stabilization : {'flow', 'head'}
-        ``head``: every frame is warped by its own head frame. ``flow`` (default): the
-        first frame after the reference starts from its head frame, every later one from
-        the previous frame's alignment; a similarity fitted robustly (RANSAC) to a first
-        flow on the face then corrects the alignment, and the flow is measured again. It
-        corrects head-frame jitter and bridges frames where the tracker lost the face;
-        frames where fewer than a tenth of the face points fit a common rigid motion
-        are lost.
+        ``head``: every frame is warped by its own head frame. ``flow`` (default): every
+        frame starts from its head frame (a frame without one from the previous frame's
+        alignment); a similarity fitted robustly (RANSAC) to a first flow on the face
+        then corrects the alignment, and the flow is measured again. It corrects
+        head-frame jitter and bridges frames where the tracker lost the face; frames
+        where fewer than a tenth of the face points fit a common rigid motion are lost.
     frame_numbers : array_like, optional
         Frame numbers to record (default ``0..T-1``).
 

@@ -212,3 +212,25 @@ def test_colour_wheel():
     assert rgb.shape == (4, 4, 3) and rgb.dtype == np.uint8
     assert rgb[1, 1].tolist() == [255, 255, 255]
     assert rgb[0, 0].tolist() != rgb[2, 2].tolist()
+
+
+def test_a_face_held_still_at_an_expression_reads_the_same_on_every_frame():
+    import pandas as pd
+
+    from faceanalysis.io.table import MUSCLES
+    from synth.render.sequence import contraction_timeline, synthesize
+
+    # the reference is a smile; the face then holds still at rest, so every later frame
+    # is the same image with the same head frame
+    apex = contraction_timeline(MUSCLES, expression="happiness", frames=20).max()
+    drive = pd.DataFrame(np.outer([1.0, 0.0], apex.to_numpy()), columns=apex.index)
+    seq = synthesize(contractions=drive, frames=2, size=160, seed=11, flow=False,
+                     texture_size=256, supersample=1)
+    heads = seq.truth[["head_x", "head_y", "head_scale", "head_roll"]].to_numpy()
+    frames = [seq.images[0]] + [seq.images[1]] * 6
+    ff = face_flow(frames, np.vstack([heads[0]] + [heads[1]] * 6), stabilization="flow")
+    d = ff.displacement
+    assert np.abs(d[1]).max() > 0.02                  # the smile's relaxation is seen
+    # the same image reads the same: the alignment does not feed back on itself
+    for k in range(2, len(frames)):
+        np.testing.assert_allclose(d[k], d[1], atol=1e-9)
