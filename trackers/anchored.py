@@ -106,11 +106,11 @@ OCCLUSION_WITNESSES = {"lower_lip": 2.0, "chin_boss": 2.5}
 #: (hysteresis). A hand held over the mouth leaves the lower lip on the mesh's curve or
 #: on a finger's edge no deeper than its own, so the witnesses miss most of the frames
 #: it covers, but the chin stays on the fingers' edges: on ``WolfgangLanger_Pexels.mp4``
-#: its relative depth is 10-43 under the hand. Without a hand, on the three real clips,
-#: the IMM photographs and renders of a jaw drop and a laugh, it stays at or below 6.5
-#: (a hand on cap12's chin, clear of the mouth), except in three frames of a bowed laugh
-#: where the lower lip's edge enters the chin's ellipse (8.7-11.9), and those follow no
-#: covered frame.
+#: its relative depth is a median 31 (4.9-43) under the hand. Without a hand, on the
+#: three real clips, the IMM photographs and renders of a jaw drop and a laugh, it stays
+#: at or below 6.5 (a hand on cap12's chin, clear of the mouth), except in three frames
+#: of a bowed laugh where the lower lip's edge enters the chin's ellipse (8.7-11.9), and
+#: those follow no covered frame.
 OCCLUSION_CHIN = 15.0
 OCCLUSION_HOLD = 8.0
 LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
