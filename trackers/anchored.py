@@ -304,8 +304,12 @@ class AnchoredTracker:
         # corner_follow=0.1) keeps rendered faces' corners where the mesh drifts from an
         # opening mouth, but on photographs it moved some off: 0.036 against 0.028
         # inter-ocular distances with the offset
+        # the brows relax at their layout's sigma (Tracker, brow_band): their springs
+        # hold them across the band where its ravine is flat, and the wider potential
+        # moved the rendered faces' fiducials by +0.02 px for nothing measured on
+        # photographs
         self.tracker_options = {"mouth_corner": "ends", "end_hold": END_HOLD,
-                                **tracker_options}
+                                "brow_band": 1.0, **tracker_options}
         if head_frame == "landmarks":
             # the hairline only serves 004's head frame, which the rigid landmarks
             # replace here: re-placing it when lost would cost a second relaxation of

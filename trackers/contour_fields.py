@@ -95,6 +95,11 @@ class ContourFields:
         boxes = [tuple(int(v) for v in b) for b in bx]
         origins = np.c_[bx[:, 0] + X0, bx[:, 1] + Y0].astype(np.float64)
         Ps = potentials_in_boxes(gray, self.specs, boxes)
+        # the potentials the ends are found on, in the same boxes, where they differ
+        # from those the contours relax on (the brows'); ``_refine`` reads them
+        differ = [k for k, (a, b) in enumerate(zip(self.specs, self.end_specs)) if a != b]
+        self._end_fields = dict(zip(differ, potentials_in_boxes(
+            gray, [self.end_specs[k] for k in differ], [boxes[k] for k in differ])))
         return Ps, origins, gray, (float(X0), float(Y0))
 
     def _depths(self, Ps, origins):
@@ -108,8 +113,7 @@ class ContourFields:
 
     def _auto_strength(self, Ps, origins):
         gdt = self.params.gamma / self.params.dt
-        for k, name in enumerate(self.names):
-            c = self.layout.contours[name]
+        for k in range(len(self.names)):
             pts = self.system.X[self.system.contour_slice(k)]
             P, origin = Ps[k], origins[k]
             tang = np.gradient(pts, axis=0)
@@ -120,8 +124,9 @@ class ContourFields:
             # ravine's flank (the first relaxation stops each contour on its own
             # slow step) would measure a flatter curvature there and get a
             # strength that oscillates once it reaches the bottom
-            h = max(0.5 * c.sigma, 0.75)
-            m = max(int(np.ceil(3.0 * c.sigma / h)), 1)
+            sigma = self.specs[k][1]
+            h = max(0.5 * sigma, 0.75)
+            m = max(int(np.ceil(3.0 * sigma / h)), 1)
             t = np.arange(-m - 1, m + 2) * h
             prof = _sample_safe(P, (pts[:, None, :] + t[None, :, None] * nrm[:, None, :])
                                 .reshape(-1, 2), origin).reshape(len(pts), len(t))
@@ -137,7 +142,7 @@ class ContourFields:
                 mid = mid + step
             curv = (prof[rows, mid + 1] + prof[rows, mid - 1] - 2 * prof[rows, mid]) / h**2
             curv = curv[np.isfinite(curv) & (curv > 0)]
-            p_paper = paper_equivalent_strength(c.sigma, self.params.p)
+            p_paper = paper_equivalent_strength(sigma, self.params.p)
             if len(curv) < 3:
                 p = p_paper
             else:

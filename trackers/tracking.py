@@ -76,7 +76,11 @@ from trackers.snakes import ContourSystem, paper_equivalent_strength
 #: contour (see :class:`Tracker`, ``brow_mid``).
 BROW_MID_FRACTION = 0.556
 
-__all__ = ["BROW_MID_FRACTION", "REINIT_EVERY", "Tracker"]
+#: The eyebrows' valley potential is taken at this multiple of their layout ``sigma``
+#: while they relax (see :class:`Tracker`, ``brow_band``).
+BROW_BAND = 1.5
+
+__all__ = ["BROW_BAND", "BROW_MID_FRACTION", "REINIT_EVERY", "Tracker"]
 
 
 #: A contour lost on many consecutive frames is re-placed at least this often (frames).
@@ -194,6 +198,17 @@ class Tracker(HeadFrameSearch, ContourFields):
         sigma of it, or none is found; across the line it follows the image. A line
         that fades out has no sharp end, and the one found depends on where the search
         starts. 0 (default) relocates the ends afresh on every frame.
+    brow_band : float
+        Scale of the eyebrows' valley potential while they relax, as a multiple of
+        their layout ``sigma`` (default :data:`BROW_BAND`); their ends are still
+        found on the potential at ``sigma``. At the scale ``s`` a dark band narrower
+        than ``2 sqrt(3) s`` (about 3.5 s) has one ravine along its centre, one that
+        wide a flat-bottomed one, and a wider one a ravine along each edge. Eyebrows
+        are about that wide at the layout's ``sigma``, and widen as the frontalis
+        stretches the skin: there the contour stays wherever it was pushed (on the
+        face model's raised brows it lagged by up to a third of the rise, and held on
+        as they fell) or rides one edge. At 1.5 ``sigma`` bands up to about 5
+        ``sigma`` wide have one central ravine. 1 relaxes the brows at ``sigma``.
     head_anchor : {'auto', 'eyes', 'features', 'contours'}
         How the head frame follows the head after the first frame. The first frame's
         frame is always :func:`~trackers.fiducials.head_frame` of the contours (004:
@@ -241,7 +256,7 @@ class Tracker(HeadFrameSearch, ContourFields):
                  mouth_corner: str = "profile", redetect: bool = True,
                  redetect_interval: int = 15, springs=None, corner_reach: float = 0.06,
                  corner_follow: float = 0.0, corner_cap: float = 0.2, replace_lost=None,
-                 end_hold: float = 0.0):
+                 end_hold: float = 0.0, brow_band: float = BROW_BAND):
         if not isinstance(layout, FaceLayout):
             raise ValueError(f"layout must be a FaceLayout, got {type(layout).__name__}")
         if params is None:
@@ -343,8 +358,16 @@ class Tracker(HeadFrameSearch, ContourFields):
         self.channel_order = channel_order
         self.names = list(CONTOUR_NAMES)
         self._lost_streak = dict.fromkeys(self.names, 0)
-        self.specs = [(layout.contours[n].kind, float(layout.contours[n].sigma))
-                      for n in self.names]
+        if not np.isfinite(brow_band) or brow_band < 1:
+            raise ValueError(f"brow_band must be >= 1, got {brow_band}")
+        self.brow_band = float(brow_band)
+        # the potentials the contours relax on, and (where they differ) those their
+        # ends are found on
+        self.end_specs = [(layout.contours[n].kind, float(layout.contours[n].sigma))
+                          for n in self.names]
+        self.specs = [(kind, sig * self.brow_band if n in ("brow_l", "brow_r") else sig)
+                      for n, (kind, sig) in zip(self.names, self.end_specs)]
+        self._end_fields: dict[int, np.ndarray] = {}
         if springs is None or isinstance(springs, int | float):
             springs = dict.fromkeys(self.names, float(springs or 0.0))
         unknown = sorted(set(springs) - set(self.names))
@@ -356,9 +379,9 @@ class Tracker(HeadFrameSearch, ContourFields):
             raise ValueError(f"spring stiffnesses must be finite and >= 0, got {springs}")
         self.springs = {n: springs.get(n, 0.0) for n in self.names}
         contours = []
-        for name in self.names:
+        for name, (_, sig) in zip(self.names, self.specs):
             c = layout.contours[name]
-            p0 = paper_equivalent_strength(c.sigma, params.p) if strength in ("auto", "paper") \
+            p0 = paper_equivalent_strength(sig, params.p) if strength in ("auto", "paper") \
                 else float(strength)
             contours.append(Contour(c.points, closed=c.closed, params=params, p=p0,
                                     field=len(contours), name=name, normal_forces=True,
@@ -409,7 +432,7 @@ class Tracker(HeadFrameSearch, ContourFields):
             pts = X[st[k]:st[k + 1]]
             n = len(pts)
             new = pts
-            P = np.ascontiguousarray(Ps[k], dtype=np.float32)
+            P = np.ascontiguousarray(self._end_fields.get(k, Ps[k]), dtype=np.float32)
             ox, oy = origins[k]
             sigma = float(c.sigma)
             for end in (0, -1):

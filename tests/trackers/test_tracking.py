@@ -366,3 +366,48 @@ def test_end_hold_keeps_a_relocated_end_until_the_image_moves_it_farther(monkeyp
         np.testing.assert_allclose(end_after(across), across, atol=0.05)
     with pytest.raises(ValueError, match="end_hold"):
         Tracker(lay, end_hold=-1.0)
+
+
+def _wide_brows(lay, rise=0.0, width=4.5):
+    """The layout's contours drawn as thin dark lines, the brows as bands ``width``
+    times their sigma wide, raised by ``rise`` px."""
+    import cv2
+
+    img = np.full((256, 256), 200, np.uint8)
+    for name, c in lay.contours.items():
+        pts, thick = c.points, 3
+        if name.startswith("brow"):
+            pts, thick = pts - (0.0, rise), int(round(width * c.sigma))
+        cv2.polylines(img, [np.round(pts * 16).astype(np.int32)], c.closed, 60, thick,
+                      cv2.LINE_AA, 4)
+    return cv2.GaussianBlur(img, (0, 0), 0.8)
+
+
+def test_a_wide_brow_is_followed_along_its_centre_line():
+    # a dark band wider than ~3.5 sigma has a ravine along each edge and a ridge between
+    # them at the scale sigma: at the layout's sigma the brow settled on the upper edge,
+    # 3.4 px from the band's centre line; relaxed at 1.5 sigma it lies on the centre
+    lay = layout_from_eyes(*EYES, (256, 256))
+    centre = {s: np.asarray(lay.contours[f"brow_{s}"].points) for s in "lr"}
+
+    def off_centre(res, s, rise):
+        c = np.asarray(res.contours[f"brow_{s}"])
+        line = centre[s] - (0.0, rise)
+        mid = c[len(c) // 2]
+        return float(np.min(np.hypot(*(line - mid).T)))
+
+    tr = Tracker(lay)
+    for rise in (0, 0, 1, 2, 3, 4, 4, 2, 0):
+        r = tr.track(_wide_brows(lay, rise))
+        assert r.success
+        for s in "lr":
+            assert off_centre(r, s, rise) < 1.0, (rise, s, off_centre(r, s, rise))
+    at_sigma = Tracker(lay, brow_band=1.0).track(_wide_brows(lay))
+    assert min(off_centre(at_sigma, s, 0) for s in "lr") > 2.0
+
+
+def test_brow_band_validated():
+    lay = layout_from_eyes(*EYES, (256, 256))
+    for bad in (0.5, np.nan):
+        with pytest.raises(ValueError, match="brow_band must be >= 1"):
+            Tracker(lay, brow_band=bad)
