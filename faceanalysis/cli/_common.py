@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import sys
 from pathlib import Path
 
 
@@ -70,7 +71,26 @@ def add_quiet_option(parser: argparse.ArgumentParser) -> None:
                         help="no progress bar, warnings and errors only")
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a record is emitted.
+
+    ``logging.StreamHandler()`` keeps the stream it was made with: after ``main`` ran under
+    a replaced stderr (``contextlib.redirect_stderr``, a notebook's, pytest's capture)
+    every later record of the process went to that stream, closed by then, and printed
+    "--- Logging error ---" instead of the message.
+    """
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
 def configure_logging(verbosity: int = 0, quiet: bool = False) -> None:
     """Logs go to stderr so that stdout stays clean for tables and JSON."""
     level = logging.WARNING if quiet else (logging.DEBUG if verbosity > 0 else logging.INFO)
-    logging.basicConfig(level=level, format="%(levelname)s: %(message)s", force=True)
+    logging.basicConfig(level=level, format="%(levelname)s: %(message)s", force=True,
+                        handlers=[_StderrHandler()])

@@ -109,3 +109,29 @@ def test_evaluate_faces_goes_with_the_standard_suite(run_cli, tmp_path):
     assert code == 1
     assert f"{tmp_path / 'none'}: no such folder of photographs" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_logs_follow_stderr_after_it_is_replaced():
+    # a run under a replaced stderr (a notebook's, pytest's capture) must not leave the
+    # process logging into that stream once it is closed
+    import contextlib
+    import io
+    import logging
+
+    from faceanalysis.cli._common import configure_logging
+
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    try:
+        first = io.StringIO()
+        with contextlib.redirect_stderr(first):
+            configure_logging(quiet=True)
+            logging.getLogger("faceanalysis").warning("during the run")
+        first.close()
+        later = io.StringIO()
+        with contextlib.redirect_stderr(later):
+            logging.getLogger("faceanalysis").warning("after it")
+        assert later.getvalue() == "WARNING: after it\n"
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
