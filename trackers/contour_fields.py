@@ -96,10 +96,11 @@ class ContourFields:
         origins = np.c_[bx[:, 0] + X0, bx[:, 1] + Y0].astype(np.float64)
         Ps = potentials_in_boxes(gray, self.specs, boxes)
         # the potentials the ends are found on, in the same boxes, where they differ
-        # from those the contours relax on (the brows'); ``_refine`` reads them
-        differ = [k for k, (a, b) in enumerate(zip(self.specs, self.end_specs)) if a != b]
-        self._end_fields = dict(zip(differ, potentials_in_boxes(
-            gray, [self.end_specs[k] for k in differ], [boxes[k] for k in differ])))
+        # from those the contours relax on (the free snakes' brows); ``_refine`` reads them
+        ends = self._end_only
+        self._end_fields = dict(zip(ends, potentials_in_boxes(
+            gray, [self.end_specs[k] for k in ends], [boxes[k] for k in ends]))) \
+            if ends else {}
         return Ps, origins, gray, (float(X0), float(Y0))
 
     def _depths(self, Ps, origins):

@@ -367,6 +367,8 @@ class Tracker(HeadFrameSearch, ContourFields):
                           for n in self.names]
         self.specs = [(kind, sig * self.brow_band if n in ("brow_l", "brow_r") else sig)
                       for n, (kind, sig) in zip(self.names, self.end_specs)]
+        self._end_only = [k for k, (a, b) in enumerate(zip(self.specs, self.end_specs))
+                          if a != b]
         self._end_fields: dict[int, np.ndarray] = {}
         if springs is None or isinstance(springs, int | float):
             springs = dict.fromkeys(self.names, float(springs or 0.0))

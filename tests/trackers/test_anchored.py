@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tests.trackers.landmarks.conftest import face, models  # noqa: F401 (fixtures)
-from trackers.anchored import AnchoredTracker, rigid_similarity, rotation_angles
+from trackers.anchored import LOWER_FACE, AnchoredTracker, rigid_similarity, rotation_angles
 from trackers.fiducials import FIDUCIAL_NAMES
 
 
@@ -321,7 +321,7 @@ def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
 
 def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
     img, truth = face_truth
-    lower = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
+    lower = LOWER_FACE
     covered = _fingers(img, truth, int(truth["mouth_corner_r"][1]) - 10)
     # fingers over the chin only, clear of the lips
     on_chin = _fingers(img, truth, int(truth["mouth_corner_r"][1]) + 10, width=3)
@@ -359,6 +359,5 @@ def test_fingers_on_the_chin_with_edges_far_deeper_than_a_chin_s_lose_the_lower_
     # the lower lip is clear of them and as deep as on the first frame: only the chin
     # tells
     assert res.quality["lower_lip"].depth < 1.5
-    assert all(res.quality[n].lost
-               for n in ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r"))
+    assert all(res.quality[n].lost for n in LOWER_FACE)
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
