@@ -71,6 +71,13 @@ def add_quiet_option(parser: argparse.ArgumentParser) -> None:
                         help="no progress bar, warnings and errors only")
 
 
+def progress_wanted(args: argparse.Namespace) -> bool:
+    """A progress bar on stderr: unless ``--quiet``, and only on a terminal. Redrawn in
+    place, a bar written to a log file or a pipe (a batch job's, CI's) leaves a line of
+    control characters per update between the warnings."""
+    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+
+
 class _StderrHandler(logging.StreamHandler):
     """A handler writing to whatever ``sys.stderr`` is when a record is emitted.
 

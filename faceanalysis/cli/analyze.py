@@ -11,6 +11,7 @@ from faceanalysis.cli._common import (
     add_quiet_option,
     non_negative_float,
     non_negative_int,
+    progress_wanted,
 )
 from faceanalysis.cli._input import add_input_options
 from faceanalysis.io.outputs import CONTRACTIONS_CSV
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     check_analysis_options(args)
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
-        quiet=args.quiet, estimator=args.estimator, fps=args.fps, start=args.start,
+        quiet=not progress_wanted(args), estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
         refine=args.refine, temporal=args.temporal,
         backend=args.backend, device=args.device,

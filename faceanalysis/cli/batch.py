@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from faceanalysis.cli._common import positive_int
+from faceanalysis.cli._common import positive_int, progress_wanted
 from faceanalysis.cli._input import add_input_options
 from faceanalysis.cli.analyze import add_analysis_options, check_analysis_options
 
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     verbose = getattr(args, "verbose", 0) > 0
     summary = batch.run_batch(args.inputs, args.output, workers=args.workers,
                               scheduler=args.scheduler, options=_options(args),
-                              overwrite=args.overwrite, progress=not args.quiet,
+                              overwrite=args.overwrite, progress=progress_wanted(args),
                               silence_logs=False if verbose else logging.ERROR)
     failed = summary[summary["status"] != "ok"]
     for video, error in list(zip(failed["video"], failed["error"]))[:_SHOWN_FAILURES]:

@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option, non_negative_int, positive_int
+from faceanalysis.cli._common import (
+    add_quiet_option,
+    non_negative_int,
+    positive_int,
+    progress_wanted,
+)
 
 HELP = "render a synthetic expression, analyse it and compare with the truth"
 
@@ -34,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.evaluation.demo import run_demo
 
     files = run_demo(args.output, expression=args.expression, frames=args.frames,
-                     seed=args.seed, overwrite=args.overwrite, progress=not args.quiet)
+                     seed=args.seed, overwrite=args.overwrite, progress=progress_wanted(args))
     report = files.pop("_report")
     print(f"demo: {args.expression} on synthetic identity {args.seed}, "
           f"{report['frames_compared']}/{report['frames']} frames tracked")

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option, positive_int
+from faceanalysis.cli._common import add_quiet_option, positive_int, progress_wanted
 from faceanalysis.io.outputs import REPORT_MD
 
 HELP = "compare an analysis with ground truth, or run the standard synthetic suite"
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
                              "(use --json for JSON)")
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
         reports = measurement_ceiling(
-            config, own_response=args.own_response, progress=not args.quiet,
+            config, own_response=args.own_response, progress=progress_wanted(args),
             estimators=("joint", "mesh", "tw93") if args.mesh else ("joint", "tw93"))
         if not args.json:
             print(scores.format_table(reports))
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         estimators = (("joint", *MESH_ESTIMATORS, "tw93", "flow") if args.tracker == "landmarks"
                       else ("joint", "tw93", "flow"))
         report = suite.run_suite(args.output, config=config, overwrite=args.overwrite,
-                                 estimators=estimators, progress=not args.quiet)
+                                 estimators=estimators, progress=progress_wanted(args))
         if args.json:
             print(json.dumps(report["estimators"]))
         else:

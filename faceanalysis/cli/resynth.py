@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from faceanalysis.cli._common import add_quiet_option, positive_float
+from faceanalysis.cli._common import add_quiet_option, positive_float, progress_wanted
 
 HELP = "render the face model driven by a contraction time series (resynthesis)"
 
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                        shading=args.shading, fps=args.fps, side_by_side=args.side_by_side,
                        output=args.output, export_meshes=args.export_meshes,
                        mesh_format=args.mesh_format, input_video=args.input,
-                       overwrite=args.overwrite, progress=not args.quiet,
+                       overwrite=args.overwrite, progress=progress_wanted(args),
                        check_flow=not args.no_flow_check)
     if args.json:
         print(json.dumps(json.loads(res.report_path.read_text())))

@@ -6,7 +6,7 @@ import argparse
 import logging
 import re
 
-from faceanalysis.cli._common import add_output_options, add_quiet_option
+from faceanalysis.cli._common import add_output_options, add_quiet_option, progress_wanted
 
 HELP = "render a synthetic face video (expression, AU script or contractions) with ground truth"
 
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed, head_motion=args.head_motion,
         out_of_plane=not args.in_plane_only, illumination=args.illumination,
         noise=args.noise, blur=args.blur, supersample=args.supersample, grey=args.grey,
-        flow=not args.no_flow, intensity=args.intensity, progress=not args.quiet)
+        flow=not args.no_flow, intensity=args.intensity, progress=progress_wanted(args))
     if args.face is not None:
         from faceanalysis.resynthesis.photo import render_face
 
