@@ -115,9 +115,10 @@ def run(args: argparse.Namespace) -> int:
     q = result.metadata.get("quality", {})
     controls = result.metadata.get("identifiability", {}).get("controls", {})
     told = sum(bool(c.get("identifiable")) for c in controls.values())
+    measured = (f"all {told} controls measured" if told == len(controls) else
+                f"{told} of {len(controls)} controls measured, the others flagged 0 in "
+                f"<control>_identifiable")
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
-          f"({q.get('frames_lost', 0)} lost; {told} of {len(controls)} controls measured, "
-          f"the others flagged 0 in <control>_identifiable) -> {args.output}",
-          file=sys.stderr)
+          f"({q.get('frames_lost', 0)} lost; {measured}) -> {args.output}", file=sys.stderr)
     print(args.output / CONTRACTIONS_CSV)
     return 0
