@@ -11,6 +11,7 @@ import functools
 import json
 import os
 import signal
+import sys
 import time
 from pathlib import Path
 
@@ -359,13 +360,19 @@ def test_partial_folder_of_a_dead_worker_is_not_taken_as_finished(corpus, tmp_pa
 def test_cli_batch(corpus, tmp_path, monkeypatch, run_cli):
     monkeypatch.setattr(batch, "run_batch", functools.partial(run_batch, task=intensity_task))
     out = tmp_path / "out"
-    code, stdout, stderr = run_cli("batch", corpus["dir"], "-o", out, "--workers", "2")
+    with monkeypatch.context() as m:
+        # on a terminal: the progress bar, with the counts
+        m.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+        code, stdout, stderr = run_cli("batch", corpus["dir"], "-o", out, "--workers", "2")
     assert code == 0
     assert str(out / SUMMARY) in stdout
     assert "4 video(s): 2 ok, 2 failed; skipped 0 finished before" in stderr
     assert "corrupt.avi" in stderr and "noface.avi" in stderr
     assert "ok=2 failed=2 left=0" in stderr and "frames/s" in stderr  # the progress bar
     assert "distributed" not in stderr and "Traceback" not in stderr  # no cluster chatter
+    # into a log file or a pipe: no bar, the same report
+    code, _, stderr = run_cli("batch", corpus["good"][0], "-o", tmp_path / "piped")
+    assert code == 0 and "1 video(s): 1 ok, 0 failed" in stderr and "frames/s" not in stderr
     # the finished ones again: skipped (and said so before any work), no cluster needed
     code, stdout, stderr = run_cli("batch", *corpus["good"][:2], "-o", out, "-q",
                                    "--scheduler", "tcp://127.0.0.1:9")
