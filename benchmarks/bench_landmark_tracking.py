@@ -285,26 +285,23 @@ def real_clips(quick=False):
         print(f"# {folder} is absent: real-clip figures skipped")
         return []
     figs = []
-    for name, lost_range in (("face_noface.mov", (72, 169)), ("noface_face.mov", (0, 96))):
+    # per clip, the frames that must be lost: no face, or (WolfgangLanger, from the first
+    # frame a hand touches the lips to the last it lies over them, by inspection) a hand
+    # over the mouth
+    for name, (lo, hi), why, rest in (
+            ("face_noface.mov", (72, 169), "without a face", "frames with a face tracked"),
+            ("noface_face.mov", (0, 96), "without a face", "frames with a face tracked"),
+            ("WolfgangLanger_Pexels.mp4", HAND_OVER_MOUTH, "(a hand over the mouth)",
+             "other frames tracked")):
+        if not (folder / name).is_file():
+            continue
         tr = track(folder / name, tracker="landmarks")
-        lo, hi = lost_range
-        figs.append(_fig(name, f"frames {lo}-{hi - 1} without a face marked lost",
+        figs.append(_fig(name, f"frames {lo}-{hi - 1} {why} marked lost",
                          (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
         other = np.r_[0:lo, hi:len(tr)]
         # a black frame (noface_face.mov's last) shows no face either
         other = other[~_blank_frames(folder / name)[other]]
-        figs.append(_fig(name, "frames with a face tracked", tr.success[other].sum(),
-                         f"of {len(other)}", True))
-    # a hand covers the mouth on these frames (from the first frame it touches the lips
-    # to the last it lies over them, by inspection)
-    name, (lo, hi) = "WolfgangLanger_Pexels.mp4", HAND_OVER_MOUTH
-    if (folder / name).is_file():
-        tr = track(folder / name, tracker="landmarks")
-        figs.append(_fig(name, f"frames {lo}-{hi - 1} (a hand over the mouth) marked lost",
-                         (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
-        other = np.r_[0:lo, hi:len(tr)]
-        figs.append(_fig(name, "other frames tracked", tr.success[other].sum(),
-                         f"of {len(other)}", True))
+        figs.append(_fig(name, rest, tr.success[other].sum(), f"of {len(other)}", True))
     return figs
 
 

@@ -321,7 +321,6 @@ def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
 
 def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
     img, truth = face_truth
-    lower = LOWER_FACE
     covered = _fingers(img, truth, int(truth["mouth_corner_r"][1]) - 10)
     # fingers over the chin only, clear of the lips
     on_chin = _fingers(img, truth, int(truth["mouth_corner_r"][1]) + 10, width=3)
@@ -339,7 +338,7 @@ def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
     assert not q["upper_lip"].lost and not q["lower_lip"].lost
     # after the hand covered the mouth, the chin still on its fingers holds it lost
     q = last(img, covered, on_chin)
-    assert all(q[n].lost for n in lower)
+    assert all(q[n].lost for n in LOWER_FACE)
     assert not q["brow_l"].lost and not q["brow_r"].lost
     # a frame without the hand releases it
     q = last(img, covered, img, on_chin)
