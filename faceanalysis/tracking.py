@@ -517,7 +517,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                         writer = VideoWriter(overlay, source.fps, source.size,
                                              channel_order="bgr")
                     shown = None if res is None else res.contours
-                    writer.write(_draw(frame, shown, fids, head if good else None, not good))
+                    hands = None if res is None else res.extra.get("hands")
+                    writer.write(_draw(frame, shown, fids, head if good else None, not good,
+                                       hands))
                 if bar is not None:
                     bar.update(1)
         if frames and not any(ok) and layout is None:
@@ -659,9 +661,9 @@ def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
     return tracker, res
 
 
-def _draw(frame, contours, fids, head, lost):
+def _draw(frame, contours, fids, head, lost, hands=None):
     from faceanalysis.viz.overlay import draw_overlay
 
     return draw_overlay(frame.image, contours=contours,
                         fiducials=dict(zip(FIDUCIALS, fids.tolist())), head=head, lost=lost,
-                        label=f"frame {frame.index}  {frame.timestamp:.2f} s")
+                        label=f"frame {frame.index}  {frame.timestamp:.2f} s", hands=hands)

@@ -114,6 +114,29 @@ OCCLUSION_WITNESSES = {"lower_lip": 2.0, "chin_boss": 2.5}
 OCCLUSION_CHIN = 15.0
 OCCLUSION_HOLD = 8.0
 LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
+_LIPS = ("upper_lip", "lower_lip")
+
+#: A hand is looked for (:class:`~trackers.landmarks.hands.HandTracker`'s palm detector) on
+#: a frame where the lower lip or the chin lies on edges more than this many times as deep
+#: as on the first frame, each first frame's depth taken at least
+#: :data:`HAND_GATE_FLOOR` times the upper lip's (the chin boss has no outline: its own
+#: first depth is noise, 0.12-2.3 intensity units on ``WolfgangLanger_Pexels.mp4`` as
+#: given, shrunk, enlarged or turned, against 13.5-17 for the upper lip). A hand found is
+#: then followed by its own landmarks on every frame until it leaves. On that clip (hand over
+#: the mouth on frames 59-227) as given, enlarged 3 times, halved, flipped, in grey and
+#: turned by 20 degrees, the cue first fires on frame 60 and on 145-162 of the 169 covered
+#: frames, and on 0-26 of the 303 others; on cap12 it fires on 131 of 1337 frames (a hand
+#: holds the chin on about 100), on cap13 on 23 of 765.
+HAND_GATE = 2.0
+HAND_GATE_FLOOR = 0.2
+
+#: A contour is covered by a hand when at least this share of its nodes lies inside a
+#: hand: the convex hull of its 21 points grown by :data:`HAND_MARGIN` inter-ocular
+#: distances (the points run along the fingers' middles). A hand over either lip covers
+#: the whole lower face (:data:`LOWER_FACE`): fingers pressed on the mouth move its corners
+#: and the furrows beside them.
+HAND_COVER = 0.3
+HAND_MARGIN = 0.1
 
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
 #: in inter-ocular distances, is lost.
@@ -239,6 +262,11 @@ class AnchoredTracker:
         Lose the lower face where its contours lie on edges far deeper than their
         features' (:data:`OCCLUSION_WITNESSES`, :data:`OCCLUSION_CHIN`): a hand over the
         mouth; it stays lost while the chin does (:data:`OCCLUSION_HOLD`).
+    hands : bool
+        Lose the contours a hand covers (:data:`HAND_COVER`), the hands found by
+        MediaPipe's palm detector where the lower face's edges deepen (:data:`HAND_GATE`)
+        and followed by their landmarks (:class:`~trackers.landmarks.hands.HandTracker`).
+        Each frame's hands are in ``extra['hands']``.
     runtime : str
         The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
     prefetch : bool
@@ -266,7 +294,7 @@ class AnchoredTracker:
 
     def __init__(self, *, landmarks=None, channel_order: str = "rgb",
                  springs=None, max_disagreement: float = MAX_DISAGREEMENT,
-                 occlusion: bool = True, head_frame: str = "landmarks",
+                 occlusion: bool = True, hands: bool = True, head_frame: str = "landmarks",
                  runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
                  device=None, max_iod: float | None = MAX_IOD, **tracker_options):
         if channel_order not in ("rgb", "bgr"):
@@ -281,6 +309,11 @@ class AnchoredTracker:
         self.downscale: int | None = None
         self._ahead = None     # (next frame as given, shrunk) for the prefetch
         self.occlusion = bool(occlusion)
+        self.hand_tracker = None
+        if hands:
+            from trackers.landmarks.hands import HandTracker
+
+            self.hand_tracker = HandTracker(channel_order=channel_order, runtime=runtime)
         self.prefetch = bool(prefetch)
         if head_frame not in ("landmarks", "tracker"):
             raise ValueError(f"head_frame must be 'landmarks' or 'tracker', got {head_frame!r}")
@@ -448,18 +481,46 @@ class AnchoredTracker:
             all(not quality[n].lost and quality[n].depth > d
                 for n, d in OCCLUSION_WITNESSES.items())
             or chin > OCCLUSION_CHIN or self._covered and chin > OCCLUSION_HOLD)
+        hands, under_hand, deepened = self._hands(frame, quality, iod, first)
+        # a covered lower face stays covered while its edges stay deep, on frames where
+        # the hand's landmarks or the palm detector lose the hand for a moment
+        covered = covered or bool(under_hand & set(_LIPS)) or self._covered and deepened
         self._covered = covered
-        if covered:
-            for name in LOWER_FACE:
-                quality[name] = replace(quality[name], lost=True)
+        for name in set(LOWER_FACE) if covered else under_hand:
+            quality[name] = replace(quality[name], lost=True)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
         source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
         extra = dict(res.extra, head_source=source, presence=float(lm.presence),
                      head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
-                     detected=bool(placed.detected))
+                     detected=bool(placed.detected), hands=hands)
         return self._in_input_pixels(TrackResult(index, res.contours, quality,
                                                  res.iterations, res.converged, res.head,
                                                  res.fiducials, extra))
+
+    def _hands(self, frame, quality, iod: float, first: bool):
+        """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
+        the lower face's edges deepened (:data:`HAND_GATE`)."""
+        if self.hand_tracker is None:
+            return [], set(), False
+        ref = self.tracker.ref_depth
+        floor = HAND_GATE_FLOOR * ref["upper_lip"]
+        deepened = any(quality[n].depth * ref[n] / max(ref[n], floor, 1e-12) > HAND_GATE
+                       for n in ("lower_lip", "chin_boss"))
+        hands = self.hand_tracker.track(frame, detect=first or deepened)
+        under = set()
+        if hands:
+            system = self.tracker.system
+            hulls = [cv2.convexHull(h.astype(np.float32)) for h in hands]
+            margin = HAND_MARGIN * iod
+            for k, name in enumerate(self.tracker.names):
+                pts = system.contour_points(k)
+                inside = np.zeros(len(pts), bool)
+                for hull in hulls:
+                    inside |= np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), True)
+                                        >= -margin for x, y in pts])
+                if inside.mean() >= HAND_COVER:
+                    under.add(name)
+        return hands, under, deepened
 
     def _factor(self, points) -> int:
         """The whole factor that brings the face of ``points`` to ``max_iod`` or below."""
@@ -501,6 +562,7 @@ class AnchoredTracker:
                        scale=result.head.scale * k)
         extra = dict(result.extra)
         extra["landmarks"] = up(extra["landmarks"])
+        extra["hands"] = [up(h) for h in extra.get("hands", [])]
         extra["landmarks_z"] = np.asarray(extra["landmarks_z"], float) * k
         return replace(result, contours={n: up(c) for n, c in result.contours.items()},
                        fiducials={n: tuple(float(v) for v in up(f))

@@ -10,7 +10,8 @@ HELP = "show or install the face landmark models (MediaPipe's, from its PyPI whe
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "The landmark tracker runs MediaPipe's face detection and face mesh models "
+        "The landmark tracker runs MediaPipe's face detection, face mesh, palm detection "
+        "and hand landmark models "
         "(Apache-2.0). They are taken from the pinned mediapipe wheel on PyPI, checked by "
         "sha256 and cached per user on first use. Without arguments: say where they are, "
         "downloading them if missing. With --wheel: install them from a local copy of the "

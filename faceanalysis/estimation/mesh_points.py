@@ -79,13 +79,13 @@ def mesh_point_names(indices) -> tuple[str, ...]:
 
 
 def _key(model) -> str:
-    from trackers.landmarks.models import MODEL_FILES
+    from trackers.landmarks.models import FACE_MODEL_FILES
 
     return digest_of([
         __version__.encode(),
         np.ascontiguousarray(model.mesh.vertices, dtype=np.float64).tobytes(),
         np.ascontiguousarray(model.mesh.triangles).tobytes(),
-        repr(sorted(MODEL_FILES.items())).encode(),
+        repr(sorted(FACE_MODEL_FILES.items())).encode(),
         repr((SEAM_MARGIN, FACE_OVAL, _EYELIDS, _MIN_FACING, _RENDER_SIZE, NAMED_POINTS))
         .encode(),
         source_digest(("synth", "trackers"), ("faceanalysis.estimation.mesh_points",)).encode(),

@@ -28,6 +28,7 @@ _RIGHT = (220, 60, 220)
 _MIDLINE = (255, 200, 0)
 _HEAD = (255, 255, 255)
 _LOST = (40, 40, 230)
+_HAND = (0, 140, 255)       # BGR orange: a hand over the face
 
 
 def _fixed(points: np.ndarray) -> np.ndarray:
@@ -68,7 +69,8 @@ def fiducials_from_row(row: Mapping) -> dict[str, tuple[float, float]]:
 def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None
                  = None, fiducials: Mapping[str, Sequence[float]] | None = None,
                  head: Sequence[float] | None = None, lost: bool = False,
-                 label: str | None = None) -> np.ndarray:
+                 label: str | None = None,
+                 hands: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """Draw tracking results on a copy of a frame.
 
     Parameters
@@ -92,6 +94,9 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
         Mark the frame as lost (red border and "lost" label).
     label : str, optional
         Text for the top-left corner (e.g. frame number and time).
+    hands : sequence of (21, 2) arrays, optional
+        Hands over the face (``TrackResult.extra['hands']``), each drawn as the outline of
+        its points' convex hull.
 
     Returns
     -------
@@ -123,6 +128,13 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
                 if len(segment) >= 2:
                     cv2.polylines(canvas, [_fixed(segment)], False, _CONTOUR, thick,
                                   cv2.LINE_AA, _SHIFT)
+
+    for hand in hands or ():
+        points = np.asarray(hand, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 2:
+            raise ValueError(f"hands must be (K, 2) arrays of (x, y), got shape {points.shape}")
+        hull = cv2.convexHull(points.astype(np.float32))[:, 0]
+        cv2.polylines(canvas, [_fixed(hull)], True, _HAND, thick, cv2.LINE_AA, _SHIFT)
 
     if fiducials is not None:
         for name, point in fiducials.items():

@@ -360,3 +360,63 @@ def test_fingers_on_the_chin_with_edges_far_deeper_than_a_chin_s_lose_the_lower_
     assert res.quality["lower_lip"].depth < 1.5
     assert all(res.quality[n].lost for n in LOWER_FACE)
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
+
+
+class _Hands:
+    """Stands in for the hand tracker: reports the given hands, one list per frame, and
+    records whether each frame asked for the palm detector."""
+
+    def __init__(self, *per_frame):
+        self.per_frame = list(per_frame)
+        self.asked = []
+
+    def track(self, frame, *, detect=True):
+        self.asked.append(detect)
+        return self.per_frame.pop(0) if self.per_frame else []
+
+
+def _hand_over(x0, y0, x1, y1):
+    """21 hand points spread over a box (a hand lying flat over it)."""
+    u, v = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 3))
+    return np.c_[u.ravel(), v.ravel()]
+
+
+def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(face_truth):
+    img, truth = face_truth
+    (rx, ry), (lx, _), (cx, cy) = truth["mouth_corner_r"], truth["mouth_corner_l"], truth["chin"]
+    over_mouth = _hand_over(rx - 6, ry - 6, lx + 6, cy + 15)
+    on_chin = _hand_over(cx - 15, cy - 3, cx + 15, cy + 20)
+    tracker = AnchoredTracker()
+    tracker.hand_tracker = hands = _Hands([], [over_mouth], [on_chin], [])
+    first, mouth, chin, free = (tracker.track(img) for _ in range(4))
+    assert not any(q.lost for q in first.quality.values() if q is not first.quality["hairline"])
+    assert all(mouth.quality[n].lost for n in LOWER_FACE)
+    assert not mouth.quality["brow_l"].lost and not mouth.quality["nose_tip"].lost
+    np.testing.assert_allclose(mouth.extra["hands"][0], over_mouth)
+    assert chin.quality["chin_boss"].lost
+    assert not chin.quality["upper_lip"].lost and not chin.quality["lower_lip"].lost
+    assert not any(free.quality[n].lost for n in LOWER_FACE) and free.extra["hands"] == []
+    # the palm detector runs on the first frame, then only where the lower face's edges
+    # deepen (on this still face: never)
+    assert hands.asked == [True, False, False, False]
+
+
+def test_hands_are_reported_in_the_input_s_pixels(face_truth):
+    import cv2
+
+    from trackers.landmark_contours import eye_centres
+
+    img, truth = face_truth
+    iod = float(np.hypot(*np.subtract(*eye_centres(AnchoredTracker().track(img)
+                                                   .extra["landmarks"]))))
+    big = cv2.resize(img, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)
+    (rx, ry), (lx, _), (_, cy) = truth["mouth_corner_r"], truth["mouth_corner_l"], truth["chin"]
+    # the enlarged face is tracked shrunk by 3: at the rendered face's own size, where the
+    # stand-in's hand lies over its mouth
+    tracker = AnchoredTracker(max_iod=1.02 * iod)
+    tracker.hand_tracker = _Hands([], [_hand_over(rx - 6, ry - 6, lx + 6, cy + 15)])
+    tracker.track(big)
+    res = tracker.track(big)
+    assert tracker.downscale == 3 and all(res.quality[n].lost for n in LOWER_FACE)
+    np.testing.assert_allclose(res.extra["hands"][0][0], (np.array([rx - 6, ry - 6]) + 0.5) * 3
+                               - 0.5)

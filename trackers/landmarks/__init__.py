@@ -1,4 +1,5 @@
-"""Learned face landmarks: MediaPipe's face detector and 468-point face mesh.
+"""Learned face landmarks: MediaPipe's face detector and 468-point face mesh; its palm detector
+and 21-point hand landmarks, which tell a hand held over the face.
 
 Why these models: on a hand-annotated talking-face clip the mesh is within 0.033 of the
 inter-ocular distance on average (MediaPipe's own pipeline, with its attention model, 0.036)
@@ -15,6 +16,7 @@ same files in about 3.3-4.4 ms.
 """
 
 from trackers.landmarks.detection import FaceDetection, detect_faces
+from trackers.landmarks.hands import HandTracker, PalmDetection, detect_palms, hand_landmarks
 from trackers.landmarks.mesh import N_LANDMARKS, face_landmarks
 from trackers.landmarks.models import ensure_models, model_dir, models_available
 from trackers.landmarks.runtime import RUNTIMES, litert_available, load_network
@@ -22,4 +24,5 @@ from trackers.landmarks.tracker import Landmarks, LandmarkTracker
 
 __all__ = ["FaceDetection", "detect_faces", "N_LANDMARKS", "face_landmarks", "ensure_models",
            "model_dir", "models_available", "RUNTIMES", "litert_available", "load_network",
-           "LandmarkTracker", "Landmarks"]
+           "LandmarkTracker", "Landmarks", "HandTracker", "PalmDetection", "detect_palms",
+           "hand_landmarks"]

@@ -11,7 +11,7 @@ from trackers.landmarks._image import check_image, sample
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["FaceDetection", "detect_faces"]
+__all__ = ["FaceDetection", "detect_faces", "ssd_anchors", "decode_ssd"]
 
 _SIZE = 128
 _IOU = 0.3
@@ -37,17 +37,19 @@ class FaceDetection:
     score: float
 
 
-def _anchors() -> np.ndarray:
-    """(896, 2) anchor centres in [0, 1]: 16x16 cells x 2 anchors, then 8x8 cells x 6."""
+def ssd_anchors(cells: int) -> np.ndarray:
+    """Anchor centres in [0, 1] of MediaPipe's BlazeFace-style detectors: ``cells`` x
+    ``cells`` cells x 2 anchors, then ``cells / 2`` squared x 6 (fixed-size anchors: only
+    their centres matter). 16 gives the face detector's 896, 24 the palm detector's 2016."""
     out = []
-    for n, per_cell in ((16, 2), (8, 6)):
+    for n, per_cell in ((cells, 2), (cells // 2, 6)):
         y, x = np.mgrid[:n, :n]
         centres = np.c_[(x.ravel() + 0.5) / n, (y.ravel() + 0.5) / n]
         out.append(np.repeat(centres, per_cell, axis=0))
     return np.concatenate(out).astype(np.float32)
 
 
-_ANCHORS = _anchors()
+_ANCHORS = ssd_anchors(16)
 
 
 def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -74,6 +76,37 @@ def _weighted_nms(boxes, keypoints, scores):
         w = scores[members] / scores[members].sum()
         out.append((w @ boxes[members], np.tensordot(w, keypoints[members], 1), scores[i]))
     return out
+
+
+def decode_ssd(regressors, logits, anchors, size: int, min_score: float):
+    """Boxes, keypoints and scores of a BlazeFace-style detector's outputs.
+
+    Parameters
+    ----------
+    regressors : ndarray, shape (1, A, 4 + 2K)
+        Per anchor: box centre offset and size, then K keypoints, in input pixels.
+    logits : ndarray, shape (1, A, 1)
+    anchors : ndarray, shape (A, 2)
+    size : int
+        The square input's side in pixels.
+    min_score : float
+
+    Returns
+    -------
+    list of (box (4,), keypoints (K, 2), score)
+        In [0, 1] coordinates of the input square, after MediaPipe's weighted suppression.
+    """
+    logits = logits.reshape(-1).astype(np.float64)  # float32 exp overflows
+    scores = 1 / (1 + np.exp(-np.clip(logits, -100, 100)))
+    keep = scores >= min_score
+    if not keep.any():
+        return []
+    raw = regressors.reshape(len(anchors), -1)[keep] / size
+    anchors = anchors[keep]
+    centre = raw[:, :2] + anchors
+    boxes = np.c_[centre - raw[:, 2:4] / 2, centre + raw[:, 2:4] / 2]
+    keypoints = raw[:, 4:].reshape(len(raw), -1, 2) + anchors[:, None]
+    return _weighted_nms(boxes, keypoints, scores[keep])
 
 
 def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
@@ -115,18 +148,8 @@ def _run(net, image: np.ndarray, channel_order: str, min_score: float) -> list[F
     square = sample(image, square_to_image, _SIZE, channel_order, border=cv2.BORDER_CONSTANT)
     x = square[None].astype(np.float32) / 127.5 - 1
     scores_logit, regressors = net.run(x)   # 'classificators', 'regressors' (name order)
-    logits = scores_logit.reshape(-1).astype(np.float64)  # float32 exp overflows
-    scores = 1 / (1 + np.exp(-np.clip(logits, -100, 100)))
-    keep = scores >= min_score
-    if not keep.any():
-        return []
-    raw = regressors.reshape(-1, 16)[keep] / _SIZE
-    anchors = _ANCHORS[keep]
-    centre = raw[:, :2] + anchors
-    boxes = np.c_[centre - raw[:, 2:4] / 2, centre + raw[:, 2:4] / 2]
-    keypoints = raw[:, 4:].reshape(-1, 6, 2) + anchors[:, None]
     faces = []
-    for box, kp, score in _weighted_nms(boxes, keypoints, scores[keep]):
+    for box, kp, score in decode_ssd(regressors, scores_logit, _ANCHORS, _SIZE, min_score):
         # pixel-index coordinates (pixel centres on integers), OpenCV's convention
         to_image = lambda p: (p * _SIZE - t) / s - 0.5  # noqa: E731
         box = to_image(box.reshape(2, 2)).ravel()

@@ -1,6 +1,7 @@
 """The MediaPipe model files: pinned, checked by sha256, cached per user.
 
-The two ``.tflite`` files (and the wheel's licence, Apache-2.0) are taken from the
+The ``.tflite`` files (face detection, face mesh, palm detection and hand landmarks; and the
+wheel's licence, Apache-2.0) are taken from the
 ``mediapipe`` wheel on PyPI, which is the publisher's own package; the project never ships
 them. The first call of :func:`ensure_models` downloads that wheel with pip (which honours the
 user's index and proxy settings) or, offline, extracts the files from a local copy of it.
@@ -19,7 +20,8 @@ import uuid
 import zipfile
 from pathlib import Path
 
-__all__ = ["MEDIAPIPE_VERSION", "WHEEL_NAME", "WHEEL_SHA256", "MODEL_FILES", "LICENSE_FILE",
+__all__ = ["MEDIAPIPE_VERSION", "WHEEL_NAME", "WHEEL_SHA256", "MODEL_FILES", "FACE_MODEL_FILES",
+           "LICENSE_FILE",
            "model_dir", "ensure_models", "models_available"]
 
 log = logging.getLogger(__name__)
@@ -35,7 +37,16 @@ MODEL_FILES = {
     "face_landmark": (
         "mediapipe/modules/face_landmark/face_landmark.tflite",
         "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814"),
+    # a hand over the face (:mod:`trackers.landmarks.hands`)
+    "palm_detection": (
+        "mediapipe/modules/palm_detection/palm_detection_lite.tflite",
+        "e9a4aaddf90dda56a87235303cf00e4c2d3fb28725f68fd88772997dac905c18"),
+    "hand_landmark": (
+        "mediapipe/modules/hand_landmark/hand_landmark_lite.tflite",
+        "048edd3645c9bf7397d19a9f6e3a42957d6e414c9bea6598030a2e9b624156e6"),
 }
+#: The files the face mesh's own results depend on (cache keys of what is derived from them).
+FACE_MODEL_FILES = {k: MODEL_FILES[k] for k in ("face_detection", "face_landmark")}
 LICENSE_FILE = (f"mediapipe-{MEDIAPIPE_VERSION}.dist-info/LICENSE",
                 "8707eef0533987efc5b155d64761eeb6e20793f50b9bd1a68dad1cf4719d0ed8")
 LICENSE_NAME = "LICENSE_mediapipe.txt"
@@ -172,7 +183,8 @@ def ensure_models(*, wheel: str | os.PathLike | None = None,
     Returns
     -------
     dict
-        ``{"face_detection": Path, "face_landmark": Path}``.
+        ``{"face_detection": Path, "face_landmark": Path, "palm_detection": Path,
+        "hand_landmark": Path}``.
 
     Raises
     ------

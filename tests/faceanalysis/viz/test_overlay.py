@@ -59,3 +59,14 @@ def test_fiducials_from_a_table_row():
     fid = fiducials_from_row(t.iloc[0])
     assert len(fid) == 11 and fid["chin"] == (4.0, 5.0)
     assert np.isnan(fid["brow_mid_l"][0])
+
+
+def test_a_hand_is_drawn_as_its_outline():
+    u, v = np.meshgrid(np.linspace(40, 120, 7), np.linspace(30, 90, 3))
+    hand = np.c_[u.ravel(), v.ravel()]
+    out = draw_overlay(np.zeros((120, 160, 3), np.uint8), hands=[hand])
+    assert out[30, 50:110].any(axis=1).all() and out[90, 50:110].any(axis=1).all()
+    assert out[40:80, 40].any(axis=1).all()          # the hull's left side
+    assert not out[45:75, 55:105].any()              # its inside is left as it was
+    with pytest.raises(ValueError, match="hands"):
+        draw_overlay(np.zeros((20, 20), np.uint8), hands=[np.zeros((3, 3))])
