@@ -305,6 +305,26 @@ def _fingers(img, truth, y0, *, width=6, colours=((70, 45, 35), (235, 200, 180))
     return out
 
 
+class _Hands:
+    """Stands in for the hand tracker: reports the given hands, one list per frame, and
+    records whether each frame asked for the palm detector."""
+
+    def __init__(self, *per_frame):
+        self.per_frame = list(per_frame)
+        self.asked = []
+        self.hands = []     # nothing followed: every frame asks track()
+
+    def track(self, frame, *, detect=True):
+        self.asked.append(detect)
+        return self.per_frame.pop(0) if self.per_frame else []
+
+
+def _hand_over(x0, y0, x1, y1):
+    """21 hand points spread over a box (a hand lying flat over it)."""
+    u, v = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 3))
+    return np.c_[u.ravel(), v.ravel()]
+
+
 def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
     img, truth = face_truth
     tracker = AnchoredTracker()
@@ -350,35 +370,29 @@ def test_fingers_on_the_chin_with_edges_far_deeper_than_a_chin_s_lose_the_lower_
     img, truth = face_truth
     on_chin = _fingers(img, truth, int(truth["mouth_corner_r"][1]) + 12, width=3,
                        colours=((0, 0, 0), (255, 255, 255)))
-    tracker = AnchoredTracker()
-    tracker.track(img)
-    res = tracker.track(on_chin)
-    if res is None:
-        pytest.skip("the mesh gave up on the covered face")
-    # the lower lip is clear of them and as deep as on the first frame: only the chin
-    # tells
+    corner = _hand_over(2, 2, 30, 40)       # a hand in the picture, off the face
+
+    def second(hands, *frames):
+        tracker = AnchoredTracker(hands=hands is not None)
+        if hands is not None:
+            tracker.hand_tracker = hands
+        for frame in frames:
+            res = tracker.track(frame)
+        if res is None:
+            pytest.skip("the mesh gave up on the covered face")
+        return res
+
+    # without the hand detector the chin alone tells: the lower lip is clear of the
+    # fingers and as deep as on the first frame
+    res = second(None, img, on_chin)
     assert res.quality["lower_lip"].depth < 1.5
     assert all(res.quality[n].lost for n in LOWER_FACE)
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
-
-
-class _Hands:
-    """Stands in for the hand tracker: reports the given hands, one list per frame, and
-    records whether each frame asked for the palm detector."""
-
-    def __init__(self, *per_frame):
-        self.per_frame = list(per_frame)
-        self.asked = []
-
-    def track(self, frame, *, detect=True):
-        self.asked.append(detect)
-        return self.per_frame.pop(0) if self.per_frame else []
-
-
-def _hand_over(x0, y0, x1, y1):
-    """21 hand points spread over a box (a hand lying flat over it)."""
-    u, v = np.meshgrid(np.linspace(x0, x1, 7), np.linspace(y0, y1, 3))
-    return np.c_[u.ravel(), v.ravel()]
+    # with it, only within HAND_MEMORY frames of one that showed a hand
+    res = second(_Hands([], [corner]), img, img, on_chin)
+    assert all(res.quality[n].lost for n in LOWER_FACE)
+    res = second(_Hands(), img, on_chin)
+    assert not res.quality["upper_lip"].lost and not res.quality["lower_lip"].lost
 
 
 def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(face_truth):

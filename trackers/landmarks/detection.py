@@ -11,7 +11,7 @@ from trackers.landmarks._image import check_image, sample
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["FaceDetection", "detect_faces", "ssd_anchors", "decode_ssd"]
+__all__ = ["FaceDetection", "detect_faces", "ssd_anchors", "decode_ssd", "letterbox"]
 
 _SIZE = 128
 _IOU = 0.3
@@ -78,6 +78,28 @@ def _weighted_nms(boxes, keypoints, scores):
     return out
 
 
+def letterbox(image: np.ndarray, size: int, channel_order: str):
+    """The frame scaled to fit a ``size`` square (longer side), centred on a black border.
+
+    Returns
+    -------
+    square : ndarray, shape (size, size, 3)
+        uint8 RGB.
+    to_image : callable
+        From the square's [0, 1] coordinates, (..., 2), to image pixel indices (pixel
+        centres on integers, OpenCV's convention).
+    """
+    h, w = image.shape[:2]
+    # continuous coordinates map as square = s * image + t, pixel indices as
+    # square_i = s * image_i + t + (s - 1) / 2
+    s = size / max(h, w)
+    t = (size - s * np.array([w, h])) / 2
+    square_to_image = np.array([[1 / s, 0, -(t[0] + (s - 1) / 2) / s],
+                                [0, 1 / s, -(t[1] + (s - 1) / 2) / s]])
+    square = sample(image, square_to_image, size, channel_order, border=cv2.BORDER_CONSTANT)
+    return square, lambda p: (np.asarray(p) * size - t) / s - 0.5
+
+
 def decode_ssd(regressors, logits, anchors, size: int, min_score: float):
     """Boxes, keypoints and scores of a BlazeFace-style detector's outputs.
 
@@ -138,20 +160,11 @@ def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
 
 def _run(net, image: np.ndarray, channel_order: str, min_score: float) -> list[FaceDetection]:
     """:func:`detect_faces` with the network given and the arguments checked."""
-    h, w = image.shape[:2]
-    # letterbox: scale the longer side to 128 and centre; continuous coordinates map as
-    # square = s * image + t, and pixel indices as square_i = s * image_i + t + (s - 1) / 2
-    s = _SIZE / max(h, w)
-    t = (_SIZE - s * np.array([w, h])) / 2
-    square_to_image = np.array([[1 / s, 0, -(t[0] + (s - 1) / 2) / s],
-                                [0, 1 / s, -(t[1] + (s - 1) / 2) / s]])
-    square = sample(image, square_to_image, _SIZE, channel_order, border=cv2.BORDER_CONSTANT)
+    square, to_image = letterbox(image, _SIZE, channel_order)
     x = square[None].astype(np.float32) / 127.5 - 1
     scores_logit, regressors = net.run(x)   # 'classificators', 'regressors' (name order)
     faces = []
     for box, kp, score in decode_ssd(regressors, scores_logit, _ANCHORS, _SIZE, min_score):
-        # pixel-index coordinates (pixel centres on integers), OpenCV's convention
-        to_image = lambda p: (p * _SIZE - t) / s - 0.5  # noqa: E731
         box = to_image(box.reshape(2, 2)).ravel()
         faces.append(FaceDetection(tuple(float(v) for v in box), to_image(kp),
                                    float(score)))

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from trackers.landmarks._image import check_image, sample
-from trackers.landmarks.detection import decode_ssd, ssd_anchors
+from trackers.landmarks.detection import decode_ssd, letterbox, ssd_anchors
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
@@ -97,20 +97,13 @@ def hand_roi_transform(points) -> np.ndarray:
 
 
 def _detect(net, image: np.ndarray, channel_order: str, min_score: float):
-    h, w = image.shape[:2]
-    s = _PALM_SIZE / max(h, w)
-    t = (_PALM_SIZE - s * np.array([w, h])) / 2
-    square_to_image = np.array([[1 / s, 0, -(t[0] + (s - 1) / 2) / s],
-                                [0, 1 / s, -(t[1] + (s - 1) / 2) / s]])
-    square = sample(image, square_to_image, _PALM_SIZE, channel_order,
-                    border=cv2.BORDER_CONSTANT)
+    square, to_image = letterbox(image, _PALM_SIZE, channel_order)
     x = net.input_buffer((1, _PALM_SIZE, _PALM_SIZE, 3))
     np.divide(square, np.float32(255), out=x[0])
     regressors, logits = net.run(x)   # 'Identity', 'Identity_1'
     palms = []
     for box, kp, score in decode_ssd(regressors, logits, _PALM_ANCHORS, _PALM_SIZE,
                                      min_score):
-        to_image = lambda p: (p * _PALM_SIZE - t) / s - 0.5  # noqa: E731
         box = to_image(box.reshape(2, 2)).ravel()
         palms.append(PalmDetection(tuple(float(v) for v in box), to_image(kp), float(score)))
     return palms
