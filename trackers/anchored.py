@@ -150,10 +150,15 @@ HAND_MEMORY = 5
 
 #: A followed hand's landmarks are read on every this many frames; the frames between
 #: take the last ones (a hand moves a few pixels a frame; the cover's margin takes that).
-#: On ``WolfgangLanger_Pexels.mp4`` the hand's frames lost stayed at 168 of 169 (enlarged 3
-#: times 165 instead of 158, turned 161 instead of 163) with half the hand model's time; on
-#: every third frame two frames of the laugh were lost too.
+#: Where the edges alone covered the lower face on the last frame (:data:`OCCLUSION_WITNESSES`,
+#: :data:`OCCLUSION_HOLD`), on every :data:`HAND_EVERY_COVERED`: the hand is then only kept
+#: in sight. On ``WolfgangLanger_Pexels.mp4`` (a hand over the mouth for 169 frames, as given /
+#: enlarged 3 times / turned by 20 degrees / mirrored) the hand's frames lost were 168 / 158 /
+#: 163 / 168 reading every frame (177 reads as given), 168 / 165 / 161 / 168 every second
+#: (88), 168 / 161 / 161 / 167 with every sixth where covered (30); every third frame lost
+#: two frames of the laugh too.
 HAND_EVERY = 2
+HAND_EVERY_COVERED = 6
 
 #: After the palm detector found no hand, it looks again only this many frames later (the
 #: edges that call for it stay deep for a while without a hand). On cap12 and cap13 it ran
@@ -334,6 +339,7 @@ class AnchoredTracker:
         self.occlusion = bool(occlusion)
         self.hand_tracker = None
         self._hand_pool: ThreadPoolExecutor | None = None
+        self._edges_covered = False   # the last frame's edges covered the lower face
         self._hand_age = 0          # frames since a followed hand's landmarks were read
         self._since_palm = HAND_RETRY   # frames since the palm detector last found nothing
         if hands:
@@ -428,7 +434,10 @@ class AnchoredTracker:
         following = None   # this frame's followed hands: a list, or a future of one
         if lm is not None and self.hand_tracker is not None and self.hand_tracker.hands:
             self._hand_age += 1
-            if self._hand_age < HAND_EVERY:
+            # where the edges covered the lower face on the last frame, the hand only
+            # has to be kept in sight
+            every = HAND_EVERY_COVERED if self._edges_covered else HAND_EVERY
+            if self._hand_age < every:
                 following = list(self.hand_tracker.hands)
             elif self.prefetch:
                 # a followed hand's points on this frame depend only on its last ones:
@@ -528,6 +537,7 @@ class AnchoredTracker:
             all(not quality[n].lost and quality[n].depth > d
                 for n, d in OCCLUSION_WITNESSES.items())
             or chin_alone or self._covered and chin > OCCLUSION_HOLD)
+        self._edges_covered = covered
         # a covered lower face stays covered while its edges stay deep, on frames where
         # the hand's landmarks or the palm detector lose the hand for a moment
         covered = covered or bool(under_hand & set(_LIPS)) or self._covered and deepened
