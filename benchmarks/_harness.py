@@ -92,3 +92,46 @@ def emit(name: str, figures: list[Figure]) -> None:
     print()
     for f in figures:
         print(json.dumps(f.as_json()))
+
+
+#: Copies of a clip as other cameras would give it (``altered_copies``).
+ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey")
+
+
+def altered_copies(path, folder, labels=ALTERATIONS):
+    """Yield ``(label, copy)``: the video ``path`` enlarged 3 times (bicubic), halved (area
+    mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right
+    or in grey, each written in turn to ``folder/altered.avi`` (MJPEG: one copy on disk at a
+    time, overwritten by the next)."""
+    from pathlib import Path
+
+    import cv2
+
+    def turned(f):
+        h, w = f.shape[:2]
+        m = cv2.getRotationMatrix2D((w / 2, h / 2), 20, 1.0)
+        return cv2.warpAffine(f, m, (w, h), borderMode=cv2.BORDER_REFLECT)
+
+    alter = {"enlarged 3x": lambda f: cv2.resize(f, None, fx=3, fy=3,
+                                                  interpolation=cv2.INTER_CUBIC),
+             "halved": lambda f: cv2.resize(f, None, fx=0.5, fy=0.5,
+                                            interpolation=cv2.INTER_AREA),
+             "turned 20 degrees": turned, "mirrored": lambda f: cv2.flip(f, 1),
+             "grey": lambda f: cv2.cvtColor(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY),
+                                            cv2.COLOR_GRAY2BGR)}
+    dst = Path(folder) / "altered.avi"
+    for label in labels:
+        cap = cv2.VideoCapture(str(path))
+        fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+        out = None
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frame = alter[label](frame)
+            if out is None:
+                out = cv2.VideoWriter(str(dst), cv2.VideoWriter_fourcc(*"MJPG"), fps,
+                                      (frame.shape[1], frame.shape[0]))
+            out.write(frame)
+        out.release()
+        yield label, dst

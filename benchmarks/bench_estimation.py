@@ -27,6 +27,8 @@ landmark tracker (``../shared/data``; each part skips cleanly when its data is a
   rising or falling by over 0.15 and going back on the next frame) and the jitter (the mean
   of |c(t) - (c(t-1) + c(t+1)) / 2|), beside the same fit with every frame on its own
   (``temporal=0``) as the peer.
+* cap12 as given against copies as other cameras would give it (enlarged, halved, turned,
+  mirrored, grey): how far the muscles' series move (:func:`altered`).
 """
 
 from __future__ import annotations
@@ -299,10 +301,57 @@ def clips(quick: bool = False) -> list[Figure]:
     return figs
 
 
+def _mirrored(name: str) -> str:
+    """The control on the other side of the face (itself where it has no side)."""
+    side = {"_l": "_r", "_r": "_l"}.get(name[-2:])
+    return name[:-2] + side if side else name
+
+
+def altered(quick: bool = False) -> list[Figure]:
+    """cap12 analysed as given and as copies other cameras would give (enlarged 3 times,
+    halved, turned by 20 degrees, mirrored, in grey): how far each muscle's series moves,
+    over the frames tracked in both (the mirrored copy's left muscles against the clip's
+    right). Per copy: the median over the muscles of the mean |difference|, and the median
+    Pearson r over the muscles that move (standard deviation over 0.02 in both)."""
+    from _harness import ALTERATIONS, altered_copies
+
+    from faceanalysis.analysis.pipeline import analyze
+    from faceanalysis.io.table import MUSCLES
+
+    path = REAL / CLIPS[0]
+    if not path.is_file():
+        print(f"# {path} is absent: altered-copy figures skipped")
+        return []
+    cols = list(MUSCLES)
+    given = analyze(path).table
+    figs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, copy in altered_copies(path, tmp, ALTERATIONS[:1] if quick else ALTERATIONS):
+            table = analyze(copy).table
+            ok = ((given["success"] == 1) & (table["success"] == 1)).to_numpy()
+            x = given.loc[ok, cols].to_numpy(float)
+            y = table.loc[ok, [_mirrored(c) if label == "mirrored" else c for c in cols]] \
+                .to_numpy(float)
+            moving = (np.nanstd(x, axis=0) > 0.02) & (np.nanstd(y, axis=0) > 0.02)
+            r = [np.corrcoef(x[:, k], y[:, k])[0, 1] for k in np.flatnonzero(moving)]
+            case = f"{path.name} {label} vs as given, mesh"
+            figs.append(_fig(case, "frames tracked in both", ok.sum(), f"of {len(ok)}", True))
+            figs.append(_fig(case, "median over the muscles of the mean |difference|",
+                             np.median(np.nanmean(np.abs(x - y), axis=0)), "", False))
+            figs.append(_fig(case, "median Pearson r over the muscles that move",
+                             np.median(r) if r else np.nan, f"({len(r)} muscles)", True))
+            for muscle in ("frontalis_major", "zygomaticus_major", "corrugator"):
+                k = [cols.index(f"{muscle}_l"), cols.index(f"{muscle}_r")]
+                figs.append(_fig(case, f"Pearson r, {muscle.replace('_', ' ')} (both sides' "
+                                 "mean)", np.corrcoef(x[:, k].mean(1), y[:, k].mean(1))[0, 1],
+                                 "", True))
+    return figs
+
+
 def run(quick: bool = False) -> list[Figure]:
     logging.disable(logging.WARNING)
     try:
-        return imm(quick) + clips(quick)
+        return imm(quick) + clips(quick) + altered(quick)
     finally:
         logging.disable(logging.NOTSET)
 

@@ -310,45 +310,21 @@ def real_clips(quick=False):
 
 def _hand_clip_altered(path, quick):
     """The hand over the mouth on copies of the clip as other cameras would give it:
-    enlarged 3 times (1920x1080, tracked shrunk), halved, turned by 20 degrees, mirrored.
-    How deep the covered contours' edges are relative to the first frame depends on these;
-    the hand's own detector does not."""
+    enlarged 3 times (1920x1080, tracked shrunk), halved, turned by 20 degrees, mirrored,
+    in grey. How deep the covered contours' edges are relative to the first frame depends
+    on these; the hand's own detector does not (except on grey, where it finds none)."""
     import tempfile
 
-    import cv2
+    from _harness import ALTERATIONS, altered_copies
 
     from faceanalysis.tracking import track
 
-    def turned(f):
-        h, w = f.shape[:2]
-        m = cv2.getRotationMatrix2D((w / 2, h / 2), 20, 1.0)
-        return cv2.warpAffine(f, m, (w, h), borderMode=cv2.BORDER_REFLECT)
-
-    alter = {"enlarged 3x": lambda f: cv2.resize(f, None, fx=3, fy=3,
-                                                  interpolation=cv2.INTER_CUBIC),
-             "halved": lambda f: cv2.resize(f, None, fx=0.5, fy=0.5,
-                                            interpolation=cv2.INTER_AREA),
-             "turned 20 degrees": turned, "mirrored": lambda f: cv2.flip(f, 1)}
-    if quick:
-        alter = {k: alter[k] for k in ("enlarged 3x",)}
     lo, hi = HAND_OVER_MOUTH
     figs = []
     with tempfile.TemporaryDirectory() as tmp:
-        for label, fn in alter.items():
-            cap = cv2.VideoCapture(str(path))
-            out = None
-            dst = Path(tmp) / "altered.avi"
-            while True:
-                ok, frame = cap.read()
-                if not ok:
-                    break
-                frame = fn(frame)
-                if out is None:
-                    out = cv2.VideoWriter(str(dst), cv2.VideoWriter_fourcc(*"MJPG"), 25,
-                                          (frame.shape[1], frame.shape[0]))
-                out.write(frame)
-            out.release()
-            tr = track(dst, tracker="landmarks")
+        labels = ALTERATIONS[:1] if quick else ALTERATIONS
+        for label, copy in altered_copies(path, tmp, labels):
+            tr = track(copy, tracker="landmarks")
             case = f"{path.name}, {label}"
             figs.append(_fig(case, f"frames {lo}-{hi - 1} (a hand over the mouth) marked lost",
                              (~tr.success[lo:hi]).sum(), f"of {hi - lo}", True, hi - lo))
