@@ -123,11 +123,11 @@ _LIPS = ("upper_lip", "lower_lip")
 #: :data:`HAND_GATE_FLOOR` times the upper lip's (the chin boss has no outline: its own
 #: first depth is noise, 0.12-2.3 intensity units on ``WolfgangLanger_Pexels.mp4`` as
 #: given, shrunk, enlarged or turned, against 13.5-17 for the upper lip). A hand found is
-#: then followed by its own landmarks on every frame until it leaves. On that clip (hand over
-#: the mouth on frames 59-227) as given, enlarged 3 times, halved, flipped, in grey and
-#: turned by 20 degrees, the cue first fires on frame 60 and on 145-162 of the 169 covered
-#: frames, and on 0-26 of the 303 others; on cap12 it fires on 131 of 1337 frames (a hand
-#: holds the chin on about 100), on cap13 on 23 of 765.
+#: then followed by its own landmarks (:data:`HAND_EVERY`) until it leaves. On that clip
+#: (hand over the mouth on frames 59-227) as given, enlarged 3 times, halved, flipped, in
+#: grey and turned by 20 degrees, the cue first fires on frame 60 and on 145-162 of the 169
+#: covered frames, and on 0-26 of the 303 others; on cap12 it fires on 131 of 1337 frames
+#: (a hand holds the chin on about 100), on cap13 on 23 of 765.
 HAND_GATE = 2.0
 HAND_GATE_FLOOR = 0.2
 
@@ -556,7 +556,8 @@ class AnchoredTracker:
     def _hands(self, frame, quality, iod: float, first: bool, following=None):
         """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
         the lower face's edges deepened (:data:`HAND_GATE`). ``following``: the followed
-        hands' points on this frame, being read in a thread."""
+        hands' points on this frame (a list: the last frame's, kept; a future: being read
+        in a thread), or None (nothing followed, or to be read here)."""
         if self.hand_tracker is None:
             return [], set(), False
         ref = self.tracker.ref_depth
