@@ -307,6 +307,18 @@ def _mirrored(name: str) -> str:
     return name[:-2] + side if side else name
 
 
+def _agreement(given, table, cols, mirrored: bool):
+    """The muscles' series of ``given`` and ``table`` (the latter's mirrored partners where
+    ``mirrored``) over the frames tracked in both, and each moving muscle's Pearson r
+    (standard deviation over 0.02 in both)."""
+    ok = ((given["success"] == 1) & (table["success"] == 1)).to_numpy()
+    x = given.loc[ok, cols].to_numpy(float)
+    y = table.loc[ok, [_mirrored(c) if mirrored else c for c in cols]].to_numpy(float)
+    moving = (np.nanstd(x, axis=0) > 0.02) & (np.nanstd(y, axis=0) > 0.02)
+    r = {cols[k]: float(np.corrcoef(x[:, k], y[:, k])[0, 1]) for k in np.flatnonzero(moving)}
+    return ok, x, y, r
+
+
 def altered(quick: bool = False) -> list[Figure]:
     """cap12 analysed as given and as copies other cameras would give (enlarged 3 times,
     halved, turned by 20 degrees, mirrored, in grey): how far each muscle's series moves,
@@ -323,35 +335,35 @@ def altered(quick: bool = False) -> list[Figure]:
         print(f"# {path} is absent: altered-copy figures skipped")
         return []
     cols = list(MUSCLES)
-    given = analyze(path).table
+    given = analyze(path)
+    known = {}
     figs = []
     with tempfile.TemporaryDirectory() as tmp:
         for label, copy in altered_copies(path, tmp, ALTERATIONS[:1] if quick else ALTERATIONS):
             table = analyze(copy).table
-            ok = ((given["success"] == 1) & (table["success"] == 1)).to_numpy()
-            x = given.loc[ok, cols].to_numpy(float)
-            y = table.loc[ok, [_mirrored(c) if label == "mirrored" else c for c in cols]] \
-                .to_numpy(float)
-            moving = (np.nanstd(x, axis=0) > 0.02) & (np.nanstd(y, axis=0) > 0.02)
-            r = [np.corrcoef(x[:, k], y[:, k])[0, 1] for k in np.flatnonzero(moving)]
+            if label == "mirrored":
+                known[path.name] = (given, table)
+            ok, x, y, r = _agreement(given.table, table, cols, label == "mirrored")
             case = f"{path.name} {label} vs as given, mesh"
             figs.append(_fig(case, "frames tracked in both", ok.sum(), f"of {len(ok)}", True))
             figs.append(_fig(case, "median over the muscles of the mean |difference|",
                              np.median(np.nanmean(np.abs(x - y), axis=0)), "", False))
             figs.append(_fig(case, "median Pearson r over the muscles that move",
-                             np.median(r) if r else np.nan, f"({len(r)} muscles)", True))
+                             np.median(list(r.values())) if r else np.nan,
+                             f"({len(r)} muscles)", True))
             for muscle in ("frontalis_major", "zygomaticus_major", "corrugator"):
                 k = [cols.index(f"{muscle}_l"), cols.index(f"{muscle}_r")]
                 figs.append(_fig(case, f"Pearson r, {muscle.replace('_', ' ')} (both sides' "
                                  "mean)", np.corrcoef(x[:, k].mean(1), y[:, k].mean(1))[0, 1],
                                  "", True))
-    return figs + ([] if quick else _mirror_reproduction(cols))
+    return figs + ([] if quick else _mirror_reproduction(cols, known))
 
 
-def _mirror_reproduction(cols) -> list[Figure]:
+def _mirror_reproduction(cols, known) -> list[Figure]:
     """Per clip, the controls that move (sd over 0.02 in both) but do not come back on the
     mirrored copy (r below 0.5 against their mirrored partner), and how many of those the
-    clip's own identifiability flags: a check the analysis does not make."""
+    clip's own identifiability flags: a check the analysis does not make. ``known``: clip
+    name -> (its analysis, its mirrored copy's table), where already made."""
     from _harness import altered_copies
 
     from faceanalysis.analysis.pipeline import analyze
@@ -361,24 +373,21 @@ def _mirror_reproduction(cols) -> list[Figure]:
         path = REAL / name
         if not path.is_file():
             continue
-        given = analyze(path)
+        if name in known:
+            given, table = known[name]
+        else:
+            given = analyze(path)
+            with tempfile.TemporaryDirectory() as tmp:
+                (_, copy), = altered_copies(path, tmp, ("mirrored",))
+                table = analyze(copy).table
         flagged = set(given.metadata["identifiability"]["not_identifiable"])
-        with tempfile.TemporaryDirectory() as tmp:
-            (_, copy), = altered_copies(path, tmp, ("mirrored",))
-            table = analyze(copy).table
-        ok = ((given.table["success"] == 1) & (table["success"] == 1)).to_numpy()
-        lost = []
-        for c in cols:
-            x = given.table.loc[ok, c].to_numpy(float)
-            y = table.loc[ok, _mirrored(c)].to_numpy(float)
-            if np.nanstd(x) > 0.02 and np.nanstd(y) > 0.02 and np.corrcoef(x, y)[0, 1] < 0.5:
-                lost.append(c)
-        figs.append(_fig(f"{name} mirrored vs as given, mesh", "moving controls not "
-                         "reproduced (r < 0.5)", len(lost), "", False, controls=lost,
-                         flagged=[c for c in lost if c in flagged]))
-        figs.append(_fig(f"{name} mirrored vs as given, mesh", "of those, flagged not "
-                         "identifiable by the analysis", sum(c in flagged for c in lost), "",
-                         True))
+        _, _, _, r = _agreement(given.table, table, cols, mirrored=True)
+        lost = [c for c, v in r.items() if v < 0.5]
+        case = f"{name} mirrored vs as given, mesh"
+        figs.append(_fig(case, "moving controls not reproduced (r < 0.5)", len(lost), "",
+                         False, controls=lost, flagged=[c for c in lost if c in flagged]))
+        figs.append(_fig(case, "of those, flagged not identifiable by the analysis",
+                         sum(c in flagged for c in lost), "", True))
     return figs
 
 

@@ -210,6 +210,7 @@ class HandTracker:
         self.max_hands = int(max_hands)
         self.min_presence = float(min_presence)
         self.hands: list[np.ndarray] = []
+        self._models = None
 
     def reset(self) -> None:
         """Forget the followed hands."""
@@ -217,18 +218,25 @@ class HandTracker:
 
     def track(self, frame, *, detect: bool = True) -> list[np.ndarray]:
         """The (21, 2) points of each hand on ``frame`` (an empty list: none)."""
+        if not self.hands and not detect:
+            return []                   # nothing followed, nothing to look for
         image = check_image(frame, self.channel_order)
-        paths = ensure_models()
-        hand_net = load_network(paths["hand_landmark"], runtime=self.runtime)
+        hand_net = self._net("hand_landmark")
         hands = self._read(image, hand_net, [hand_roi_transform(p) for p in self.hands])
         if not hands and detect:
             # nothing followed, or every followed hand lost on this frame
-            palm_net = load_network(paths["palm_detection"], runtime=self.runtime)
-            palms = _detect(palm_net, image, self.channel_order, 0.5)
+            palms = _detect(self._net("palm_detection"), image, self.channel_order, 0.5)
             hands = self._read(image, hand_net,
                                [palm_roi_transform(p) for p in palms[:self.max_hands]])
         self.hands = hands
         return list(hands)
+
+    def _net(self, name):
+        # as LandmarkTracker's: the files are checked once per tracker, the networks are
+        # cached per thread by load_network
+        if self._models is None:
+            self._models = ensure_models()
+        return load_network(self._models[name], runtime=self.runtime)
 
     def _read(self, image, net, crops) -> list[np.ndarray]:
         hands = []
