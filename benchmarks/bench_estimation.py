@@ -28,7 +28,12 @@ landmark tracker (``../shared/data``; each part skips cleanly when its data is a
   of |c(t) - (c(t-1) + c(t+1)) / 2|), beside the same fit with every frame on its own
   (``temporal=0``) as the peer.
 * cap12 as given against copies as other cameras would give it (enlarged, halved, turned,
-  mirrored, grey): how far the muscles' series move (:func:`altered`).
+  mirrored, grey): how far the muscles' series move (:func:`altered`); and on each clip,
+  the controls a mirrored copy does not reproduce, against what the analysis's mirror
+  check (``mirror_check=True``) flags (:func:`_mirror_reproduction`). The IMM pairs of
+  types 5 and 2 are analysed with the mirror check too: how many side-lit neutrals have
+  no muscle over 0.1 among those the table reports measured, and how often the smile's
+  zygomaticus major is flagged.
 """
 
 from __future__ import annotations
@@ -162,14 +167,22 @@ def imm(quick: bool = False) -> list[Figure]:
     with tempfile.TemporaryDirectory() as tmp:
         for person in people:
             for second in (5, 2, 3, 4):
+                # (the mirror check flags; it changes no value)
                 base = analyze(_pair(Path(tmp), person, second), fps=1.0, neutral=0,
-                               tracker="landmarks", estimator="joint")
+                               tracker="landmarks", estimator="joint",
+                               mirror_check=second in (5, 2))
                 if second in (5, 2):
                     hand[person, second] = _hand_fit(base, person, second)
                 for est in ESTIMATORS:
                     t = (base if est == "joint" else reestimate(base, est)).table
+                    flags = t[[f"{m}_identifiable" for m in MUSCLES]].iloc[1].to_numpy()
                     rows[est][person, second] = {
                         "max": float(t[list(MUSCLES)].iloc[1].max()),
+                        # the largest muscle the table reports as measured
+                        "measured_max": float(np.max(np.r_[0.0, t[list(MUSCLES)].iloc[1]
+                                                           .to_numpy()[flags == 1]])),
+                        "zyg_flagged": int(sum(t[f"zygomaticus_major_{s}_identifiable"]
+                                               .iloc[1] == 0 for s in "lr")),
                         "zyg": [float((t["zygomaticus_major_l"] + t["zygomaticus_major_r"])
                                       .iloc[i] / 2) for i in (0, 1)],
                         "au12": [float(t["AU12_r"].iloc[i]) for i in (0, 1)],
@@ -212,6 +225,15 @@ def imm(quick: bool = False) -> list[Figure]:
                              f"of {n}", True, 18 if target else None))
             figs.append(_fig(case, "side-lit neutral: median largest muscle",
                              np.median(rest), "", False))
+            if est != "fused":      # (no mirror check: it reads the frames again)
+                measured = np.array([r[p, 5]["measured_max"] for p in group])
+                figs.append(_fig(case, "side-lit neutral, mirror check: every muscle the "
+                                 "table reports measured <= 0.1", (measured <= 0.1).sum(),
+                                 f"of {n}", True))
+                figs.append(_fig(case, "smile, mirror check: zygomaticus major sides "
+                                 "flagged not measured", sum(r[p, 2]["zyg_flagged"]
+                                                             for p in group),
+                                 f"of {2 * n}", False))
             for second, side in ((3, "right"), (4, "left")):
                 # a neutral face turned about 30 degrees: the head's motion, not the face's
                 turned = np.array([r[p, second]["max"] for p in group])
@@ -301,19 +323,15 @@ def clips(quick: bool = False) -> list[Figure]:
     return figs
 
 
-def _mirrored(name: str) -> str:
-    """The control on the other side of the face (itself where it has no side)."""
-    side = {"_l": "_r", "_r": "_l"}.get(name[-2:])
-    return name[:-2] + side if side else name
-
-
 def _agreement(given, table, cols, mirrored: bool):
     """The muscles' series of ``given`` and ``table`` (the latter's mirrored partners where
     ``mirrored``) over the frames tracked in both, and each moving muscle's Pearson r
     (standard deviation over 0.02 in both)."""
+    from faceanalysis.estimation.identifiability import mirror_partner
+
     ok = ((given["success"] == 1) & (table["success"] == 1)).to_numpy()
     x = given.loc[ok, cols].to_numpy(float)
-    y = table.loc[ok, [_mirrored(c) if mirrored else c for c in cols]].to_numpy(float)
+    y = table.loc[ok, [mirror_partner(c) if mirrored else c for c in cols]].to_numpy(float)
     moving = (np.nanstd(x, axis=0) > 0.02) & (np.nanstd(y, axis=0) > 0.02)
     r = {cols[k]: float(np.corrcoef(x[:, k], y[:, k])[0, 1]) for k in np.flatnonzero(moving)}
     return ok, x, y, r
@@ -335,7 +353,8 @@ def altered(quick: bool = False) -> list[Figure]:
         print(f"# {path} is absent: altered-copy figures skipped")
         return []
     cols = list(MUSCLES)
-    given = analyze(path)
+    # (the mirror check flags; the values are those of a plain analysis)
+    given = analyze(path, mirror_check=not quick)
     known = {}
     figs = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -360,10 +379,12 @@ def altered(quick: bool = False) -> list[Figure]:
 
 
 def _mirror_reproduction(cols, known) -> list[Figure]:
-    """Per clip, the controls that move (sd over 0.02 in both) but do not come back on the
-    mirrored copy (r below 0.5 against their mirrored partner), and how many of those the
-    clip's own identifiability flags: a check the analysis does not make. ``known``: clip
-    name -> (its analysis, its mirrored copy's table), where already made."""
+    """Per clip, the controls that move (sd over 0.02 in both) but do not come back on a
+    mirrored copy of the file (r below 0.5 against their mirrored partner), and how many of
+    those the analysis flags not identifiable, without and with its own mirror check
+    (``mirror_check=True``, which mirrors the frames as they are decoded); the check's
+    time beside the analysis's. ``known``: clip name -> (its analysis with the check, its
+    mirrored copy's table), where already made."""
     from _harness import altered_copies
 
     from faceanalysis.analysis.pipeline import analyze
@@ -376,18 +397,31 @@ def _mirror_reproduction(cols, known) -> list[Figure]:
         if name in known:
             given, table = known[name]
         else:
-            given = analyze(path)
+            given = analyze(path, mirror_check=True)
             with tempfile.TemporaryDirectory() as tmp:
                 (_, copy), = altered_copies(path, tmp, ("mirrored",))
                 table = analyze(copy).table
-        flagged = set(given.metadata["identifiability"]["not_identifiable"])
+        ident = given.metadata["identifiability"]
+        flagged = set(ident["not_identifiable"])
+        # what the noise and the trades alone flag
+        without = {c for c, e in ident["controls"].items() if e["traded_with"]
+                   or e["rmse"] is None or e["rmse"] > ident["limit"]}
         _, _, _, r = _agreement(given.table, table, cols, mirrored=True)
         lost = [c for c, v in r.items() if v < 0.5]
-        case = f"{name} mirrored vs as given, mesh"
+        case = f"{name} mirrored copy vs as given, mesh"
         figs.append(_fig(case, "moving controls not reproduced (r < 0.5)", len(lost), "",
                          False, controls=lost, flagged=[c for c in lost if c in flagged]))
-        figs.append(_fig(case, "of those, flagged not identifiable by the analysis",
+        figs.append(_fig(case, "of those, flagged not identifiable without the mirror check",
+                         sum(c in without for c in lost), "", True))
+        figs.append(_fig(case, "of those, flagged not identifiable with the mirror check",
                          sum(c in flagged for c in lost), "", True))
+        figs.append(_fig(case, "controls the mirror check finds not reproduced",
+                         len(ident["mirror"]["not_reproduced"]), "of 26", False,
+                         controls=ident["mirror"]["not_reproduced"]))
+        t = given.timings
+        figs.append(_fig(case, "mirror check's time / the analysis's without it",
+                         t["mirror_check_s"] / (t["total_s"] - t["mirror_check_s"]), "x",
+                         False))
     return figs
 
 

@@ -18,7 +18,7 @@ import os
 import sys
 import time
 from contextlib import closing
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -269,6 +269,8 @@ class Tracks:
     timings : dict
         ``track_s`` (time in the tracker), ``cpu_s`` (CPU time of the process, all
         threads, over the tracking loop: decoding included) and ``frames``.
+    mirrored : bool
+        Whether the video was tracked mirrored (:func:`track`'s ``mirror``).
     """
 
     video: str
@@ -287,6 +289,7 @@ class Tracks:
     tracker: str = "snakes"
     landmarks: list | None = None
     timings: dict = field(default_factory=dict)
+    mirrored: bool = False
 
     def __post_init__(self):
         if self.pose is None:
@@ -355,7 +358,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
           tracker: str | None = None, tracker_options: dict | None = None,
           backend: str = "numpy", device: str | None = None, redetect: bool = False,
           overlay: str | os.PathLike | None = None, progress: bool = False,
-          keep_contours: bool = True) -> Tracks:
+          keep_contours: bool = True, mirror: bool = False) -> Tracks:
     """Track the face in a video: head frame, fiducials and measurement points per frame.
 
     Parameters
@@ -404,6 +407,11 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         Keep every frame's contours in :attr:`Tracks.contours` (a few kB a frame); False
         leaves None there, for callers that only read the measurements, whose memory then
         does not grow with the contours.
+    mirror : bool, keyword-only
+        Track the video mirrored left to right (each frame flipped before the tracker sees
+        it): every position is in the mirrored frame's pixels, and what is named ``_l`` is
+        the subject's right (the mirrored face's left). The analysis's reproducibility
+        check reads it (``analyze(..., mirror_check=True)``).
 
     Returns
     -------
@@ -457,7 +465,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     bar = progress_bar(source.n_frames, progress, "track")
     try:
         # decoding runs ahead in a thread; closing() stops it before the source closes
-        with source, closing(read_ahead(source)) as decoded:
+        # (frames are flipped in the decoding thread, not on the tracker's time)
+        with source, closing(read_ahead(_mirrored(source) if mirror else source)) as decoded:
             upcoming = next(decoded, None)
             while upcoming is not None:
                 frame = upcoming
@@ -540,11 +549,20 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
-                  pose=np.stack(poses), tracker=kind, landmarks=mesh,
+                  pose=np.stack(poses), tracker=kind, landmarks=mesh, mirrored=bool(mirror),
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames),
                                               "cpu_s": time.process_time() - c_start})
+
+
+def _mirrored(frames):
+    """``frames`` flipped left to right (undecoded frames as they are)."""
+    import cv2
+
+    for frame in frames:
+        yield (replace(frame, image=cv2.flip(frame.image, 1)) if frame.ok
+               and frame.image is not None else frame)
 
 
 def _mesh(res):

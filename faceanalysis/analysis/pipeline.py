@@ -24,13 +24,19 @@ from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
 from faceanalysis.estimation.estimators import check_temporal, fit_residual
-from faceanalysis.estimation.identifiability import assess
+from faceanalysis.estimation.identifiability import (
+    MIRROR_GAP,
+    MIRROR_R,
+    assess,
+    mirror_agreement,
+)
 from faceanalysis.estimation.pose import correct_pose, head_frame_points, rest_points_3d
 from faceanalysis.estimation.registry import (
     ESTIMATORS,
     MESH_ESTIMATORS,
     TEMPORAL,
     TEMPORAL_ESTIMATORS,
+    VIDEO_ESTIMATORS,
     Observations,
     run_estimator,
 )
@@ -98,7 +104,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
             pose_correction: bool = True, temporal: float | None = None,
-            overlay: str | os.PathLike | None = None, progress: bool = False) -> Analysis:
+            mirror_check: bool = False, overlay: str | os.PathLike | None = None,
+            progress: bool = False) -> Analysis:
     """Analyse a face video into muscle contractions.
 
     Parameters
@@ -168,6 +175,16 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         :func:`~faceanalysis.estimation.estimators.estimate_joint`); 0 fits every frame on
         its own, for frames that are not a sequence (a folder of unrelated photographs).
         Recorded in ``analysis.json`` (``parameters.temporal``).
+    mirror_check : bool, keyword-only
+        Track and estimate the video a second time mirrored left to right, and flag what
+        does not come back on it
+        (:func:`~faceanalysis.estimation.identifiability.mirror_agreement`): on a video,
+        a moving control whose series its mirrored partner's does not follow is not
+        identifiable; on fewer than
+        :data:`~faceanalysis.estimation.identifiability.MIRROR_FRAMES` frames (photographs),
+        a value its partner's differs from is flagged on its frame (``<control>_identifiable``
+        0). ``analysis.json`` reports it (``identifiability.mirror``). Doubles the tracking
+        time; not with the ``fused`` and ``flow`` estimators, which read the frames again.
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -195,6 +212,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     if refine and estimator != "joint":
         raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
+    if mirror_check and estimator in VIDEO_ESTIMATORS:
+        raise ValueError(f"mirror_check works with the "
+                         f"{', '.join(e for e in ESTIMATORS if e not in VIDEO_ESTIMATORS)} "
+                         f"estimators, not {estimator!r} (it reads the video's frames again)")
     est_options = _fit_options(estimator, refine, temporal)
     if estimator in MESH_ESTIMATORS:
         # they read the landmark tracker's face mesh
@@ -213,24 +234,32 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         response = model_response()
     if neutral is not None:
         _check_neutral_in_range(video, neutral, fps=fps, start=start, end=end)
-    tracks = track(video, points=response.fiducials, fps=fps, start=start, end=end,
-                   layout=layout, tracker=tracker, tracker_options=tracker_options,
-                   backend=backend,
-                   device=device, overlay=overlay, progress=progress)
+    track_options = {"points": response.fiducials, "fps": fps, "start": start, "end": end,
+                     "layout": layout, "tracker": tracker, "tracker_options": tracker_options,
+                     "backend": backend, "device": device, "progress": progress}
+    tracks = track(video, overlay=overlay, **track_options)
     if not tracks.success.any():
         raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
     if len(tracks) == 1:
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)
     k = _neutral_row(tracks, neutral)
-    meas, cal, calib = _calibrate(tracks, k, response, suspect_points, video)
-
+    fit_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
+                   "options": {"fps": fps, "start": start, "end": end}}
     t0, c0 = time.perf_counter(), time.process_time()
-    disp = cal.model_displacements(meas, tracks.heads)
-    disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
-    obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
-                       options={"fps": fps, "start": start, "end": end}, calibration=cal)
-    est = run_estimator(estimator, obs, **est_options)
+    meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
+                                                    est_options, video, **fit_options)
+    mirrored = check = None
+    t_estimate = time.perf_counter() - t0
+    c_estimate = time.process_time() - c0
+    if mirror_check:
+        t1 = time.perf_counter()
+        with _quiet_tracking():
+            mirrored = track(video, mirror=True, keep_contours=False, **track_options)
+        check = _mirror_check(est, mirrored, k, tracks, response, estimator, est_options,
+                              video, fit_options)
+        t_mirror = time.perf_counter() - t1
+    t0, c0 = time.perf_counter(), time.process_time()
 
     parameters = {
         "estimator": estimator, "fps": fps, "start": start, "end": end,
@@ -246,12 +275,15 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     }
     table = _tracking_table(tracks)
     parameters["measurement_points"] = list(est.response.fiducials)
+    parameters["mirror_check"] = bool(mirror_check)
+    parameters["suspect_points"] = suspect_points
     ident = _assess(est)
+    ident, unreproduced = _with_mirror(ident, check, tracks.frames)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         tracks.confidence, parameters, ident)
+                                         tracks.confidence, parameters, ident, unreproduced)
     # estimation: the fit, what the points can tell apart, the model's fit residual
-    t_estimate = time.perf_counter() - t0
-    c_estimate = time.process_time() - c0
+    t_estimate += time.perf_counter() - t0
+    c_estimate += time.process_time() - c0
     if fit["frames_over_limit"] > 0.1 * max(int(tracks.success.sum()), 1):
         log.warning("%s: on %d of %d tracked frames the face model does not explain the "
                     "tracked points (fit residual over %.2f cm, median %.2f; rendered faces "
@@ -275,9 +307,91 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
                "total_s": elapsed, "frames": len(tracks),
                "track_cpu_s": tracks.timings["cpu_s"], "estimate_cpu_s": c_estimate}
+    if mirror_check:
+        timings["mirror_check_s"] = t_mirror
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
-                    fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks)
+                    fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks,
+                    mirrored_tracks=mirrored)
+
+
+def _estimate(tracks: Tracks, k: int, response: FiducialResponse, estimator: str,
+              est_options: dict, video, *, suspect_points: str, pose_correction: bool,
+              options: dict, quiet: bool = False):
+    """Calibrate ``tracks`` on row ``k`` and run ``estimator``: the measurements, the
+    calibration, its ``analysis.json`` section, whether the pose correction was applied,
+    and the :class:`~faceanalysis.estimation.registry.Estimate`."""
+    meas, cal, calib = _calibrate(tracks, k, response, suspect_points, video, quiet=quiet)
+    disp = cal.model_displacements(meas, tracks.heads)
+    disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
+    obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
+                       options=options, calibration=cal)
+    return meas, cal, calib, pose_applied, run_estimator(estimator, obs, **est_options)
+
+
+class _quiet_tracking:
+    """Within it, the tracking's and the decoder's warnings are not logged: the mirror
+    check's second pass over the video would repeat the first pass's."""
+
+    _names = ("faceanalysis.tracking", "faceanalysis.io.video")
+
+    def filter(self, record) -> bool:
+        return record.levelno > logging.WARNING
+
+    def __enter__(self):
+        for name in self._names:
+            logging.getLogger(name).addFilter(self)
+        return self
+
+    def __exit__(self, *exc):
+        for name in self._names:
+            logging.getLogger(name).removeFilter(self)
+        return False
+
+
+def _mirror_check(est, mirrored: Tracks, k: int, tracks: Tracks, response: FiducialResponse,
+                  estimator: str, est_options: dict, video, fit_options: dict) -> dict:
+    """:func:`~faceanalysis.estimation.identifiability.mirror_agreement` of ``est`` with the
+    same estimator on ``mirrored`` (the video tracked mirrored), calibrated on the same
+    frame. Where that frame was not tracked in the mirrored video, nothing is compared and
+    the result says why (``skipped``)."""
+    rows = np.flatnonzero(mirrored.frames == tracks.frames[k])
+    if len(mirrored) != len(tracks) or not rows.size or not mirrored.success[rows[0]]:
+        return {"frames": 0, "rule": None, "controls": {}, "not_reproduced": [],
+                "mask": None, "skipped": f"the neutral frame {int(tracks.frames[k])} was "
+                                         "not tracked in the mirrored video"}
+    *_, mest = _estimate(mirrored, int(rows[0]), response, estimator, est_options, video,
+                         quiet=True, **fit_options)
+    return mirror_agreement(_response_array(est.values, est.response),
+                            _response_array(mest.values, est.response),
+                            est.response.muscles, upper=est.response.upper)
+
+
+def _with_mirror(ident: dict, check: dict | None, frames: np.ndarray):
+    """``ident`` with the mirror check's section (``mirror``) and, by the series rule, its
+    not reproduced controls not identifiable; and the per-frame mask of the values not
+    reproduced (None without a check)."""
+    if check is None:
+        return ident, None
+    ident = {**ident, "controls": {n: dict(e) for n, e in ident["controls"].items()}}
+    section = {"frames": check["frames"], "rule": check["rule"],
+               "not_reproduced": list(check["not_reproduced"])}
+    if "skipped" in check:
+        section["skipped"] = check["skipped"]
+    elif check["rule"] == "series":
+        section.update(min_r=MIRROR_R, controls=check["controls"])
+        for name in check["not_reproduced"]:
+            ident["controls"][name]["identifiable"] = False
+    else:
+        mask = check["mask"]
+        section["frames_not_reproduced"] = {
+            n: [int(f) for f in frames[mask[:, j]]]
+            for j, n in enumerate(check["controls"]) if mask[:, j].any()}
+    for name, entry in ident["controls"].items():
+        entry["mirror_reproduced"] = check["controls"].get(name, {}).get("reproduced")
+    ident["mirror"] = section
+    ident["not_identifiable"] = [n for n, e in ident["controls"].items() if not e["identifiable"]]
+    return ident, check["mask"] if check["rule"] == "frames" else None
 
 
 def _response_array(values: pd.DataFrame, response: FiducialResponse) -> np.ndarray:
@@ -296,14 +410,34 @@ def _assess(est) -> dict:
 
 
 def _warn_identifiability(video, ident: dict) -> None:
-    """One warning for the controls the noise hides, one for those that trade places."""
-    traded = {n for p in ident.get("traded", []) for n in p["controls"]}
-    noisy = [n for n in ident["not_identifiable"] if n not in traded]
+    """One warning for the controls the noise hides, one for those the mirror check finds
+    not reproduced, one for those that trade places."""
+    elsewhere = {n for p in ident.get("traded", []) for n in p["controls"]}
+    mirror = ident.get("mirror")
+    if mirror and mirror.get("rule") == "series":
+        # named in the mirror's warning, unless the noise hides them too
+        elsewhere |= {n for n in mirror["not_reproduced"]
+                      if (ident["controls"][n]["rmse"] or np.inf) <= ident["limit"]}
+    noisy = [n for n in ident["not_identifiable"] if n not in elsewhere]
     if noisy:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
                     "%s from the other controls: their values lean on the prior that "
                     "muscles rest (analysis.json: identifiability)", video, ident["noise_cm"],
                     ident["noise_source"], ", ".join(noisy))
+    if mirror and mirror.get("skipped"):
+        log.warning("%s: mirror check skipped: %s", video, mirror["skipped"])
+    elif mirror and mirror["rule"] == "series" and mirror["not_reproduced"]:
+        log.warning("%s: analysed mirrored, %s do%s not come back (their series and their "
+                    "mirrored partners' correlate under r = %.1f): flagged 0 in "
+                    "<control>_identifiable (analysis.json: identifiability.mirror)", video,
+                    ", ".join(mirror["not_reproduced"]),
+                    "es" if len(mirror["not_reproduced"]) == 1 else "", MIRROR_R)
+    elif mirror and mirror.get("frames_not_reproduced"):
+        log.warning("%s: analysed mirrored, %s differ%s from the mirrored partner's value on "
+                    "some frames (by over %.1f of the range and half the larger): flagged 0 "
+                    "in <control>_identifiable there (analysis.json: identifiability.mirror)",
+                    video, ", ".join(mirror["frames_not_reproduced"]),
+                    "s" if len(mirror["frames_not_reproduced"]) == 1 else "", MIRROR_GAP)
     if ident.get("traded"):
         pairs = ", ".join(f"{a} / {b} ({r:.2f})" for (a, b), r in
                           ((p["controls"], p["correlation"]) for p in ident["traded"]))
@@ -383,7 +517,7 @@ def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
 
 
 def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_points: str,
-               video):
+               video, *, quiet: bool = False):
     """Measurements the estimators may read, the calibration, and its ``analysis.json``
     section. Suspect points (:func:`~faceanalysis.estimation.calibration.find_suspect`)
     are left out with ``suspect_points='exclude'``; faded furrow ends always are."""
@@ -409,7 +543,7 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
              & np.isfinite(meas).all(axis=2))
     if faded.any():
         meas = np.where(faded[..., None], np.nan, meas)
-    if suspect:
+    if suspect and not quiet:
         log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
                     "where the face model puts %s (a contour on the wrong feature?); %s. "
                     "Check the overlay (--overlay), or give another --neutral frame%s",
@@ -493,14 +627,16 @@ def _tracking_table(tracks: Tracks) -> pd.DataFrame:
 
 def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
                   response: FiducialResponse, track_conf: np.ndarray, parameters: dict,
-                  ident: dict):
+                  ident: dict, unreproduced: np.ndarray | None = None):
     """``table`` with the estimate's controls, its confidence, AU and identifiability
     columns; the per-frame fit residual and its summary. ``parameters`` gains the
     estimated and resting controls.
 
     A frame's value of a control is flagged measured (``<control>_identifiable``) when
     ``ident`` (:func:`~faceanalysis.estimation.identifiability.assess`) finds the control
-    identifiable and the estimator observed it on that frame.
+    identifiable and the estimator observed it on that frame, and where the mirror check
+    compared frame by frame, its value came back on the mirrored frame (``unreproduced``,
+    shape (T, len(response.muscles)): the values that did not).
 
     Controls the estimator did not estimate are reported at rest (0) on tracked frames
     and listed in ``parameters['controls_at_rest']``; lost frames are NaN. A tracked
@@ -539,6 +675,10 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     parameters["estimated_controls"] = estimated
     parameters["controls_at_rest"] = [m for m in controls if m not in estimated]
     parameters["controls_held"] = held
+    if unreproduced is not None:
+        for j, c in enumerate(response.muscles):
+            if c in controls:
+                measured[:, controls.index(c)] &= ~unreproduced[:, j]
     identifiable = [c for c, entry in ident["controls"].items() if entry["identifiable"]]
     table = with_identifiable_columns(with_au_columns(table), identifiable, observed=measured)
     return table, residual, fit
@@ -623,7 +763,10 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     Tracking dominates the cost of an analysis, so comparing estimators this way
     costs only the estimation (and, for ``flow``, the flow pass over the video).
     ``temporal`` as in :func:`analyze`; by default the analysis's own (its
-    ``parameters.temporal``), else the estimator's default.
+    ``parameters.temporal``), else the estimator's default. An analysis made with
+    ``mirror_check`` repeats the check with the new estimator on its mirrored tracks
+    (not with ``fused`` and ``flow``, which read the frames again: there the new
+    analysis has no check, and ``parameters.mirror_check`` says so).
     """
     if estimator not in ESTIMATORS:
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
@@ -659,9 +802,19 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     parameters = {**params, "estimator": estimator, "refine": bool(refine),
                   "temporal": est_options.get("temporal"),
                   "measurement_points": list(est.response.fiducials)}
-    ident = _assess(est)
+    check = None
+    mirrored = analysis.mirrored_tracks
+    parameters["mirror_check"] = mirrored is not None and estimator not in VIDEO_ESTIMATORS
+    if parameters["mirror_check"]:
+        fit_options = {"suspect_points": params.get("suspect_points", "exclude"),
+                       "pose_correction": bool(params.get("pose_correction")),
+                       "options": obs.options}
+        check = _mirror_check(est, mirrored, k, tracks, analysis.response, estimator,
+                              est_options, mirrored.video, fit_options)
+    ident, unreproduced = _with_mirror(_assess(est), check, tracks.frames
+                                       if tracks is not None else table["frame"].to_numpy())
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         track_conf, parameters, ident)
+                                         track_conf, parameters, ident, unreproduced)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = parameters
     metadata["model_fit"] = fit
@@ -674,7 +827,8 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     return Analysis(table=table, contours=analysis.contours, metadata=metadata,
                     calibration=analysis.calibration, response=analysis.response,
                     measurements=analysis.measurements, timings=dict(analysis.timings),
-                    fit_residual=residual, track_confidence=track_conf, tracks=tracks)
+                    fit_residual=residual, track_confidence=track_conf, tracks=tracks,
+                    mirrored_tracks=mirrored)
 
 
 def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,

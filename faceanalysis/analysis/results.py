@@ -72,6 +72,8 @@ class Analysis:
         ``MAX_FIT_RESIDUAL / fit_residual``.
     tracks : Tracks or None
         What the tracker saw (:func:`faceanalysis.tracking.track`).
+    mirrored_tracks : Tracks or None
+        What it saw in the video mirrored, with ``mirror_check`` (else None).
     """
 
     table: pd.DataFrame
@@ -84,6 +86,7 @@ class Analysis:
     fit_residual: np.ndarray | None = None
     track_confidence: np.ndarray | None = None
     tracks: Tracks | None = None
+    mirrored_tracks: Tracks | None = None
 
     @property
     def fiducials(self) -> np.ndarray:

@@ -55,6 +55,13 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "muscles the points barely tell apart do not trade places from "
                             "frame to frame; 0 fits every frame on its own (frames that are "
                             "not a sequence, e.g. a folder of unrelated photographs)")
+    group.add_argument("--mirror-check", action="store_true",
+                       help="analyse the video mirrored too and flag (0 in "
+                            "<control>_identifiable) what does not come back on it: on a "
+                            "video, controls whose series the mirrored partner's does not "
+                            "follow (r < 0.5); on photographs, values the mirrored partner's "
+                            "differ from; doubles the tracking time; not with --estimator "
+                            "fused or flow")
     group.add_argument("--keep-suspect-points", action="store_true",
                        help="keep measurement points that the neutral frame puts far from "
                             "the calibrated face model (a contour on the wrong feature) in "
@@ -70,7 +77,11 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
 def check_analysis_options(args: argparse.Namespace) -> None:
     """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
     from faceanalysis.cli._common import UsageError
-    from faceanalysis.estimation.registry import MESH_ESTIMATORS, TEMPORAL_ESTIMATORS
+    from faceanalysis.estimation.registry import (
+        MESH_ESTIMATORS,
+        TEMPORAL_ESTIMATORS,
+        VIDEO_ESTIMATORS,
+    )
 
     if args.estimator in MESH_ESTIMATORS and args.tracker == "snakes":
         raise UsageError(f"--estimator {args.estimator} reads the landmark tracker's face "
@@ -80,6 +91,9 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     if args.temporal is not None and args.estimator not in (None, *TEMPORAL_ESTIMATORS):
         raise UsageError(f"--temporal goes with --estimator {', '.join(TEMPORAL_ESTIMATORS)}, "
                          f"not {args.estimator}")
+    if getattr(args, "mirror_check", False) and args.estimator in VIDEO_ESTIMATORS:
+        raise UsageError(f"--mirror-check does not go with --estimator {args.estimator} (it "
+                         "reads the video's frames again)")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -109,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=not progress_wanted(args), estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
-        refine=args.refine, temporal=args.temporal,
+        refine=args.refine, temporal=args.temporal, mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
     q = result.metadata.get("quality", {})

@@ -54,7 +54,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 _ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "tracker", "layout",
-                     "overlay", "refine", "temporal", "backend", "device")
+                     "overlay", "refine", "temporal", "mirror_check", "backend", "device")
 
 
 def _options(args: argparse.Namespace) -> dict:

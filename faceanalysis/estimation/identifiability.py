@@ -25,7 +25,8 @@ import pandas as pd
 from faceanalysis.estimation.response import FiducialResponse
 
 __all__ = ["identifiability", "estimator_errors", "tracking_noise", "traded_pairs", "assess",
-           "IDENTIFIABLE_LIMIT", "REFERENCE_NOISE_CM", "TRADE_LIMIT"]
+           "mirror_partner", "mirror_agreement", "IDENTIFIABLE_LIMIT", "REFERENCE_NOISE_CM",
+           "TRADE_LIMIT", "MIRROR_R", "MIRROR_FRAMES"]
 
 #: Largest simulated RMS error of the ``joint`` estimate (a fraction of the control's range)
 #: at which a control counts as identifiable.
@@ -48,6 +49,22 @@ TRADE_LIMIT = -0.5
 TRADE_SAMPLES = 100
 #: Standard deviation of a control's second differences below which it is taken as still.
 TRADE_SPREAD = 0.01
+#: Frames tracked in both the video and its mirror image from which :func:`mirror_agreement`
+#: compares each control's series; fewer are compared frame by frame.
+MIRROR_FRAMES = 30
+#: Pearson r below which a moving control's series is not reproduced by its mirrored
+#: partner's. On the real clips in ``../shared/data/real`` (``mesh``), the controls that
+#: carry the clips' expressions (frontalis, zygomaticus major, depressor labii, both
+#: sides) reach 0.78-0.98; 4-5 controls a clip stay under 0.5 (-0.03 to 0.46).
+MIRROR_R = 0.5
+#: Standard deviation (fraction of the range) over which a control's series moves.
+MIRROR_MOVING = 0.02
+#: Frame by frame, a value differs from its mirrored partner's when they are more than
+#: this fraction of the range apart and more than :data:`MIRROR_SHARE` of the larger.
+#: On the 20 IMM people's smiles (neutral then smile), no side of zygomaticus major
+#: differs so (it reads 0.08-0.86); the side-lit neutrals' readings over 0.1 mostly do.
+MIRROR_GAP = 0.1
+MIRROR_SHARE = 0.5
 
 
 def identifiability(response: FiducialResponse, *, level: float = 0.0,
@@ -384,3 +401,107 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
             "noise_samples": samples, "limit": IDENTIFIABLE_LIMIT, "points_seen": seen,
             "controls": controls, "traded": traded,
             "not_identifiable": [n for n in response.muscles if not controls[n]["identifiable"]]}
+
+
+def mirror_partner(name: str) -> str:
+    """The control on the other side of the face (the name itself where it has no side).
+
+    Examples
+    --------
+    >>> mirror_partner("zygomaticus_major_l"), mirror_partner("orbicularis_oris")
+    ('zygomaticus_major_r', 'orbicularis_oris')
+    """
+    side = {"_l": "_r", "_r": "_l"}.get(name[-2:])
+    return name[:-2] + side if side else name
+
+
+def mirror_agreement(values: np.ndarray, mirrored: np.ndarray, names, *, upper=None,
+                     min_frames: int = MIRROR_FRAMES, min_r: float = MIRROR_R,
+                     moving: float = MIRROR_MOVING, gap: float = MIRROR_GAP,
+                     share: float = MIRROR_SHARE) -> dict:
+    """Whether a video's estimates come back when the same video is analysed mirrored.
+
+    A face mirrored left to right makes the same expression with its sides exchanged: a
+    control measured from the face's motion reads on the mirrored video what its partner
+    on the other side (:func:`mirror_partner`) read on the video. What the landmark model
+    or the fit makes of one particular picture (lighting, a pattern of the skin, a
+    region the model is unsure of) need not. With at least ``min_frames`` frames
+    estimated in both, each control's series is compared with its mirrored partner's: one
+    that moves (standard deviation over ``moving`` of its range in either) and whose
+    Pearson r is under ``min_r`` is *not reproduced*. With fewer frames (photographs),
+    each value is compared with its partner's on the same frame: more than ``gap`` of the
+    range and more than ``share`` of the larger apart, it is not reproduced on that frame.
+
+    Parameters
+    ----------
+    values : ndarray, shape (T, C)
+        The video's estimates of ``names`` (NaN on lost frames).
+    mirrored : ndarray, shape (T, C)
+        The mirrored video's estimates of ``names``, frame for frame (its ``_l`` controls
+        are the subject's right).
+    names : sequence of str
+        The C controls.
+    upper : array_like, shape (C,), optional
+        Each control's range (default 1): the thresholds are fractions of it.
+
+    Returns
+    -------
+    dict
+        ``frames`` (the number estimated in both), ``rule`` ('series' or 'frames'),
+        ``controls`` (name -> ``moving`` and ``r``, None where it does not move, with
+        'series'; ``frames_not_reproduced`` with 'frames'; and ``reproduced``, False
+        where not reproduced on any frame), ``not_reproduced`` (names) and ``mask``
+        (ndarray of bool, shape (T, C): the values not reproduced, frame by frame; with
+        'series', a not reproduced control's every compared frame).
+
+    Examples
+    --------
+    >>> t = np.linspace(0, 6, 60)
+    >>> smile = np.clip(np.sin(t), 0, None)
+    >>> x = np.column_stack([smile, 0.9 * smile, 0.2 * (np.cos(3 * t) > 0)])
+    >>> y = np.column_stack([0.9 * smile, smile, np.zeros(60)])    # sides exchanged
+    >>> check = mirror_agreement(x, y, ["zyg_l", "zyg_r", "mentalis_l"])
+    >>> check["rule"], check["not_reproduced"]
+    ('series', ['mentalis_l'])
+    """
+    names = [str(n) for n in names]
+    x = np.asarray(values, dtype=float)
+    y = np.asarray(mirrored, dtype=float)
+    if x.ndim != 2 or x.shape[1] != len(names):
+        raise ValueError(f"values must have shape (T, {len(names)}), got {x.shape}")
+    if y.shape != x.shape:
+        raise ValueError(f"mirrored must have the shape of values {x.shape}, got {y.shape}")
+    scale = np.ones(len(names)) if upper is None else np.asarray(upper, dtype=float)
+    if scale.shape != (len(names),) or np.any(scale <= 0):
+        raise ValueError(f"upper must hold {len(names)} positive ranges")
+    partner = [names.index(mirror_partner(n)) if mirror_partner(n) in names else j
+               for j, n in enumerate(names)]
+    x = x / scale
+    y = y[:, partner] / scale
+    both = np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1)
+    n = int(both.sum())
+    mask = np.zeros(x.shape, dtype=bool)
+    controls = {}
+    if n >= min_frames:
+        rule = "series"
+        a, b = x[both], y[both]
+        sa, sb = a.std(axis=0), b.std(axis=0)
+        for j, name in enumerate(names):
+            moves = bool(max(sa[j], sb[j]) > moving)
+            r = (float(np.corrcoef(a[:, j], b[:, j])[0, 1]) if sa[j] > 0 and sb[j] > 0
+                 else 0.0)
+            ok = not moves or r >= min_r
+            controls[name] = {"moving": moves, "r": round(r, 3) if moves else None,
+                              "reproduced": ok}
+            if not ok:
+                mask[both, j] = True
+    else:
+        rule = "frames"
+        apart = np.abs(x - y) > np.maximum(gap, share * np.fmax(x, y))
+        mask = apart & both[:, None]
+        for j, name in enumerate(names):
+            k = int(mask[:, j].sum())
+            controls[name] = {"frames_not_reproduced": k, "reproduced": k == 0}
+    return {"frames": n, "rule": rule, "controls": controls,
+            "not_reproduced": [n_ for n_ in names if not controls[n_]["reproduced"]],
+            "mask": mask}

@@ -324,6 +324,8 @@ ESTIMATORS: dict[str, Callable[..., pd.DataFrame]] = {
 
 #: The estimators that read the landmark tracker's face mesh.
 MESH_ESTIMATORS = ("mesh", "fused")
+#: The estimators that read the video's frames a second time (its dense flow).
+VIDEO_ESTIMATORS = ("fused", "flow")
 
 
 def run_estimator(name: str, obs: Observations, **options) -> Estimate:
@@ -334,10 +336,15 @@ def run_estimator(name: str, obs: Observations, **options) -> Estimate:
     Raises
     ------
     ValueError
-        For an unknown name (the message lists the valid ones).
+        For an unknown name (the message lists the valid ones), and for an estimator of
+        :data:`VIDEO_ESTIMATORS` on tracks of the video mirrored (its frames are read as
+        they are).
     """
     if name not in ESTIMATORS:
         raise ValueError(f"unknown estimator {name!r}; choose from {', '.join(ESTIMATORS)}")
+    if name in VIDEO_ESTIMATORS and getattr(obs.tracks, "mirrored", False):
+        raise ValueError(f"the {name} estimator reads the video's frames as they are; it "
+                         f"does not work on tracks of the video mirrored")
     out = ESTIMATORS[name](obs, **options)
     if isinstance(out, Estimate):
         return out

@@ -163,6 +163,26 @@ def test_reading_landmarks_a_frame_ahead_changes_no_result(tmp_path, rendered_fa
     assert _anchored("numpy", None, None).prefetch
 
 
+def test_a_video_tracked_mirrored_gives_the_same_face_mirrored(tmp_path, rendered_face):
+    from faceanalysis.estimation.identifiability import mirror_partner
+    from faceanalysis.io.table import FIDUCIALS
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(4):
+        img = np.roll(rendered_face, (k % 3, -k), axis=(0, 1))
+        cv2.imwrite(str(folder / f"{k:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    given = track(folder, fps=10, tracker="landmarks")
+    mirrored = track(folder, fps=10, tracker="landmarks", mirror=True)
+    assert not given.mirrored and mirrored.mirrored
+    assert given.success.all() and mirrored.success.all()
+    # the mirrored face's left brow is the subject's right, x from the other edge
+    back = mirrored.fiducials[:, [FIDUCIALS.index(mirror_partner(n)) for n in FIDUCIALS]]
+    back[..., 0] = rendered_face.shape[1] - 1 - back[..., 0]
+    err = np.hypot(*(back - given.fiducials).transpose(2, 0, 1))
+    assert err.max() < 2.5 and np.median(err) < 1.0, err
+
+
 def test_tracker_choice_is_checked(tmp_path):
     path, lay = _face_video(tmp_path, frames_lost_brow=())
     with pytest.raises(ValueError, match="unknown tracker 'mesh'; choose from landmarks, "):

@@ -661,3 +661,94 @@ def test_the_warnings_name_noise_hidden_and_traded_controls_apart(caplog):
     noise, trade = (r.getMessage() for r in caplog.records)
     assert "cannot tell risorius_l from" in noise and "mentalis" not in noise
     assert "mentalis_l / mentalis_r (-0.61)" in trade and "sum is measured" in trade
+
+
+def test_the_mirror_check_flags_the_values_the_mirrored_video_does_not_read(surprise):
+    a = analyze(surprise["video"], mirror_check=True)
+    ident = a.metadata["identifiability"]
+    mirror = ident["mirror"]
+    assert json.loads(json.dumps(ident, allow_nan=False)) == ident
+    assert a.metadata["parameters"]["mirror_check"] is True
+    assert a.mirrored_tracks is not None and a.mirrored_tracks.mirrored
+    assert a.timings["mirror_check_s"] > 0
+    # 24 frames: too few for the series, so value by value
+    assert (mirror["rule"], mirror["frames"]) == ("frames", 24)
+    # the surprise's brows come back on the mirrored video
+    for c in ("frontalis_major_l", "frontalis_major_r"):
+        assert ident["controls"][c]["mirror_reproduced"] and ident["controls"][c]["identifiable"]
+    table = a.table
+    held = a.metadata["parameters"]["controls_held"]
+    for c, frames in mirror["frames_not_reproduced"].items():
+        flags = table.set_index("frame")[f"{c}_identifiable"]
+        assert (flags.loc[frames] == 0).all(), c
+        if ident["controls"][c]["identifiable"] and c not in held:
+            assert (flags.drop(frames) == 1).all(), c
+    # the check flags; it changes no value
+    plain = analyze(surprise["video"])
+    pd.testing.assert_frame_equal(plain.table[list(MUSCLES)], table[list(MUSCLES)])
+    # another estimator on the same tracking repeats the check with its own values
+    again = reestimate(a, "joint")
+    assert again.metadata["parameters"]["mirror_check"] is True
+    assert again.metadata["identifiability"]["mirror"]["frames"] == 24
+
+
+def test_the_mirror_check_refuses_the_estimators_that_read_the_frames(surprise):
+    for estimator in ("flow", "fused"):
+        with pytest.raises(ValueError, match="mirror_check works with the joint, mesh, tw93"):
+            analyze(surprise["video"], estimator=estimator, mirror_check=True)
+
+
+def test_a_control_the_mirrored_series_does_not_follow_is_not_identifiable():
+    from faceanalysis.analysis.pipeline import _with_mirror
+
+    ident = {"controls": {"corrugator_l": {"identifiable": True, "rmse": 0.05},
+                          "zygomaticus_major_l": {"identifiable": True, "rmse": 0.04},
+                          "mentalis_l": {"identifiable": False, "rmse": 0.3}},
+             "not_identifiable": ["mentalis_l"], "limit": 0.1}
+    series = {"frames": 40, "rule": "series", "not_reproduced": ["corrugator_l"],
+              "controls": {"corrugator_l": {"moving": True, "r": 0.1, "reproduced": False},
+                           "zygomaticus_major_l": {"moving": True, "r": 0.9,
+                                                   "reproduced": True},
+                           "mentalis_l": {"moving": False, "r": None, "reproduced": True}},
+              "mask": np.zeros((40, 3), bool)}
+    out, mask = _with_mirror(ident, series, np.arange(100, 140))
+    assert mask is None
+    assert out["not_identifiable"] == ["corrugator_l", "mentalis_l"]
+    assert out["controls"]["corrugator_l"]["mirror_reproduced"] is False
+    assert out["mirror"]["controls"]["zygomaticus_major_l"]["r"] == 0.9
+    assert ident["controls"]["corrugator_l"]["identifiable"]            # input unchanged
+    # value by value, the frames are named by number and the values flagged there
+    values = {**series, "rule": "frames", "not_reproduced": ["mentalis_l"],
+              "controls": {c: {"frames_not_reproduced": int(c == "mentalis_l"),
+                               "reproduced": c != "mentalis_l"} for c in ident["controls"]},
+              "mask": np.zeros((4, 3), bool)}
+    values["mask"][2, 2] = True
+    out, mask = _with_mirror(ident, values, np.arange(100, 104))
+    assert out["mirror"]["frames_not_reproduced"] == {"mentalis_l": [102]}
+    assert mask is values["mask"] and out["not_identifiable"] == ["mentalis_l"]
+
+
+def test_the_mirror_warning_names_what_did_not_come_back(caplog):
+    from faceanalysis.analysis.pipeline import _warn_identifiability
+
+    ident = {"noise_cm": 0.02, "noise_source": "measured", "limit": 0.1,
+             "controls": {"risorius_l": {"rmse": 0.3}, "corrugator_l": {"rmse": 0.05}},
+             "not_identifiable": ["risorius_l", "corrugator_l"], "traded": [],
+             "mirror": {"rule": "series", "not_reproduced": ["corrugator_l"]}}
+    with caplog.at_level("WARNING"):
+        _warn_identifiability("clip.mp4", ident)
+    noise, mirror = (r.getMessage() for r in caplog.records)
+    assert "cannot tell risorius_l from" in noise and "corrugator" not in noise
+    assert "mirrored, corrugator_l does not come back" in mirror
+
+
+def test_cli_mirror_check(run_cli, surprise, tmp_path):
+    code, _, err = run_cli("analyze", surprise["video"], "-o", tmp_path / "a", "--estimator",
+                           "flow", "--mirror-check")
+    assert code == 2 and "--mirror-check does not go with --estimator flow" in err
+    out = tmp_path / "b"
+    code, _, err = run_cli("analyze", surprise["video"], "-o", out, "--end", "6", "-q",
+                           "--mirror-check")
+    assert code == 0, err
+    meta = json.loads((out / "analysis.json").read_text())
+    assert meta["parameters"]["mirror_check"] and meta["identifiability"]["mirror"]["frames"]

@@ -7,10 +7,13 @@ import pytest
 
 from faceanalysis.estimation.identifiability import (
     IDENTIFIABLE_LIMIT,
+    MIRROR_FRAMES,
     REFERENCE_NOISE_CM,
     assess,
     estimator_errors,
     identifiability,
+    mirror_agreement,
+    mirror_partner,
     tracking_noise,
     traded_pairs,
 )
@@ -179,3 +182,84 @@ def test_assess_flags_controls_that_trade_places_in_the_estimates():
         assert name in flagged["not_identifiable"]
     rest = set(flagged["not_identifiable"]) - {"mentalis_l", "mentalis_r"}
     assert rest == set(plain["not_identifiable"])
+
+
+NAMES = ["zygomaticus_major_l", "zygomaticus_major_r", "corrugator_l", "corrugator_r",
+         "mentalis_l", "mentalis_r", "orbicularis_oris", "jaw_rotation"]
+
+
+def _smiling_video(rng, frames=120):
+    """Estimates of a face that smiles twice and opens the jaw, and of the same video
+    mirrored (sides exchanged), each with its own noise."""
+    t = np.linspace(0, 4 * np.pi, frames)
+    smile = np.clip(np.sin(t), 0, None)
+    jaw = 10.0 * np.clip(np.sin(t + 1), 0, None)                 # degrees, range 20
+    x = np.zeros((frames, len(NAMES)))
+    x[:, 0], x[:, 1], x[:, 7] = 0.8 * smile, 0.6 * smile, jaw
+    y = x[:, [1, 0, 3, 2, 5, 4, 6, 7]].copy()                    # the mirrored video
+    x[:, :7] += rng.normal(0, 0.005, (frames, 7))
+    y[:, :7] += rng.normal(0, 0.005, (frames, 7))
+    return np.clip(x, 0, None), np.clip(y, 0, None)
+
+
+def test_mirror_partners_exchange_sides():
+    assert [mirror_partner(n) for n in NAMES] == [
+        "zygomaticus_major_r", "zygomaticus_major_l", "corrugator_r", "corrugator_l",
+        "mentalis_r", "mentalis_l", "orbicularis_oris", "jaw_rotation"]
+
+
+def test_a_video_whose_mirror_image_reads_the_same_is_reproduced(rng):
+    x, y = _smiling_video(rng)
+    upper = [1.0] * 7 + [20.0]
+    check = mirror_agreement(x, y, NAMES, upper=upper)
+    assert check["rule"] == "series" and check["frames"] == len(x)
+    assert check["not_reproduced"] == [] and not check["mask"].any()
+    zyg = check["controls"]["zygomaticus_major_l"]
+    assert zyg["moving"] and zyg["r"] > 0.95
+    # a still control is not judged: nothing to reproduce
+    assert check["controls"]["corrugator_l"] == {"moving": False, "r": None, "reproduced": True}
+
+
+def test_a_reading_the_mirror_image_does_not_repeat_is_not_reproduced(rng):
+    x, y = _smiling_video(rng)
+    upper = [1.0] * 7 + [20.0]
+    # the video reads the left corrugator in bursts that its mirror image does not show;
+    # the right mentalis reads noise in both, uncorrelated
+    x[:, 2] = 0.3 * (np.arange(len(x)) % 40 < 10)
+    y[:, 3] = 0.0
+    x[:, 5] = rng.uniform(0, 0.3, len(x))
+    y[:, 4] = rng.uniform(0, 0.3, len(x))
+    x[5, :] = np.nan                                              # a lost frame
+    check = mirror_agreement(x, y, NAMES, upper=upper)
+    assert check["frames"] == len(x) - 1
+    assert check["not_reproduced"] == ["corrugator_l", "mentalis_r"]
+    assert check["controls"]["corrugator_l"]["r"] == 0.0         # still in the mirror
+    assert abs(check["controls"]["mentalis_r"]["r"]) < 0.5
+    mask = check["mask"]
+    assert mask[:, [2, 5]].sum(axis=0).tolist() == [len(x) - 1] * 2
+    assert not mask[5].any() and mask.sum() == 2 * (len(x) - 1)
+    # the jaw's range scales its thresholds: the same motion in degrees is still reproduced
+    assert check["controls"]["jaw_rotation"]["reproduced"]
+
+
+def test_few_frames_are_compared_value_by_value(rng):
+    x, y = _smiling_video(rng, frames=MIRROR_FRAMES - 1)
+    x[3, 2] = 0.35                      # read on the video only
+    x[4, 4], y[4, 5] = 0.30, 0.24       # read on both, within half of the larger
+    x[6, 6], y[6, 6] = 0.08, 0.0        # apart by less than 0.1 of the range
+    check = mirror_agreement(x, y, NAMES, upper=[1.0] * 7 + [20.0])
+    assert check["rule"] == "frames"
+    assert check["not_reproduced"] == ["corrugator_l"]
+    assert check["controls"]["corrugator_l"] == {"frames_not_reproduced": 1,
+                                                 "reproduced": False}
+    assert np.argwhere(check["mask"]).tolist() == [[3, 2]]
+
+
+def test_mirror_agreement_checks_its_inputs():
+    x = np.zeros((40, len(NAMES)))
+    with pytest.raises(ValueError, match="values must have shape"):
+        mirror_agreement(x[:, :3], x[:, :3], NAMES)
+    with pytest.raises(ValueError, match="mirrored must have the shape"):
+        mirror_agreement(x, x[:10], NAMES)
+    with pytest.raises(ValueError, match="positive ranges"):
+        mirror_agreement(x, x, NAMES, upper=[0.0] * len(NAMES))
