@@ -184,6 +184,43 @@ _RIGID_INDEX = np.array(RIGID_POINTS, np.intp)
 _END = object()
 
 
+def near_convex_polygon(points, polygon, margin: float) -> np.ndarray:
+    """Whether each point lies inside a convex polygon or within ``margin`` of it.
+
+    The same verdict as ``cv2.pointPolygonTest(polygon, p, True) >= -margin`` for each
+    point, for all points at once.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 2)
+    polygon : array_like, shape (V, 2)
+        The vertices of a convex polygon in order (either direction), V >= 1.
+    margin : float
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+
+    Examples
+    --------
+    >>> square = [[0, 0], [2, 0], [2, 2], [0, 2]]
+    >>> near_convex_polygon([[1, 1], [2.5, 1], [3, 3]], square, 0.6).tolist()
+    [True, True, False]
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    a = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    b = np.roll(a, -1, axis=0)
+    e = b - a                                                         # (V, 2)
+    rel = p[:, None, :] - a[None]                                     # (N, V, 2)
+    cross = e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0]
+    # on the same side of every edge; a segment or a point has no inside
+    inside = ((cross >= 0).all(axis=1) | (cross <= 0).all(axis=1)) & (len(a) > 2)
+    t = np.clip((rel * e[None]).sum(axis=2) / np.maximum((e * e).sum(axis=1), 1e-300),
+                0.0, 1.0)
+    gap = np.hypot(*(rel - t[..., None] * e[None]).transpose(2, 0, 1)).min(axis=1)
+    return inside | (gap <= margin)
+
+
 def rigid_similarity(src, dst):
     """Least-squares similarity ``z -> a z + b`` (complex numbers) from ``src`` to ``dst``.
 
@@ -578,14 +615,13 @@ class AnchoredTracker:
         under = set()
         if hands:
             system = self.tracker.system
-            hulls = [cv2.convexHull(h.astype(np.float32)) for h in hands]
+            hulls = [cv2.convexHull(h.astype(np.float32))[:, 0].astype(float) for h in hands]
             margin = HAND_MARGIN * iod
             for k, name in enumerate(self.tracker.names):
                 pts = system.contour_points(k)
                 inside = np.zeros(len(pts), bool)
                 for hull in hulls:
-                    inside |= np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), True)
-                                        >= -margin for x, y in pts])
+                    inside |= near_convex_polygon(pts, hull, margin)
                 if inside.mean() >= HAND_COVER:
                     under.add(name)
         return hands, under, deepened

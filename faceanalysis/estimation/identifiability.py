@@ -264,6 +264,16 @@ _ERRORS_LOCK = threading.Lock()      # batch workers may share a process
 _MEMO_SIZE = 8
 
 
+def _forget_errors() -> None:
+    with _ERRORS_LOCK:
+        _ERRORS.clear()
+
+
+# forgets the remembered results (as ``functools.lru_cache``'s ``cache_clear``): a benchmark
+# that analyses one video several times then measures what each first analysis costs
+estimator_errors.cache_clear = _forget_errors
+
+
 def _fingerprint(value):
     """A hashable stand-in for fit options: arrays by their dtype, shape and bytes."""
     if isinstance(value, dict):

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from tests.trackers.landmarks.conftest import face, models  # noqa: F401 (fixtures)
-from trackers.anchored import LOWER_FACE, AnchoredTracker, rigid_similarity, rotation_angles
+from trackers.anchored import (
+    LOWER_FACE,
+    AnchoredTracker,
+    near_convex_polygon,
+    rigid_similarity,
+    rotation_angles,
+)
 from trackers.fiducials import FIDUCIAL_NAMES
 
 
@@ -434,3 +440,18 @@ def test_hands_are_reported_in_the_input_s_pixels(face_truth):
     assert tracker.downscale == 3 and all(res.quality[n].lost for n in LOWER_FACE)
     np.testing.assert_allclose(res.extra["hands"][0][0], (np.array([rx - 6, ry - 6]) + 0.5) * 3
                                - 0.5)
+
+
+def test_points_near_a_hand_are_those_opencv_finds_within_the_margin(rng):
+    import cv2
+
+    for _ in range(50):
+        hull = cv2.convexHull(rng.normal(100, 30, (21, 2)).astype(np.float32))
+        pts = rng.uniform(0, 200, (200, 2))
+        margin = rng.uniform(0, 10)
+        cv = [cv2.pointPolygonTest(hull, (float(x), float(y)), True) >= -margin
+              for x, y in pts]
+        assert near_convex_polygon(pts, hull[:, 0], margin).tolist() == cv
+    # a hull of two points is a segment: only its margin counts
+    assert near_convex_polygon([[1, 0.5], [1, 2]], [[0, 0], [2, 0]], 1.0).tolist() == [
+        True, False]

@@ -130,7 +130,9 @@ def test_estimator_errors_are_remembered_per_question_and_not_shared():
     first = estimator_errors(response, 0.02, draws=4)
     first.iloc[:] = -1.0                                     # the caller's copy
     again = estimator_errors(response, 0.02, draws=4)
-    ident._ERRORS.clear()
+    assert ident._ERRORS[response]
+    estimator_errors.cache_clear()
+    assert response not in ident._ERRORS
     fresh = estimator_errors(response, 0.02, draws=4)
     np.testing.assert_array_equal(again, fresh)
     assert (fresh.dropna() >= 0).all()
