@@ -38,9 +38,11 @@ __all__ = [
     "MIN_POINTS",
     "POINT_CONTOUR",
     "DEFAULT_TRACKER",
+    "LOST_REASONS",
     "TRACKERS",
     "Tracks",
     "faded_furrow_ends",
+    "lost_reason_counts",
     "measure_frame",
     "progress_bar",
     "resolve_tracker",
@@ -78,6 +80,14 @@ POINT_CONTOUR = {
 #: A frame is tracked (``success = 1``) when its head frame is known and at least this
 #: many measurement points are; controls that only the missing points observe are NaN.
 MIN_POINTS = 7
+
+#: Why a frame is lost (:attr:`Tracks.lost_reasons`): code -> what it means.
+LOST_REASONS = {
+    "undecodable": "the frame could not be decoded",
+    "no_face": "no face found (or the landmark model not confident of one)",
+    "hand": "a hand over the face, and too few points left",
+    "contours": "too few points held (contours lost: an occluder, or off their features)",
+}
 
 #: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
 #: tracked furrow is at least this long relative to the neutral frame. The face model
@@ -271,6 +281,9 @@ class Tracks:
         threads, over the tracking loop: decoding included) and ``frames``.
     mirrored : bool
         Whether the video was tracked mirrored (:func:`track`'s ``mirror``).
+    lost_reasons : list
+        Per frame, why it was lost (a code of :data:`LOST_REASONS`); None where it was
+        tracked (or, for tracks not made by :func:`track`, where the reason is not known).
     """
 
     video: str
@@ -290,12 +303,15 @@ class Tracks:
     landmarks: list | None = None
     timings: dict = field(default_factory=dict)
     mirrored: bool = False
+    lost_reasons: list | None = None
 
     def __post_init__(self):
         if self.pose is None:
             self.pose = np.full((len(self.frames), 2), np.nan)
         if self.landmarks is None:
             self.landmarks = [None] * len(self.frames)
+        if self.lost_reasons is None:
+            self.lost_reasons = [None] * len(self.frames)       # not known
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -454,7 +470,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     nan_pts = np.full((len(points), 2), np.nan)
     nan_stretch = np.full(len(points), np.nan)
     nan_head = np.full(4, np.nan)
-    frames, stamps, ok, conf, poses, mesh = [], [], [], [], [], []
+    frames, stamps, ok, conf, poses, mesh, reasons = [], [], [], [], [], [], []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
     kind, tracker = tracker, None
     waiting = _Waiting()
@@ -513,6 +529,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 poses.append(pose)
                 mesh.append(_mesh(res) if good else None)
                 ok.append(good)
+                reasons.append(None if good else _lost_reason(frame.ok, res))
                 conf.append(c)
                 fid_rows.append(fids)
                 pt_rows.append(pts)
@@ -550,10 +567,33 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
                   pose=np.stack(poses), tracker=kind, landmarks=mesh, mirrored=bool(mirror),
+                  lost_reasons=reasons,
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames),
                                               "cpu_s": time.process_time() - c_start})
+
+
+def lost_reason_counts(reasons) -> dict[str, int]:
+    """How many frames were lost for each reason (codes of
+    :data:`~faceanalysis.tracking.LOST_REASONS`, in its order; reasons not known left out).
+
+    Examples
+    --------
+    >>> lost_reason_counts([None, "hand", "no_face", "hand", None])
+    {'no_face': 1, 'hand': 2}
+    """
+    counts = {code: sum(r == code for r in reasons) for code in LOST_REASONS}
+    return {code: n for code, n in counts.items() if n}
+
+
+def _lost_reason(decoded: bool, result) -> str:
+    """Why a frame that was not tracked is lost (a code of :data:`LOST_REASONS`)."""
+    if not decoded:
+        return "undecodable"
+    if result is None:
+        return "no_face"
+    return "hand" if result.extra.get("hands") else "contours"
 
 
 def _mirrored(frames):

@@ -53,7 +53,13 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
-from faceanalysis.tracking import Tracks, faded_furrow_ends, resolve_tracker, track
+from faceanalysis.tracking import (
+    Tracks,
+    faded_furrow_ends,
+    lost_reason_counts,
+    resolve_tracker,
+    track,
+)
 from trackers.fiducials import HeadFrame
 
 log = logging.getLogger(__name__)
@@ -304,6 +310,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
                                         "identifiability": ident})
+    if metadata.get("quality") is not None:
+        metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
                "total_s": elapsed, "frames": len(tracks),
                "track_cpu_s": tracks.timings["cpu_s"], "estimate_cpu_s": c_estimate}

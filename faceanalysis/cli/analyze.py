@@ -18,6 +18,10 @@ from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
 
+#: The closing line's words for each reason a frame is lost (faceanalysis.tracking.LOST_REASONS).
+_REASON_WORDS = {"undecodable": "undecodable", "no_face": "without a face",
+                 "hand": "under a hand", "contours": "with too few contours held"}
+
 
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     """Options of the analysis itself (shared with ``batch``)."""
@@ -132,7 +136,12 @@ def run(args: argparse.Namespace) -> int:
     measured = (f"all {told} controls measured" if told == len(controls) else
                 f"{told} of {len(controls)} controls measured, the others flagged 0 in "
                 f"<control>_identifiable")
+    lost = f"{q.get('frames_lost', 0)} lost"
+    reasons = q.get("lost_reasons") or {}
+    if reasons:
+        lost += ": " + ", ".join(f"{n} {_REASON_WORDS.get(code, code)}"
+                                 for code, n in reasons.items())
     print(f"analysed {q.get('frames_total', len(result.table))} frames "
-          f"({q.get('frames_lost', 0)} lost; {measured}) -> {args.output}", file=sys.stderr)
+          f"({lost}; {measured}) -> {args.output}", file=sys.stderr)
     print(args.output / CONTRACTIONS_CSV)
     return 0

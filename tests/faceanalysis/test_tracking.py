@@ -129,6 +129,7 @@ def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
     tr = track(folder, fps=10, tracker="landmarks")
     assert tr.tracker == "landmarks"
     assert tr.success.tolist() == [False, False, True, True, False, True]
+    assert tr.lost_reasons == ["no_face", "no_face", None, None, "no_face", None]
     t = tr.table
     assert t.loc[[0, 1, 4], ["head_x", "head_pitch", "fid_chin_x"]].isna().all().all()
     assert t.loc[[2, 3, 5], ["head_pitch", "head_yaw"]].abs().max().max() < 3.0
@@ -214,3 +215,24 @@ def test_an_eyeless_face_box_must_hold_its_place_before_the_snakes_start(tmp_pat
     tr = track(folder, tracker="snakes")
     assert tr.success.tolist() == [False] * (2 * n - 1) + [True] * (7 - n + 1)
     assert tracking._box_overlap((0, 0, 10, 10), (5, 0, 10, 10)) == pytest.approx(1 / 3)
+
+
+def test_a_lost_frame_says_why():
+    from types import SimpleNamespace
+
+    from faceanalysis.tracking import LOST_REASONS, _lost_reason, lost_reason_counts
+
+    hand = SimpleNamespace(extra={"hands": [np.zeros((21, 2))]})
+    bare = SimpleNamespace(extra={"hands": []})
+    reasons = [_lost_reason(False, None), _lost_reason(True, None), _lost_reason(True, hand),
+               _lost_reason(True, bare), _lost_reason(True, SimpleNamespace(extra={}))]
+    assert reasons == ["undecodable", "no_face", "hand", "contours", "contours"]
+    assert set(reasons) <= set(LOST_REASONS)
+    assert lost_reason_counts([None, *reasons]) == {"undecodable": 1, "no_face": 1, "hand": 1,
+                                                    "contours": 2}
+    # tracks made elsewhere do not know why
+    tr = Tracks(video="v", input={}, frames=np.arange(2), timestamps=np.zeros(2),
+                success=np.array([True, False]), confidence=np.ones(2),
+                heads=np.zeros((2, 4)), fiducials=np.zeros((2, 11, 2)), point_names=(),
+                points=np.zeros((2, 0, 2)), stretch=np.zeros((2, 0)), contours=[None, None])
+    assert tr.lost_reasons == [None, None] and lost_reason_counts(tr.lost_reasons) == {}

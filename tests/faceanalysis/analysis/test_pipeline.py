@@ -373,6 +373,9 @@ def test_real_video_laughing_has_more_zygomaticus_than_crying(real_video_dir):
                     tracker_options={"tol": tol})
         laughing, crying = _zygomaticus_laughing_and_crying(a.table)
         assert laughing > crying + 0.05, (tol, crying, laughing)
+        # the hand over the mouth (frames 59-227) is why its frames are lost
+        reasons = a.metadata["quality"]["lost_reasons"]
+        assert reasons.get("hand", 0) >= 150 and sum(reasons.values()) < 180, reasons
 
 
 @pytest.mark.real_data
@@ -391,6 +394,9 @@ def test_real_video_the_default_analysis_reads_the_laugh_above_the_crying(real_v
         assert a.metadata["parameters"]["estimator"] == "mesh"
         laughing, crying = _zygomaticus_laughing_and_crying(a.table)
         assert laughing > crying + 0.05, (tol, crying, laughing)
+        # the hand over the mouth (frames 59-227) is why its frames are lost
+        reasons = a.metadata["quality"]["lost_reasons"]
+        assert reasons.get("hand", 0) >= 150 and sum(reasons.values()) < 180, reasons
 
 
 @pytest.mark.real_data
@@ -752,3 +758,20 @@ def test_cli_mirror_check(run_cli, surprise, tmp_path):
     assert code == 0, err
     meta = json.loads((out / "analysis.json").read_text())
     assert meta["parameters"]["mirror_check"] and meta["identifiability"]["mirror"]["frames"]
+
+
+def test_the_analysis_says_why_frames_were_lost(run_cli, surprise, tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cap = cv2.VideoCapture(str(surprise["video"]))
+    for i in range(6):
+        ok, img = cap.read()
+        assert ok
+        cv2.imwrite(str(folder / f"{i:03d}.png"), np.full_like(img, 120) if i in (0, 3) else img)
+    cap.release()
+    out = tmp_path / "res"
+    code, _, err = run_cli("analyze", folder, "--fps", "10", "-o", out, "-q")
+    assert code == 0, err
+    quality = json.loads((out / "analysis.json").read_text())["quality"]
+    assert quality["frames_lost"] == 2 and quality["lost_reasons"] == {"no_face": 2}
+    assert "(2 lost: 2 without a face;" in err
