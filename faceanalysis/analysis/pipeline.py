@@ -189,8 +189,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         identifiable; on fewer than
         :data:`~faceanalysis.estimation.identifiability.MIRROR_FRAMES` frames (photographs),
         a value its partner's differs from is flagged on its frame (``<control>_identifiable``
-        0). ``analysis.json`` reports it (``identifiability.mirror``). Doubles the tracking
-        time; not with the ``fused`` and ``flow`` estimators, which read the frames again.
+        0). ``analysis.json`` reports it (``identifiability.mirror``; where the mirrored
+        video cannot be tracked, or not on the neutral frame, ``skipped`` says so and
+        nothing is flagged). Doubles the tracking time; not with the ``fused`` and ``flow``
+        estimators, which read the frames again, nor with a ``layout``.
     overlay : path-like, optional
         Write the frames with contours and fiducials drawn to this video file.
     progress : bool
@@ -222,6 +224,9 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         raise ValueError(f"mirror_check works with the "
                          f"{', '.join(e for e in ESTIMATORS if e not in VIDEO_ESTIMATORS)} "
                          f"estimators, not {estimator!r} (it reads the video's frames again)")
+    if mirror_check and layout is not None:
+        raise ValueError("mirror_check does not go with a layout: the layout places the "
+                         "contours on the video as it is, not mirrored")
     est_options = _fit_options(estimator, refine, temporal)
     if estimator in MESH_ESTIMATORS:
         # they read the landmark tracker's face mesh
@@ -260,10 +265,15 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     c_estimate = time.process_time() - c0
     if mirror_check:
         t1 = time.perf_counter()
-        with _quiet_tracking():
-            mirrored = track(video, mirror=True, keep_contours=False, **track_options)
-        check = _mirror_check(est, mirrored, k, tracks, response, estimator, est_options,
-                              video, fit_options)
+        try:
+            with _quiet_tracking():
+                mirrored = track(video, mirror=True, keep_contours=False, **track_options)
+        except (ValueError, FaceAnalysisError) as exc:
+            # (the snakes' face detector may find no face in the mirrored frames)
+            check = _skipped(f"the mirrored video could not be tracked ({exc})")
+        else:
+            check = _mirror_check(est, mirrored, k, tracks, response, estimator, est_options,
+                                  video, fit_options)
         t_mirror = time.perf_counter() - t1
     t0, c0 = time.perf_counter(), time.process_time()
 
@@ -365,14 +375,19 @@ def _mirror_check(est, mirrored: Tracks, k: int, tracks: Tracks, response: Fiduc
     the result says why (``skipped``)."""
     rows = np.flatnonzero(mirrored.frames == tracks.frames[k])
     if len(mirrored) != len(tracks) or not rows.size or not mirrored.success[rows[0]]:
-        return {"frames": 0, "rule": None, "controls": {}, "not_reproduced": [],
-                "mask": None, "skipped": f"the neutral frame {int(tracks.frames[k])} was "
-                                         "not tracked in the mirrored video"}
+        return _skipped(f"the neutral frame {int(tracks.frames[k])} was not tracked in the "
+                        "mirrored video")
     *_, mest = _estimate(mirrored, int(rows[0]), response, estimator, est_options, video,
                          quiet=True, **fit_options)
     return mirror_agreement(_response_array(est.values, est.response),
                             _response_array(mest.values, est.response),
                             est.response.muscles, upper=est.response.upper)
+
+
+def _skipped(why: str) -> dict:
+    """A mirror check that compared nothing, and why."""
+    return {"frames": 0, "rule": None, "controls": {}, "not_reproduced": [], "mask": None,
+            "skipped": why}
 
 
 def _with_mirror(ident: dict, check: dict | None, frames: np.ndarray):

@@ -98,6 +98,9 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     if getattr(args, "mirror_check", False) and args.estimator in VIDEO_ESTIMATORS:
         raise UsageError(f"--mirror-check does not go with --estimator {args.estimator} (it "
                          "reads the video's frames again)")
+    if getattr(args, "mirror_check", False) and args.layout is not None:
+        raise UsageError("--mirror-check does not go with --layout (the layout places the "
+                         "contours on the video as it is, not mirrored)")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

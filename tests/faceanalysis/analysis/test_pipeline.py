@@ -698,10 +698,33 @@ def test_the_mirror_check_flags_the_values_the_mirrored_video_does_not_read(surp
     assert again.metadata["identifiability"]["mirror"]["frames"] == 24
 
 
-def test_the_mirror_check_refuses_the_estimators_that_read_the_frames(surprise):
+def test_the_mirror_check_refuses_the_estimators_that_read_the_frames(surprise, tmp_path):
     for estimator in ("flow", "fused"):
         with pytest.raises(ValueError, match="mirror_check works with the joint, mesh, tw93"):
             analyze(surprise["video"], estimator=estimator, mirror_check=True)
+    # a layout is placed on the frames as they are
+    with pytest.raises(ValueError, match="mirror_check does not go with a layout"):
+        analyze(surprise["video"], layout=tmp_path / "layout.json", mirror_check=True)
+
+
+def test_a_mirrored_video_that_cannot_be_tracked_skips_the_check(surprise, monkeypatch,
+                                                                 caplog):
+    from faceanalysis.analysis import pipeline
+
+    def track(video, *, mirror=False, **options):
+        if mirror:
+            raise ValueError(f"{video}: no face found in any of the 24 frames")
+        return real_track(video, **options)
+
+    real_track = pipeline.track
+    monkeypatch.setattr(pipeline, "track", track)
+    with caplog.at_level("WARNING"):
+        a = analyze(surprise["video"], tracker="snakes", mirror_check=True)
+    mirror = a.metadata["identifiability"]["mirror"]
+    assert mirror["frames"] == 0 and "could not be tracked (" in mirror["skipped"]
+    assert "mirror check skipped" in caplog.text
+    plain = analyze(surprise["video"], tracker="snakes")
+    pd.testing.assert_frame_equal(plain.table, a.table)        # nothing flagged
 
 
 def test_a_control_the_mirrored_series_does_not_follow_is_not_identifiable():
@@ -752,6 +775,9 @@ def test_cli_mirror_check(run_cli, surprise, tmp_path):
     code, _, err = run_cli("analyze", surprise["video"], "-o", tmp_path / "a", "--estimator",
                            "flow", "--mirror-check")
     assert code == 2 and "--mirror-check does not go with --estimator flow" in err
+    code, _, err = run_cli("analyze", surprise["video"], "-o", tmp_path / "a", "--layout",
+                           tmp_path / "layout.json", "--mirror-check")
+    assert code == 2 and "--mirror-check does not go with --layout" in err
     out = tmp_path / "b"
     code, _, err = run_cli("analyze", surprise["video"], "-o", out, "--end", "6", "-q",
                            "--mirror-check")
