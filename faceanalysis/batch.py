@@ -142,7 +142,9 @@ def _finite_or_nan(value) -> float:
 
 
 def _summarise(folder: Path) -> dict:
-    """Frames, losses, duration and mean contractions of one finished output folder."""
+    """Frames, losses, duration and mean contractions of one finished output folder (each
+    over the tracked frames where it is measured: ``<column>_identifiable`` = 1 where the
+    table has the flag)."""
     table = pd.read_csv(folder / CONTRACTIONS_CSV)
     metadata = json.loads((folder / ANALYSIS_JSON).read_text())
     quality = metadata.get("quality", {}) if isinstance(metadata, dict) else {}
@@ -175,7 +177,13 @@ def _summarise(folder: Path) -> dict:
     record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
     for column in table.columns:
         if _is_contraction_column(column) and pd.api.types.is_numeric_dtype(table[column]):
-            values = table[column].to_numpy(dtype=float)[success]
+            keep = success.copy()
+            flag = f"{column}_identifiable"
+            if flag in table and pd.api.types.is_numeric_dtype(table[flag]):
+                # a value the analysis flags as not measured (it leans on the prior that
+                # muscles rest) is not averaged in as if it were
+                keep &= table[flag].to_numpy(dtype=float) == 1
+            values = table[column].to_numpy(dtype=float)[keep]
             finite = values[np.isfinite(values)]
             record[f"mean_{column}"] = float(finite.mean()) if finite.size else math.nan
     return record

@@ -506,3 +506,21 @@ def test_default_task_is_the_analysis(face_corpus, tmp_path):
     analyze_to_folder(video, tmp_path / "ref")
     assert (tmp_path / "out" / summary["output"][0] / "contractions.csv").read_bytes() == \
         (tmp_path / "ref" / "contractions.csv").read_bytes()
+
+
+def test_the_summary_averages_only_the_measured_values(tmp_path):
+    table = pd.DataFrame({
+        "frame": [0, 1, 2, 3], "timestamp": [0.0, 0.04, 0.08, 0.12], "success": [1, 1, 1, 0],
+        "confidence": [1.0, 0.9, 0.8, 0.0],
+        "zygomaticus_major_l": [0.2, 0.4, 0.9, np.nan],
+        "zygomaticus_major_l_identifiable": [1, 1, 0, np.nan],
+        "mentalis_l": [0.1, 0.3, 0.2, np.nan], "mentalis_l_identifiable": [0, 0, 0, np.nan],
+        "jaw_rotation": [0.0, 0.1, 0.2, np.nan]})                  # (an older table: no flag)
+    table.to_csv(tmp_path / "contractions.csv", index=False)
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {"frames_total": 4,
+                                                                    "frames_lost": 1}}))
+    row = batch._summarise(tmp_path)
+    assert row["mean_zygomaticus_major_l"] == pytest.approx(0.3)     # not the 0.9
+    assert np.isnan(row["mean_mentalis_l"])                          # never measured
+    assert row["mean_jaw_rotation"] == pytest.approx(0.1)
+    assert row["mean_zygomaticus_major_l_identifiable"] == pytest.approx(2 / 3)
