@@ -65,6 +65,7 @@ from faceanalysis.io.outputs import (
     atomic_path,
     write_text_atomic,
 )
+from faceanalysis.io.table import measured_values
 from faceanalysis.tracking import available_cores
 
 __all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
@@ -142,9 +143,9 @@ def _finite_or_nan(value) -> float:
 
 
 def _summarise(folder: Path) -> dict:
-    """Frames, losses, duration and mean contractions of one finished output folder (each
-    over the tracked frames where it is measured: ``<column>_identifiable`` = 1 where the
-    table has the flag)."""
+    """Frames, losses, duration and mean contractions of one finished output folder, each
+    over the tracked frames where it is measured
+    (:func:`~faceanalysis.io.table.measured_values`)."""
     table = pd.read_csv(folder / CONTRACTIONS_CSV)
     metadata = json.loads((folder / ANALYSIS_JSON).read_text())
     quality = metadata.get("quality", {}) if isinstance(metadata, dict) else {}
@@ -175,17 +176,15 @@ def _summarise(folder: Path) -> dict:
     record["mean_confidence"] = _finite_or_nan(quality.get("mean_confidence"))
     record["frames_over_fit_limit"] = _finite_or_nan(fit.get("frames_over_limit"))
     record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
-    for column in table.columns:
-        if _is_contraction_column(column) and pd.api.types.is_numeric_dtype(table[column]):
-            keep = success.copy()
-            flag = f"{column}_identifiable"
-            if flag in table and pd.api.types.is_numeric_dtype(table[flag]):
-                # a value the analysis flags as not measured (it leans on the prior that
-                # muscles rest) is not averaged in as if it were
-                keep &= table[flag].to_numpy(dtype=float) == 1
-            values = table[column].to_numpy(dtype=float)[keep]
-            finite = values[np.isfinite(values)]
-            record[f"mean_{column}"] = float(finite.mean()) if finite.size else math.nan
+    columns = [c for c in table.columns
+               if _is_contraction_column(c) and pd.api.types.is_numeric_dtype(table[c])]
+    # a value the analysis flags as not measured (it leans on the prior that muscles rest)
+    # is not averaged in as if it were
+    measured = measured_values(table.assign(success=success.astype(int)), columns)
+    for column in columns:
+        values = measured[column].to_numpy(dtype=float)
+        finite = values[np.isfinite(values)]
+        record[f"mean_{column}"] = float(finite.mean()) if finite.size else math.nan
     return record
 
 

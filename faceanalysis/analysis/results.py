@@ -34,7 +34,14 @@ from faceanalysis.io.outputs import (
     remove_new_folders,
 )
 from faceanalysis.io.report import write_analysis
-from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, head_turn, write_contractions
+from faceanalysis.io.table import (
+    FIDUCIALS,
+    JAW,
+    MUSCLES,
+    head_turn,
+    measured_values,
+    write_contractions,
+)
 from faceanalysis.tracking import Tracks
 from faceanalysis.viz.plots import plot_contractions
 from synth.render.video import VideoWriter
@@ -98,6 +105,13 @@ class Analysis:
     def contractions(self) -> pd.DataFrame:
         """Muscle columns and ``jaw_rotation``, indexed by frame."""
         return self.table.set_index("frame")[[*MUSCLES, JAW]]
+
+    @property
+    def measured(self) -> pd.DataFrame:
+        """Muscle columns, ``jaw_rotation`` and the action units, indexed by frame, empty
+        where the value is not measured (lost frames, ``<column>_identifiable`` 0; see
+        :func:`~faceanalysis.io.table.measured_values`)."""
+        return measured_values(self.table).set_index(self.table["frame"])
 
     def plot(self, path: str | os.PathLike | None = None, **kwargs):
         """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given. Controls

@@ -58,6 +58,7 @@ __all__ = [
     "contraction_columns",
     "empty_table",
     "head_turn",
+    "measured_values",
     "read_contractions",
     "required_columns",
     "with_au_columns",
@@ -363,6 +364,68 @@ def with_identifiable_columns(table: pd.DataFrame, identifiable, *,
     kept = table.drop(columns=[c for c in IDENTIFIABLE_COLUMNS if c in table.columns])
     return pd.concat([kept, pd.DataFrame(values, index=table.index,
                                          columns=list(IDENTIFIABLE_COLUMNS))], axis=1)
+
+
+def identifiable_column(column: str) -> str:
+    """The flag column that says where ``column``'s value is measured.
+
+    Examples
+    --------
+    >>> identifiable_column("zygomaticus_major_l"), identifiable_column("AU12_r")
+    ('zygomaticus_major_l_identifiable', 'AU12_identifiable')
+    """
+    if column.startswith("AU") and column.endswith("_r"):
+        return column[:-2] + "_identifiable"
+    return f"{column}_identifiable"
+
+
+def measured_values(table: pd.DataFrame, columns=None) -> pd.DataFrame:
+    """The values of a contractions table that are measured, the others empty.
+
+    A value is kept on a tracked frame (``success`` 1) unless its flag
+    (:data:`IDENTIFIABLE_COLUMNS`, :func:`identifiable_column`) is 0 there: a value the
+    points could not tell apart, that holds an earlier frame's because its points were
+    lost, or that the estimator reports at rest. A table without flags (``truth.csv``, an
+    older analysis) keeps every tracked frame's values. The input is not modified.
+
+    Parameters
+    ----------
+    table : DataFrame
+        A contractions table (:func:`read_contractions`, ``Analysis.table``).
+    columns : sequence of str, optional
+        The value columns to return (default: every muscle, ``jaw_rotation`` and every
+        ``AUxx_r`` the table has).
+
+    Returns
+    -------
+    DataFrame
+        ``columns``, indexed as ``table``.
+
+    Examples
+    --------
+    >>> t = empty_table(3)
+    >>> t["success"] = [1, 1, 0]
+    >>> t["zygomaticus_major_l"] = [0.2, 0.6, float("nan")]
+    >>> t["zygomaticus_major_l_identifiable"] = [1, 0, float("nan")]
+    >>> measured_values(t, ["zygomaticus_major_l"])["zygomaticus_major_l"].tolist()
+    [0.2, nan, nan]
+    """
+    if columns is None:
+        columns = [c for c in (*MUSCLES, JAW, *AU_COLUMNS) if c in table]
+    columns = list(columns)
+    missing = [c for c in ("success", *columns) if c not in table]
+    if missing:
+        raise ValueError(f"table has no column(s) {', '.join(missing)}")
+    tracked = pd.to_numeric(table["success"], errors="coerce").to_numpy(float) == 1
+    out = pd.DataFrame(index=table.index)
+    for column in columns:
+        keep = tracked.copy()
+        flag = identifiable_column(column)
+        if flag in table:
+            f = pd.to_numeric(table[flag], errors="coerce").to_numpy(float)
+            keep &= ~(f == 0)               # an empty flag: not known, the value stays
+        out[column] = pd.to_numeric(table[column], errors="coerce").where(keep)
+    return out
 
 
 def _with_optional(df: pd.DataFrame) -> pd.DataFrame:

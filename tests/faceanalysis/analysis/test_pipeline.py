@@ -576,6 +576,21 @@ def test_table_flags_the_values_the_points_cannot_measure(analysed):
     assert (table.loc[tracked, brows] == 1).all().all()
 
 
+def test_the_measured_values_are_those_the_table_flags(analysed):
+    table = analysed.table
+    measured = analysed.measured
+    assert list(measured.index) == list(table["frame"])
+    for control in (*MUSCLES, "jaw_rotation", "AU12_r"):
+        flag = table[control.replace("_r", "") + "_identifiable" if control.startswith("AU")
+                     else f"{control}_identifiable"].to_numpy()
+        values = table[control].to_numpy(float)
+        np.testing.assert_array_equal(measured[control].to_numpy(), np.where(
+            (table["success"].to_numpy() == 1) & (flag == 1), values, np.nan), err_msg=control)
+    # the points of this face leave some controls unmeasured: those are empty
+    not_measured = analysed.metadata["identifiability"]["not_identifiable"]
+    assert not_measured and measured[not_measured].isna().all().all()
+
+
 def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_later(
         analysed):
     from dataclasses import replace

@@ -306,3 +306,22 @@ def test_tables_without_identifiable_columns_are_read(tmp_path):
     t.to_csv(path, index=False)
     back = read_contractions(path)
     assert back[list(IDENTIFIABLE_COLUMNS)].isna().all().all()
+
+
+def test_measured_values_empty_what_the_flags_do_not_vouch_for():
+    from faceanalysis.io.table import empty_table, measured_values
+
+    t = empty_table(4)
+    t["success"] = [1, 1, 1, 0]
+    t["mentalis_l"] = [0.1, 0.2, 0.3, np.nan]
+    t["mentalis_l_identifiable"] = [1, 0, np.nan, np.nan]       # the third: not known
+    t["AU12_r"] = [1.0, 2.0, 3.0, np.nan]
+    t["AU12_identifiable"] = [0, 1, 1, np.nan]
+    before = t.copy()
+    out = measured_values(t)
+    assert out.index.equals(t.index) and "zygomaticus_major_l" in out and "AU12_r" in out
+    np.testing.assert_array_equal(out["mentalis_l"], [0.1, np.nan, 0.3, np.nan])
+    np.testing.assert_array_equal(out["AU12_r"], [np.nan, 2.0, 3.0, np.nan])
+    pd.testing.assert_frame_equal(t, before)
+    with pytest.raises(ValueError, match="no column"):
+        measured_values(t.drop(columns="success"))
