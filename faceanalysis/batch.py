@@ -66,7 +66,7 @@ from faceanalysis.io.outputs import (
     write_text_atomic,
 )
 from faceanalysis.io.table import measured_values
-from faceanalysis.tracking import available_cores
+from faceanalysis.tracking import LOST_REASONS, available_cores
 
 __all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
            "start_local_cluster"]
@@ -168,6 +168,11 @@ def _summarise(folder: Path) -> dict:
         t = table["timestamp"].to_numpy(dtype=float)
         duration = float((t[-1] - t[0]) * len(t) / (len(t) - 1))
     record = {"frames": frames, "frames_lost": frames_lost, "duration_s": duration}
+    reasons = quality.get("lost_reasons")
+    if isinstance(reasons, dict):
+        # why they were lost (analyses that say so): a column per reason
+        for code in LOST_REASONS:
+            record[f"frames_lost_{code}"] = int(reasons.get(code, 0))
     # what says how far to trust the means: the tracker's mean confidence, the frames the
     # face model does not explain, and those whose head is turned beyond its limit
     fit = metadata.get("model_fit") if isinstance(metadata, dict) else None
@@ -322,7 +327,8 @@ def _summary_frame(rows: list[dict]) -> pd.DataFrame:
                 columns.append(key)
     frame = pd.DataFrame(rows, columns=columns)
     frame["resumed"] = frame["resumed"].fillna(False).astype(bool)
-    for column in ("frames", "frames_lost", "frames_over_fit_limit", "frames_turned"):
+    for column in ("frames", "frames_lost", "frames_over_fit_limit", "frames_turned",
+                   *(f"frames_lost_{code}" for code in LOST_REASONS)):
         if column in frame:
             frame[column] = pd.to_numeric(frame[column]).astype("Int64")
     frame["error"] = frame["error"].fillna("")

@@ -517,9 +517,10 @@ def test_the_summary_averages_only_the_measured_values(tmp_path):
         "mentalis_l": [0.1, 0.3, 0.2, np.nan], "mentalis_l_identifiable": [0, 0, 0, np.nan],
         "jaw_rotation": [0.0, 0.1, 0.2, np.nan]})                  # (an older table: no flag)
     table.to_csv(tmp_path / "contractions.csv", index=False)
-    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {"frames_total": 4,
-                                                                    "frames_lost": 1}}))
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {
+        "frames_total": 4, "frames_lost": 1, "lost_reasons": {"hand": 1}}}))
     row = batch._summarise(tmp_path)
+    assert (row["frames_lost_hand"], row["frames_lost_no_face"]) == (1, 0)
     assert row["mean_zygomaticus_major_l"] == pytest.approx(0.3)     # not the 0.9
     assert np.isnan(row["mean_mentalis_l"])                          # never measured
     assert row["mean_jaw_rotation"] == pytest.approx(0.1)
