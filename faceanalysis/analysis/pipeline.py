@@ -255,11 +255,11 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)
     k = _neutral_row(tracks, neutral)
-    fit_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
-                   "options": {"fps": fps, "start": start, "end": end}}
+    calib_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
+                     "options": {"fps": fps, "start": start, "end": end}}
     t0, c0 = time.perf_counter(), time.process_time()
     meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
-                                                    est_options, video, **fit_options)
+                                                    est_options, video, **calib_options)
     mirrored = check = None
     t_estimate = time.perf_counter() - t0
     c_estimate = time.process_time() - c0
@@ -273,7 +273,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
             check = _skipped(f"the mirrored video could not be tracked ({exc})")
         else:
             check = _mirror_check(est, mirrored, k, tracks, response, estimator, est_options,
-                                  video, fit_options)
+                                  video, calib_options)
         t_mirror = time.perf_counter() - t1
     t0, c0 = time.perf_counter(), time.process_time()
 
@@ -368,7 +368,7 @@ class _quiet_tracking:
 
 
 def _mirror_check(est, mirrored: Tracks, k: int, tracks: Tracks, response: FiducialResponse,
-                  estimator: str, est_options: dict, video, fit_options: dict) -> dict:
+                  estimator: str, est_options: dict, video, calib_options: dict) -> dict:
     """:func:`~faceanalysis.estimation.identifiability.mirror_agreement` of ``est`` with the
     same estimator on ``mirrored`` (the video tracked mirrored), calibrated on the same
     frame. Where that frame was not tracked in the mirrored video, nothing is compared and
@@ -378,7 +378,7 @@ def _mirror_check(est, mirrored: Tracks, k: int, tracks: Tracks, response: Fiduc
         return _skipped(f"the neutral frame {int(tracks.frames[k])} was not tracked in the "
                         "mirrored video")
     *_, mest = _estimate(mirrored, int(rows[0]), response, estimator, est_options, video,
-                         quiet=True, **fit_options)
+                         quiet=True, **calib_options)
     return mirror_agreement(_response_array(est.values, est.response),
                             _response_array(mest.values, est.response),
                             est.response.muscles, upper=est.response.upper)
@@ -440,7 +440,8 @@ def _warn_identifiability(video, ident: dict) -> None:
     if mirror and mirror.get("rule") == "series":
         # named in the mirror's warning, unless the noise hides them too
         elsewhere |= {n for n in mirror["not_reproduced"]
-                      if (ident["controls"][n]["rmse"] or np.inf) <= ident["limit"]}
+                      if ident["controls"][n]["rmse"] is not None
+                      and ident["controls"][n]["rmse"] <= ident["limit"]}
     noisy = [n for n in ident["not_identifiable"] if n not in elsewhere]
     if noisy:
         log.warning("%s: at the tracking noise of %.3f cm (%s), the seen points cannot tell "
@@ -827,13 +828,16 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
                   "measurement_points": list(est.response.fiducials)}
     check = None
     mirrored = analysis.mirrored_tracks
-    parameters["mirror_check"] = mirrored is not None and estimator not in VIDEO_ESTIMATORS
-    if parameters["mirror_check"]:
-        fit_options = {"suspect_points": params.get("suspect_points", "exclude"),
-                       "pose_correction": bool(params.get("pose_correction")),
-                       "options": obs.options}
+    parameters["mirror_check"] = (bool(params.get("mirror_check"))
+                                  and estimator not in VIDEO_ESTIMATORS)
+    if parameters["mirror_check"] and mirrored is None:
+        check = _skipped("this analysis holds no tracks of the mirrored video")
+    elif parameters["mirror_check"]:
+        calib_options = {"suspect_points": params.get("suspect_points", "exclude"),
+                         "pose_correction": bool(params.get("pose_correction")),
+                         "options": obs.options}
         check = _mirror_check(est, mirrored, k, tracks, analysis.response, estimator,
-                              est_options, mirrored.video, fit_options)
+                              est_options, mirrored.video, calib_options)
     ident, unreproduced = _with_mirror(_assess(est), check, tracks.frames
                                        if tracks is not None else table["frame"].to_numpy())
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,

@@ -740,6 +740,10 @@ def test_a_mirrored_video_that_cannot_be_tracked_skips_the_check(surprise, monke
     assert "mirror check skipped" in caplog.text
     plain = analyze(surprise["video"], tracker="snakes")
     pd.testing.assert_frame_equal(plain.table, a.table)        # nothing flagged
+    again = reestimate(a, "tw93")
+    assert again.metadata["parameters"]["mirror_check"] is True
+    assert "no tracks of the mirrored video" in again.metadata["identifiability"]["mirror"][
+        "skipped"]
 
 
 def test_a_control_the_mirrored_series_does_not_follow_is_not_identifiable():
