@@ -133,18 +133,40 @@ def run(args: argparse.Namespace) -> int:
         refine=args.refine, temporal=args.temporal, mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
-    q = result.metadata.get("quality", {})
-    controls = result.metadata.get("identifiability", {}).get("controls", {})
+    print(f"{closing_line(result.metadata, len(result.table))} -> {args.output}",
+          file=sys.stderr)
+    print(args.output / CONTRACTIONS_CSV)
+    return 0
+
+
+def closing_line(metadata: dict, rows: int) -> str:
+    """What an analysis found, in a line: frames, lost frames and why, what is measured.
+
+    Examples
+    --------
+    >>> line = closing_line({
+    ...     "quality": {"frames_total": 3, "frames_lost": 1, "lost_reasons": {"hand": 1}},
+    ...     "identifiability": {"controls": {"a": {"identifiable": True}},
+    ...                         "mirror": {"frames_not_reproduced": {"a": [2]}}}}, 3)
+    >>> line.startswith("analysed 3 frames (1 lost: 1 under a hand; all 1 controls measured")
+    True
+    >>> line.endswith("but 1 value not reproduced mirrored, flagged 0)")
+    True
+    """
+    q = metadata.get("quality") or {}
+    ident = metadata.get("identifiability") or {}
+    controls = ident.get("controls", {})
     told = sum(bool(c.get("identifiable")) for c in controls.values())
     measured = (f"all {told} controls measured" if told == len(controls) else
                 f"{told} of {len(controls)} controls measured, the others flagged 0 in "
                 f"<control>_identifiable")
+    by_frame = (ident.get("mirror") or {}).get("frames_not_reproduced") or {}
+    if by_frame:
+        n = sum(len(frames) for frames in by_frame.values())
+        measured += f", but {n} value{'s' if n > 1 else ''} not reproduced mirrored, flagged 0"
     lost = f"{q.get('frames_lost', 0)} lost"
     reasons = q.get("lost_reasons") or {}
     if reasons:
         lost += ": " + ", ".join(f"{n} {_REASON_WORDS.get(code, code)}"
                                  for code, n in reasons.items())
-    print(f"analysed {q.get('frames_total', len(result.table))} frames "
-          f"({lost}; {measured}) -> {args.output}", file=sys.stderr)
-    print(args.output / CONTRACTIONS_CSV)
-    return 0
+    return f"analysed {q.get('frames_total', rows)} frames ({lost}; {measured})"
