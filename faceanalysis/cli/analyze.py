@@ -65,7 +65,7 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "video, controls whose series the mirrored partner's does not "
                             "follow (r < 0.5); on photographs, values the mirrored partner's "
                             "differ from; doubles the tracking time; not with --estimator "
-                            "fused or flow")
+                            "fused or flow, nor --layout")
     group.add_argument("--keep-suspect-points", action="store_true",
                        help="keep measurement points that the neutral frame puts far from "
                             "the calibrated face model (a contour on the wrong feature) in "
@@ -113,6 +113,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "examples:\n"
         "  faceanalysis analyze clip.mp4 -o results/\n"
         "  faceanalysis analyze clip.mp4 -o results/ --overlay --start 100 --end 400\n"
+        "  faceanalysis analyze clip.mp4 -o results/ --mirror-check\n"
         "  faceanalysis analyze frames/ --fps 25 -o results/ --estimator tw93 --overwrite")
     add_input_options(parser)
     add_output_options(parser)
