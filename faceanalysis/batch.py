@@ -65,8 +65,9 @@ from faceanalysis.io.outputs import (
     atomic_path,
     write_text_atomic,
 )
+from faceanalysis.io.report import LOST_REASONS
 from faceanalysis.io.table import measured_values
-from faceanalysis.tracking import LOST_REASONS, available_cores
+from faceanalysis.tracking import available_cores
 
 __all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
            "start_local_cluster"]

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
-from faceanalysis.io.report import input_metadata
+from faceanalysis.io.report import LOST_REASONS, input_metadata
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
@@ -38,7 +38,6 @@ __all__ = [
     "MIN_POINTS",
     "POINT_CONTOUR",
     "DEFAULT_TRACKER",
-    "LOST_REASONS",
     "TRACKERS",
     "Tracks",
     "faded_furrow_ends",
@@ -81,13 +80,6 @@ POINT_CONTOUR = {
 #: many measurement points are; controls that only the missing points observe are NaN.
 MIN_POINTS = 7
 
-#: Why a frame is lost (:attr:`Tracks.lost_reasons`): code -> what it means.
-LOST_REASONS = {
-    "undecodable": "the frame could not be decoded",
-    "no_face": "no face found (or the landmark model not confident of one)",
-    "hand": "a hand over the face, and too few points left",
-    "contours": "too few points held (contours lost: an occluder, or off their features)",
-}
 
 #: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
 #: tracked furrow is at least this long relative to the neutral frame. The face model
@@ -282,7 +274,8 @@ class Tracks:
     mirrored : bool
         Whether the video was tracked mirrored (:func:`track`'s ``mirror``).
     lost_reasons : list
-        Per frame, why it was lost (a code of :data:`LOST_REASONS`); None where it was
+        Per frame, why it was lost (a code of
+        :data:`~faceanalysis.io.report.LOST_REASONS`); None where it was
         tracked (or, for tracks not made by :func:`track`, where the reason is not known).
     """
 
@@ -576,7 +569,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
 
 def lost_reason_counts(reasons) -> dict[str, int]:
     """How many frames were lost for each reason (codes of
-    :data:`~faceanalysis.tracking.LOST_REASONS`, in its order; reasons not known left out).
+    :data:`~faceanalysis.io.report.LOST_REASONS`, in its order; reasons not known left out).
 
     Examples
     --------
@@ -588,7 +581,8 @@ def lost_reason_counts(reasons) -> dict[str, int]:
 
 
 def _lost_reason(decoded: bool, result) -> str:
-    """Why a frame that was not tracked is lost (a code of :data:`LOST_REASONS`)."""
+    """Why a frame that was not tracked is lost (a code of
+    :data:`~faceanalysis.io.report.LOST_REASONS`)."""
     if not decoded:
         return "undecodable"
     if result is None:

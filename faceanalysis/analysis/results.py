@@ -118,6 +118,8 @@ class Analysis:
         the points cannot tell apart are drawn faded."""
         kwargs.setdefault("not_identifiable", _not_identifiable(self.metadata))
         kwargs.setdefault("turned", _turned(self.table, self.metadata))
+        kwargs.setdefault("lost_reasons", (self.metadata.get("quality") or {}).get(
+            "lost_reasons"))
         return plot_contractions(self.table, path, **kwargs)
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
@@ -234,7 +236,9 @@ class OutputFolder:
         if plot:
             fig = plot_contractions(table, self.contractions_png, title=title,
                                     not_identifiable=_not_identifiable(metadata),
-                                    turned=_turned(table, metadata))
+                                    turned=_turned(table, metadata),
+                                    lost_reasons=(metadata.get("quality") or {}).get(
+                                        "lost_reasons"))
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)

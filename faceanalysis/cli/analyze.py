@@ -15,12 +15,9 @@ from faceanalysis.cli._common import (
 )
 from faceanalysis.cli._input import add_input_options
 from faceanalysis.io.outputs import CONTRACTIONS_CSV
+from faceanalysis.io.report import lost_reasons_text
 
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
-
-#: The closing line's words for each reason a frame is lost (faceanalysis.tracking.LOST_REASONS).
-_REASON_WORDS = {"undecodable": "undecodable", "no_face": "without a face",
-                 "hand": "under a hand", "contours": "with too few contours held"}
 
 
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
@@ -168,6 +165,5 @@ def closing_line(metadata: dict, rows: int) -> str:
     lost = f"{q.get('frames_lost', 0)} lost"
     reasons = q.get("lost_reasons") or {}
     if reasons:
-        lost += ": " + ", ".join(f"{n} {_REASON_WORDS.get(code, code)}"
-                                 for code, n in reasons.items())
+        lost += ": " + lost_reasons_text(reasons)
     return f"analysed {q.get('frames_total', rows)} frames ({lost}; {measured})"

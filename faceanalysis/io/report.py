@@ -26,8 +26,10 @@ from faceanalysis.io.outputs import write_text_atomic
 
 __all__ = [
     "FORMAT",
+    "LOST_REASONS",
     "analysis_metadata",
     "input_metadata",
+    "lost_reasons_text",
     "quality_summary",
     "read_analysis",
     "write_analysis",
@@ -35,6 +37,29 @@ __all__ = [
 
 #: Identifies the layout of ``analysis.json``; bumped when keys change meaning.
 FORMAT = "faceanalysis.analysis.pipeline/1"
+
+#: Why a frame is lost (``quality.lost_reasons``): code -> (in a count's words, what it
+#: means). The tracker gives each lost frame one (``Tracks.lost_reasons``).
+LOST_REASONS: dict[str, tuple[str, str]] = {
+    "undecodable": ("undecodable", "the frame could not be decoded"),
+    "no_face": ("without a face", "no face found (or the landmark model not confident of one)"),
+    "hand": ("under a hand", "a hand over the face, and too few points left"),
+    "contours": ("with too few contours held",
+                 "too few points held (contours lost: an occluder, or off their features)"),
+}
+
+
+def lost_reasons_text(counts) -> str:
+    """Lost frames per reason in words, e.g. for ``quality.lost_reasons``.
+
+    Examples
+    --------
+    >>> lost_reasons_text({"hand": 168, "no_face": 1})
+    '168 under a hand, 1 without a face'
+    """
+    return ", ".join(f"{n} {LOST_REASONS[code][0] if code in LOST_REASONS else code}"
+                     for code, n in counts.items())
+
 
 #: Longest list of lost-frame ranges kept in the summary (the count is always exact).
 MAX_LOST_RANGES = 1000

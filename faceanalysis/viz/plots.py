@@ -18,6 +18,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from faceanalysis.io.outputs import atomic_path
+from faceanalysis.io.report import lost_reasons_text
 from faceanalysis.io.table import JAW, MUSCLE_BASES, MUSCLES
 
 __all__ = ["plot_contractions", "save_figure"]
@@ -91,11 +92,30 @@ def _choose_muscles(df: pd.DataFrame, muscles: Sequence[str] | None) -> list[str
 _FADED = 0.35
 
 
+def _lost_label(n: int, reasons) -> str:
+    """The legend's entry for ``n`` lost frames and their reasons (counts, or None).
+
+    Examples
+    --------
+    >>> _lost_label(5, None), _lost_label(5, {"hand": 5})
+    ('lost frames (5)', 'lost frames (5 under a hand)')
+    >>> _lost_label(7, {"hand": 5, "no_face": 1})
+    'lost frames (7: 5 under a hand, 1 without a face)'
+    """
+    if not reasons:
+        return f"lost frames ({n})"
+    text = lost_reasons_text(reasons)
+    if sum(reasons.values()) == n:
+        return f"lost frames ({text})"
+    return f"lost frames ({n}: {text})"             # some of them without a known reason
+
+
 def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
                       muscles: Sequence[str] | None = None, title: str | None = None,
                       layout: str = "auto", dpi: int = 150,
                       not_identifiable: Sequence[str] = (),
-                      turned: Sequence[bool] | np.ndarray | None = None) -> Figure:
+                      turned: Sequence[bool] | np.ndarray | None = None,
+                      lost_reasons: dict | None = None) -> Figure:
     """Plot muscle contractions over time, one line per muscle.
 
     Left and right muscles of a pair share a colour: solid for the subject's
@@ -133,6 +153,10 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         what the estimates hold for (:data:`faceanalysis.analysis.pipeline.MAX_HEAD_TURN`
         from the neutral frame's pose; their ``confidence`` is lowered): hatched, so that
         a reader does not read them as a frontal face's values.
+    lost_reasons : dict, keyword-only, optional
+        How many frames were lost for each reason (``analysis.json``
+        ``quality.lost_reasons``): the legend says why (e.g. "lost frames (168 under a
+        hand)").
 
     Returns
     -------
@@ -251,7 +275,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                 ax.broken_barh(spans, (0, 1), transform=ax.get_xaxis_transform(),
                                color="#999999", alpha=0.3, lw=0, zorder=0)
             handles.append(Patch(color="#999999", alpha=0.3,
-                                 label=f"lost frames ({int((~tracked).sum())})"))
+                                 label=_lost_label(int((~tracked).sum()), lost_reasons)))
     if turned is not None:
         turned = turned & tracked         # a lost frame is shaded as lost, not hatched
     if turned is not None and turned.any():

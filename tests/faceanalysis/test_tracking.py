@@ -220,7 +220,8 @@ def test_an_eyeless_face_box_must_hold_its_place_before_the_snakes_start(tmp_pat
 def test_a_lost_frame_says_why():
     from types import SimpleNamespace
 
-    from faceanalysis.tracking import LOST_REASONS, _lost_reason, lost_reason_counts
+    from faceanalysis.io.report import LOST_REASONS
+    from faceanalysis.tracking import _lost_reason, lost_reason_counts
 
     hand = SimpleNamespace(extra={"hands": [np.zeros((21, 2))]})
     bare = SimpleNamespace(extra={"hands": []})
