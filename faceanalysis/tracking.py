@@ -537,8 +537,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                                              channel_order="bgr")
                     shown = None if res is None else res.contours
                     hands = None if res is None else res.extra.get("hands")
-                    writer.write(_draw(frame, shown, fids, head if good else None, not good,
-                                       hands))
+                    why = reasons[-1] and LOST_REASONS[reasons[-1]][0]
+                    writer.write(_draw(frame, shown, fids, head if good else None,
+                                       why or not good, hands))
                 if bar is not None:
                     bar.update(1)
         if frames and not any(ok) and layout is None:

@@ -68,7 +68,7 @@ def fiducials_from_row(row: Mapping) -> dict[str, tuple[float, float]]:
 
 def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndarray] | None
                  = None, fiducials: Mapping[str, Sequence[float]] | None = None,
-                 head: Sequence[float] | None = None, lost: bool = False,
+                 head: Sequence[float] | None = None, lost: bool | str = False,
                  label: str | None = None,
                  hands: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """Draw tracking results on a copy of a frame.
@@ -90,8 +90,9 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
         pixels, roll in radians. Drawn as its two axes, each half the reference
         length long: x (subject's left) along ``(cos roll, sin roll)`` and y (down
         the face) along ``(-sin roll, cos roll)``, in image coordinates.
-    lost : bool, optional
-        Mark the frame as lost (red border and "lost" label).
+    lost : bool or str, optional
+        Mark the frame as lost (red border and "lost" label); a string says why
+        (e.g. ``"under a hand"``: "lost: under a hand").
     label : str, optional
         Text for the top-left corner (e.g. frame number and time).
     hands : sequence of (21, 2) arrays, optional
@@ -162,7 +163,7 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     font_scale = max(0.35, min(height, width) / 600)
     if lost:
         cv2.rectangle(canvas, (0, 0), (width - 1, height - 1), _LOST, 2 * thick)
-        text = "lost"
+        text = f"lost: {lost}" if isinstance(lost, str) and lost else "lost"
         (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thick)
         cv2.putText(canvas, text, (width - tw - 4 * thick, th + 4 * thick),
                     cv2.FONT_HERSHEY_SIMPLEX, font_scale, _LOST, thick, cv2.LINE_AA)

@@ -46,6 +46,12 @@ def test_lost_and_label():
     out = draw_overlay(np.full((80, 200), 128, np.uint8), lost=True, label="frame 3")
     assert (out[0, :, 2] > 200).all()  # red border
     assert (out[5:20, 2:60] != 128).any()
+    # why it was lost: a longer text, reaching further left from the right edge
+    why = draw_overlay(np.full((80, 400), 128, np.uint8), lost="under a hand")
+    plain = draw_overlay(np.full((80, 400), 128, np.uint8), lost=True)
+    def text_start(img):
+        return np.flatnonzero((img[4:30, 4:-4, 2] > 200).any(axis=0)).min()
+    assert text_start(why) < text_start(plain) - 50
 
 
 def test_bad_contour_shape():
