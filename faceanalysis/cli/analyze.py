@@ -150,6 +150,8 @@ def closing_line(metadata: dict, rows: int) -> str:
     True
     >>> line.endswith("but 1 value not reproduced mirrored, flagged 0)")
     True
+    >>> closing_line({"quality": {"frames_total": 1, "frames_lost": 0}}, 1)
+    'analysed 1 frame (0 lost; all 0 controls measured)'
     """
     q = metadata.get("quality") or {}
     ident = metadata.get("identifiability") or {}
@@ -166,4 +168,5 @@ def closing_line(metadata: dict, rows: int) -> str:
     reasons = q.get("lost_reasons") or {}
     if reasons:
         lost += ": " + lost_reasons_text(reasons)
-    return f"analysed {q.get('frames_total', rows)} frames ({lost}; {measured})"
+    total = q.get("frames_total", rows)
+    return f"analysed {total} frame{'' if total == 1 else 's'} ({lost}; {measured})"
