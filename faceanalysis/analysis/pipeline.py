@@ -118,12 +118,14 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     ----------
     video : path-like
         Video file, folder of images, or a single image.
-    estimator : {'joint', 'mesh', 'fused', 'tw93', 'flow'}, optional
+    estimator : {'joint', 'mesh', 'model', 'fused', 'tw93', 'flow'}, optional
         ``joint``: bounded least squares of all contractions through the model's
         fiducial response on the contours' points; ``mesh``: the same on the contour
         points and the landmark tracker's face mesh (implies ``tracker='landmarks'``);
         default :func:`default_estimator`: ``mesh`` with the landmark tracker, ``joint``
-        with the snakes (and with ``refine``); ``fused``:
+        with the snakes (and with ``refine``); ``model``: the ``mesh`` fit, then each
+        frame fitted through the face model's own equilibrium (about 0.1 s a frame);
+        ``fused``:
         ``mesh`` with the dense flow in the same fit (a second pass over the video);
         ``tw93``: the paper's per-muscle inversion;
         ``flow``: bounded least squares of the dense face flow on the model's flow
@@ -228,6 +230,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         raise ValueError("mirror_check does not go with a layout: the layout places the "
                          "contours on the video as it is, not mirrored")
     est_options = _fit_options(estimator, refine, temporal)
+    if estimator == "model" and progress:
+        est_options["progress"] = True     # its fit takes about 0.1 s a frame
     if estimator in MESH_ESTIMATORS:
         # they read the landmark tracker's face mesh
         if tracker not in (None, "landmarks"):
@@ -296,7 +300,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     ident = _assess(est)
     ident, unreproduced = _with_mirror(ident, check, tracks.frames)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         tracks.confidence, parameters, ident, unreproduced)
+                                         tracks.confidence, parameters, ident, unreproduced,
+                                         est.residual)
     # estimation: the fit, what the points can tell apart, the model's fit residual
     t_estimate += time.perf_counter() - t0
     c_estimate += time.process_time() - c0
@@ -651,7 +656,8 @@ def _tracking_table(tracks: Tracks) -> pd.DataFrame:
 
 def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
                   response: FiducialResponse, track_conf: np.ndarray, parameters: dict,
-                  ident: dict, unreproduced: np.ndarray | None = None):
+                  ident: dict, unreproduced: np.ndarray | None = None,
+                  model_residual: np.ndarray | None = None):
     """``table`` with the estimate's controls, its confidence, AU and identifiability
     columns; the per-frame fit residual and its summary. ``parameters`` gains the
     estimated and resting controls.
@@ -693,7 +699,8 @@ def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,
     turn = head_turn(table, parameters.get("neutral_frame"))
     with np.errstate(divide="ignore"):
         track_conf = np.fmin(track_conf, MAX_HEAD_TURN / turn)   # fmin: no pose, no cap
-    residual, confidence, fit = _model_fit(disp, response, in_response, success, track_conf)
+    residual, confidence, fit = _model_fit(disp, response, in_response, success, track_conf,
+                                           model_residual)
     fit["head_turn"] = _turn_summary(turn[success])
     table["confidence"] = confidence * observed
     parameters["estimated_controls"] = estimated
@@ -763,10 +770,13 @@ def _turn_summary(turn: np.ndarray) -> dict:
             "max_deg": float(t.max())}
 
 
-def _model_fit(disp, response, values, success, track_conf):
-    """Per-frame fit residual, the confidence it allows, and their summary for
-    ``analysis.json`` (``model_fit``)."""
-    residual = np.where(success, fit_residual(disp, response, values), np.nan)
+def _model_fit(disp, response, values, success, track_conf, model_residual=None):
+    """Per-frame fit residual (``model_residual``, the estimator's own through the model,
+    where it has one; else through the response table), the confidence it allows, and
+    their summary for ``analysis.json`` (``model_fit``)."""
+    if model_residual is None:
+        model_residual = fit_residual(disp, response, values)
+    residual = np.where(success, model_residual, np.nan)
     with np.errstate(divide="ignore"):
         # fmin skips NaN: a frame without a residual keeps the tracker's confidence
         allowed = np.fmin(1.0, MAX_FIT_RESIDUAL / residual)
@@ -841,7 +851,8 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     ident, unreproduced = _with_mirror(_assess(est), check, tracks.frames
                                        if tracks is not None else table["frame"].to_numpy())
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
-                                         track_conf, parameters, ident, unreproduced)
+                                         track_conf, parameters, ident, unreproduced,
+                                         est.residual)
     metadata = dict(analysis.metadata)
     metadata["parameters"] = parameters
     metadata["model_fit"] = fit

@@ -28,7 +28,9 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--estimator", choices=tuple(ESTIMATORS), default=None,
                        help="mesh: bounded least squares through the face model on the "
                             "contour points and the landmark tracker's face mesh (default "
-                            "with the landmark tracker; implies --tracker landmarks); joint: "
+                            "with the landmark tracker; implies --tracker landmarks); model: "
+                            "mesh, then each frame fitted through the face model's own "
+                            "equilibrium (about 0.1 s a frame); joint: "
                             "the same on the contours' points alone (default with --tracker "
                             "snakes, --layout or --refine); fused: mesh with the dense flow "
                             "in the same fit (reads the video twice); tw93: the paper's "

@@ -51,6 +51,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="with --suite ceiling: also the mesh estimator, on the exact "
                              "skin points under the face-mesh landmarks (needs the landmark "
                              "model)")
+    parser.add_argument("--model", action="store_true",
+                        help="with --suite ceiling: also the model estimator (the mesh fit, "
+                             "then through the generic face model's own equilibrium; each "
+                             "face's own with --own-response; about 0.1 s a frame)")
     parser.add_argument("-o", "--output", type=Path, metavar="OUT",
                         help="output folder of the suite")
     parser.add_argument("--overwrite", action="store_true",
@@ -90,14 +94,16 @@ def run(args: argparse.Namespace) -> int:
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
         reports = measurement_ceiling(
             config, own_response=args.own_response, progress=progress_wanted(args),
-            estimators=("joint", "mesh", "tw93") if args.mesh else ("joint", "tw93"))
+            estimators=("joint", *(("mesh",) if args.mesh else ()),
+                        *(("model",) if args.model else ()), "tw93"))
         if not args.json:
             print(scores.format_table(reports))
         print(json.dumps(reports))
         return 0
-    if args.own_response or args.mesh:
-        raise ValueError(f"{'--own-response' if args.own_response else '--mesh'} goes with "
-                         "--suite ceiling")
+    ceiling_only = [f for f, on in (("--own-response", args.own_response),
+                                    ("--mesh", args.mesh), ("--model", args.model)) if on]
+    if ceiling_only:
+        raise ValueError(f"{ceiling_only[0]} goes with --suite ceiling")
     if args.suite:
         if args.output is None:
             raise ValueError("--suite needs -o OUT")

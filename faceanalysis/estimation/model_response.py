@@ -96,14 +96,19 @@ def model_points(model, vertices: np.ndarray, points=MEASUREMENT_POINTS) -> np.n
     return out
 
 
-def equilibrium_points(model, controls, values, points=MEASUREMENT_POINTS) -> np.ndarray:
+def equilibrium_points(model, controls, values, points=MEASUREMENT_POINTS, *,
+                       tol: float | None = None) -> np.ndarray:
     """Equilibrate ``model`` at ``values`` of ``controls`` (muscles and/or
     ``"jaw_rotation"``; unlisted muscles at rest) and return the orthographic x-y of
-    ``points`` (cm), shape (P, 2)."""
+    ``points`` (cm), shape (P, 2). ``tol``: the solver's tolerance (cm; default its own,
+    whose equilibria depend on where it starts by up to a few hundredths of a
+    millimetre)."""
     muscles = {n: float(v) for n, v in zip(controls, values) if n != "jaw_rotation"}
     jaw = float(dict(zip(controls, values)).get("jaw_rotation", 0.0))
     model.set_contractions(muscles or None, jaw_rotation=jaw)
-    return model_points(model, model.equilibrate(), points)
+    skin = (model.equilibrate() if tol is None
+            else model.equilibrate(tol=tol, max_iter=50000))
+    return model_points(model, skin, points)
 
 
 def _interaction_pairs(main: np.ndarray, threshold: float) -> np.ndarray:

@@ -38,7 +38,8 @@ from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import Tracks
 
 __all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "Estimate", "Observations", "estimate_fused",
-           "estimate_mesh", "mesh_fit", "mesh_regions", "regions_lost", "run_estimator"]
+           "estimate_mesh", "estimate_model", "mesh_fit", "mesh_regions", "regions_lost",
+           "run_estimator"]
 
 
 @dataclass(frozen=True)
@@ -88,12 +89,17 @@ class Estimate:
         Options of :func:`~faceanalysis.estimation.estimators.estimate_joint` that the
         estimator used (for the identifiability simulation); empty when it is not that
         fit.
+    residual : ndarray, shape (T,), optional
+        The fit residual per frame (RMS over the points seen, model cm) where the
+        estimator measures it itself (through the model's own equilibrium); None: through
+        ``response`` (:func:`~faceanalysis.estimation.estimators.fit_residual`).
     """
 
     values: pd.DataFrame
     response: FiducialResponse
     displacements: np.ndarray
     fit_options: dict = field(default_factory=dict)
+    residual: np.ndarray | None = None
 
 
 def _in_response_order(values: np.ndarray, obs: Observations) -> pd.DataFrame:
@@ -110,7 +116,7 @@ TEMPORAL = 0.01
 
 
 #: The estimators with the temporal prior (their ``temporal`` option).
-TEMPORAL_ESTIMATORS = ("joint", "mesh", "fused")
+TEMPORAL_ESTIMATORS = ("joint", "mesh", "model", "fused")
 
 
 def _joint(obs: Observations, *, refine: bool = False, temporal: float = TEMPORAL
@@ -264,6 +270,38 @@ def estimate_mesh(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
     return Estimate(pd.DataFrame(values, columns=list(response.muscles)), response, d, options)
 
 
+def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
+                   temporal: float = TEMPORAL, progress: bool = False) -> Estimate:
+    """The ``model`` estimator: the ``mesh`` fit (:func:`estimate_mesh`) as the first guess,
+    then every frame fitted through the face model's own equilibrium, with the
+    equilibrium's sensitivity as the Jacobian
+    (:func:`~faceanalysis.estimation.model_fit.fit_through_model`) and the same points,
+    weights and priors. About 0.1 s a frame. The identifiability simulation runs the
+    ``mesh`` fit (the table standing in for the model: the same points and priors)."""
+    from faceanalysis.estimation.model_fit import fit_through_model
+    from synth.model import FaceModel
+
+    first = estimate_mesh(obs, contour_weight=contour_weight, temporal=temporal)
+    response, d, options = first.response, first.displacements, first.fit_options
+    initial = first.values[list(response.muscles)].to_numpy(float)
+    bar = None
+    if progress:
+        from faceanalysis.tracking import progress_bar
+
+        bar = progress_bar(len(d), True, "fit")
+    try:
+        values, residual = fit_through_model(
+            d, response, FaceModel.default(), initial, weights=options["weights"],
+            sparsity=options["sparsity"], robust=options["robust"], knee=options["debias"],
+            temporal=temporal, inner_iterations=options["inner_iterations"],
+            return_residual=True, progress=None if bar is None else bar.update)
+    finally:
+        if bar is not None:
+            bar.close()
+    return Estimate(pd.DataFrame(values, columns=list(response.muscles)), response, d, options,
+                    residual)
+
+
 #: Weight of the dense flow's least squares against the points' in the ``fused`` fit
 #: (flow in head units, points in cm). On 2 identities of the rendered suite (22
 #: sequences, landmark tracker) the median per-control RMSE is 0.229 at 0 (``mesh``), 0.211
@@ -317,13 +355,14 @@ def _flow(obs: Observations, **kwargs) -> pd.DataFrame:
 ESTIMATORS: dict[str, Callable[..., pd.DataFrame]] = {
     "joint": _joint,
     "mesh": estimate_mesh,
+    "model": estimate_model,
     "fused": estimate_fused,
     "tw93": _tw93,
     "flow": _flow,
 }
 
 #: The estimators that read the landmark tracker's face mesh.
-MESH_ESTIMATORS = ("mesh", "fused")
+MESH_ESTIMATORS = ("mesh", "model", "fused")
 #: The estimators that read the video's frames a second time (its dense flow).
 VIDEO_ESTIMATORS = ("fused", "flow")
 

@@ -26,6 +26,7 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
+from faceanalysis.estimation.model_fit import fit_through_model
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
 from faceanalysis.estimation.registry import mesh_fit, mesh_response
 from faceanalysis.estimation.response import FiducialResponse
@@ -34,6 +35,10 @@ from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
 from faceanalysis.io.table import JAW, MUSCLES
 
 __all__ = ["perfect_measurements", "measurement_ceiling"]
+
+#: The equilibrium solver's tolerance (cm) for the perfect measurements: the points then
+#: lie within about 1e-5 cm of the equilibrium whatever frame the solver starts from.
+EXACT_TOL = 1e-6
 
 
 def perfect_measurements(model, contractions: pd.DataFrame, points) -> np.ndarray:
@@ -65,8 +70,11 @@ def perfect_measurements(model, contractions: pd.DataFrame, points) -> np.ndarra
         raise ValueError("contractions must be finite")
     model.reset()
     try:
-        # frames in order: each equilibrium starts from the last, which makes it cheap
-        return np.stack([equilibrium_points(model, controls, v, points) for v in values])
+        # frames in order: each equilibrium starts from the last, which makes it cheap;
+        # solved tightly, since the solver's default tolerance leaves points a few
+        # hundredths of a millimetre from the equilibrium, depending on the last frame
+        return np.stack([equilibrium_points(model, controls, v, points, tol=EXACT_TOL)
+                         for v in values])
     finally:
         model.reset()
 
@@ -97,16 +105,20 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     config : SuiteConfig, optional
         Identities, frames and sequences (default: the standard suite's; rendering
         options are not used).
-    estimators : sequence of {'joint', 'mesh', 'tw93'}, keyword-only
+    estimators : sequence of {'joint', 'mesh', 'model', 'tw93'}, keyword-only
         ``mesh`` reads the 16 contour points and the skin under the face-mesh landmarks
         (:func:`~faceanalysis.estimation.registry.mesh_response`), calibrated on the 16 as
-        an analysis is: the ceiling of that observation set.
+        an analysis is: the ceiling of that observation set. ``model``: the ``mesh`` fit,
+        then each frame fitted through the face model's own equilibrium
+        (:func:`~faceanalysis.estimation.model_fit.fit_through_model`): the generic face's,
+        or with ``own_response`` the identity's own.
     response : FiducialResponse, optional
         Response table to invert (default: the generic face's, as an analysis uses).
     own_response : bool, keyword-only
         Invert each identity's own response table instead (tabulated here, about 10 s
-        per identity): what is left is the table's approximation and what the points
-        cannot tell apart.
+        per identity), and fit ``model`` through the identity's own model: what is left is
+        the table's approximation (none for ``model``) and what the points cannot tell
+        apart.
     progress : bool
         Progress bar on stderr.
 
@@ -142,7 +154,7 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     from synth.render.sequence import contraction_timeline
 
     estimators = tuple(estimators)
-    choices = (*POINT_ESTIMATORS, "mesh")
+    choices = (*POINT_ESTIMATORS, "mesh", "model")
     bad = [e for e in estimators if e not in choices]
     if bad or not estimators:
         raise ValueError(f"unknown estimators {bad} for the ceiling; choose from "
@@ -152,8 +164,9 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     if response is None:
         response = model_response()
     mesh_table = None
-    if "mesh" in estimators:
+    if "mesh" in estimators or "model" in estimators:
         mesh_table = mesh_response()
+    generic = FaceModel.default() if "model" in estimators and not own_response else None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -181,9 +194,21 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                 if mtable is not None:
                     mdisp = _displacements(perfect_measurements(model, truth, mtable.fiducials),
                                            mtable, calibrate_on=len(MEASUREMENT_POINTS))
+                mesh_values = None
+                if mtable is not None:
+                    mesh_values, mesh_options = mesh_fit(mdisp, mtable)
                 for est in estimators:
                     if est == "mesh":
-                        values = dict(zip(mtable.muscles, mesh_fit(mdisp, mtable)[0].T))
+                        values = dict(zip(mtable.muscles, mesh_values.T))
+                    elif est == "model":
+                        fitted = fit_through_model(
+                            mdisp, mtable, model if own_response else generic, mesh_values,
+                            weights=mesh_options["weights"],
+                            sparsity=mesh_options["sparsity"],
+                            robust=mesh_options["robust"], knee=mesh_options["debias"],
+                            temporal=mesh_options["temporal"],
+                            inner_iterations=mesh_options["inner_iterations"])
+                        values = dict(zip(mtable.muscles, fitted.T))
                     else:
                         values = dict(zip(table.muscles,
                                           estimate(disp, table, estimator=est).T))
@@ -199,6 +224,6 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     out = {}
     for est, reps in reports.items():
         out[est] = public(pool(reps))
-        points = mesh_table.fiducials if est == "mesh" else response.fiducials
+        points = mesh_table.fiducials if est in ("mesh", "model") else response.fiducials
         out[est].update(points=list(points), own_response=bool(own_response))
     return out

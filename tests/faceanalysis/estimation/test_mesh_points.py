@@ -201,6 +201,26 @@ def test_mesh_estimator_reports_what_it_read(jaw_and_smile):
     assert a.metadata["model_fit"]["median_cm"] < 0.2
 
 
+def test_model_estimator_fits_the_same_points_through_the_model(jaw_and_smile):
+    from faceanalysis.analysis.pipeline import reestimate
+
+    _, a = jaw_and_smile
+    b = reestimate(a, "model")
+    assert b.metadata["parameters"]["estimator"] == "model"
+    assert (b.metadata["parameters"]["measurement_points"]
+            == a.metadata["parameters"]["measurement_points"])
+    t = b.table
+    jaw = t["jaw_rotation"].to_numpy()
+    assert jaw[9] > 0.08 and jaw[9] > jaw[11:].max() + 0.05
+    zyg = (t["zygomaticus_major_l"] + t["zygomaticus_major_r"]).to_numpy() / 2
+    assert zyg[-1] > max(0.02, 2 * zyg[:2].max())
+    assert t.loc[:1, list(MUSCLES)].max().max() <= 0.1
+    # the residual it reports is the model's own, not the table's
+    fit = b.metadata["model_fit"]
+    assert 0 < fit["median_cm"] <= a.metadata["model_fit"]["median_cm"] + 0.02
+    assert not np.allclose(b.fit_residual, a.fit_residual)
+
+
 def test_mesh_estimator_needs_the_landmark_tracker(jaw_and_smile):
     from faceanalysis.analysis.pipeline import reestimate
     from faceanalysis.tracking import Tracks
