@@ -279,7 +279,8 @@ class FaceModel:
         return self._dt
 
     def equilibrate(self, *, method: str = "implicit", tol: float = 3e-4,
-                    max_iter: int = 5000, max_time: float = 2.0) -> np.ndarray:
+                    max_iter: int = 5000, max_time: float = 2.0,
+                    start: np.ndarray | None = None) -> np.ndarray:
         """Relax to the equilibrium of the current contractions and jaw; returns the skin.
 
         Parameters
@@ -295,6 +296,11 @@ class FaceModel:
             Iteration cap of the implicit solver.
         max_time : float
             Cap on simulated seconds for the explicit methods.
+        start : (n, 3) array, optional
+            Node positions the implicit solver starts from (e.g. the last equilibrium
+            moved by its sensitivity to the change of the controls,
+            :func:`synth.sensitivity.equilibrium_sensitivity`); by default the last
+            equilibrium, extrapolated along the last change of the controls.
 
         Returns
         -------
@@ -309,9 +315,20 @@ class FaceModel:
             raise ValueError(f"unknown method {method!r}; choose from {', '.join(_METHODS_EQ)}")
         if not (np.isfinite(tol) and tol > 0):
             raise ValueError(f"tol must be finite and > 0, got {tol}")
+        if start is not None:
+            start = np.array(start, dtype=np.float64)
+            if start.shape != self._x.shape or not np.isfinite(start).all():
+                raise ValueError(f"start must be finite node positions of shape "
+                                 f"{self._x.shape}")
+            if method != "implicit":
+                raise ValueError("start goes with method='implicit'")
         if method == "implicit":
             controls = np.append(self._contractions, 3.0 * self._jaw)
-            x0 = self._predict(controls)
+            if start is None:
+                x0 = self._predict(controls)
+            else:
+                x0 = start
+                self.system.apply_boundary(x0)
             self._x = self.solver.solve(x0, tol=tol, max_iter=max_iter)
             self._v[:] = 0.0
             self._history = (self._history + [(controls, self._x.copy())])[-2:]

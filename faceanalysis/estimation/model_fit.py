@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from faceanalysis.estimation.estimators import box_qp
+from faceanalysis.estimation.estimators import _one_blas_thread, box_qp
 from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX, surface_points
 from faceanalysis.estimation.model_response import model_points
 from faceanalysis.estimation.response import FiducialResponse
@@ -201,65 +201,73 @@ def fit_through_model(displacements: np.ndarray, response: FiducialResponse, mod
     points = list(response.fiducials)
     controls = list(response.muscles)
 
+    linear = None   # (controls, nodes, sensitivity) of the last linearisation
+
     def equilibrium(c):
         values = {m: float(v) for m, v in zip(controls, c) if m != JAW}
         jaw = float(c[controls.index(JAW)]) if JAW in controls else 0.0
         model.set_contractions(values, jaw_rotation=jaw)
-        skin = model.equilibrate(tol=EQUILIBRIUM_TOL, max_iter=20000)
+        start = None
+        if linear is not None:
+            # started where the linearisation puts it: a few solver iterations from it
+            start = linear[1] + np.tensordot(c - linear[0], linear[2], axes=1)
+        skin = model.equilibrate(tol=EQUILIBRIUM_TOL, max_iter=20000, start=start)
         return skin, model_points(model, skin, points)
 
     out = np.full_like(c_init, np.nan)
     residual = np.full(len(d_all), np.nan)
-    model.reset()
-    try:
-        _, rest = equilibrium(np.zeros(n_m))
-        for t in range(len(d_all)):
-            d = d_all[t]
-            seen = np.isfinite(d).all(axis=1)
-            if seen.sum() >= 3 and np.isfinite(c_init[t]).any():
-                observed = np.isfinite(c_init[t])
-                hi = np.where(observed, upper, 0.0)
-                c = np.clip(np.nan_to_num(c_init[t]), 0.0, hi)
-                prior = _Prior(mu, knee * upper, np.where(
-                    np.isfinite(centre[t]) & observed, nu_all, 0.0), np.nan_to_num(centre[t]))
-                skin, p = equilibrium(c)
-                # the Jacobian once per frame, at its first guess (its steps change the
-                # stiffness little; the residuals are always the model's own, so the
-                # optimum is the same)
-                sens = equilibrium_sensitivity(model, controls, factor=stiffness_factor(
-                    model.system, model.node_positions))
-                jac = point_jacobian(model, skin, points, sens[:, :len(skin)])
-                jac = jac.reshape(n_m, -1).T                                  # (2P, M)
-                for _ in range(iterations):
-                    r = np.where(seen[:, None], d - (p - rest), 0.0)
-                    pw = w * seen
-                    if robust is not None:
-                        pw = pw * np.minimum(1.0, robust / np.maximum(
-                            np.linalg.norm(r, axis=1), 1e-12))
-                    mu_t = prior.slope(c)
-                    current = prior.objective(c, r, pw, mu_t)
-                    sw = np.repeat(pw, 2)
-                    hess = (jac.T * sw) @ jac + np.diag(prior.nu)
-                    grad0 = (jac.T * sw) @ r.ravel() - mu_t - prior.nu * (c - prior.centre)
-                    step = box_qp(hess[None], grad0[None], -c[None], (hi - c)[None],
-                                  iterations=inner_iterations)[0]
-                    for frac in (1.0, 0.5, 0.25):
-                        trial = np.clip(c + frac * step, 0.0, hi)
-                        t_skin, t_p = equilibrium(trial)
-                        t_r = np.where(seen[:, None], d - (t_p - rest), 0.0)
-                        if prior.objective(trial, t_r, pw, mu_t) < current:
-                            c, skin, p = trial, t_skin, t_p
-                            break
-                    else:
-                        skin, p = equilibrium(c)   # back to the frame's best, for the next
-                        break
-                    if np.max(np.abs(frac * step) / upper) < tol:
-                        break
-                out[t] = np.where(observed, c, np.nan)
-                r = d[seen] - (p - rest)[seen]
-                residual[t] = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
-            if progress is not None:
-                progress(1)
-    finally:
+    # the stiffness's solves and the small products gain nothing from more BLAS threads
+    with _one_blas_thread():
         model.reset()
+        try:
+            _, rest = equilibrium(np.zeros(n_m))
+            for t in range(len(d_all)):
+                d = d_all[t]
+                seen = np.isfinite(d).all(axis=1)
+                if seen.sum() >= 3 and np.isfinite(c_init[t]).any():
+                    observed = np.isfinite(c_init[t])
+                    hi = np.where(observed, upper, 0.0)
+                    c = np.clip(np.nan_to_num(c_init[t]), 0.0, hi)
+                    prior = _Prior(mu, knee * upper, np.where(
+                        np.isfinite(centre[t]) & observed, nu_all, 0.0), np.nan_to_num(centre[t]))
+                    skin, p = equilibrium(c)
+                    # the Jacobian once per frame, at its first guess (its steps change the
+                    # stiffness little; the residuals are always the model's own, so the
+                    # optimum is the same)
+                    sens = equilibrium_sensitivity(model, controls, factor=stiffness_factor(
+                        model.system, model.node_positions))
+                    jac = point_jacobian(model, skin, points, sens[:, :len(skin)])
+                    jac = jac.reshape(n_m, -1).T                                  # (2P, M)
+                    for _ in range(iterations):
+                        r = np.where(seen[:, None], d - (p - rest), 0.0)
+                        pw = w * seen
+                        if robust is not None:
+                            pw = pw * np.minimum(1.0, robust / np.maximum(
+                                np.linalg.norm(r, axis=1), 1e-12))
+                        mu_t = prior.slope(c)
+                        current = prior.objective(c, r, pw, mu_t)
+                        sw = np.repeat(pw, 2)
+                        hess = (jac.T * sw) @ jac + np.diag(prior.nu)
+                        grad0 = (jac.T * sw) @ r.ravel() - mu_t - prior.nu * (c - prior.centre)
+                        step = box_qp(hess[None], grad0[None], -c[None], (hi - c)[None],
+                                      iterations=inner_iterations)[0]
+                        for frac in (1.0, 0.5, 0.25):
+                            trial = np.clip(c + frac * step, 0.0, hi)
+                            t_skin, t_p = equilibrium(trial)
+                            t_r = np.where(seen[:, None], d - (t_p - rest), 0.0)
+                            if prior.objective(trial, t_r, pw, mu_t) < current:
+                                c, skin, p = trial, t_skin, t_p
+                                break
+                        else:
+                            skin, p = equilibrium(c)   # back to the frame's best, for the next
+                            break
+                        if np.max(np.abs(frac * step) / upper) < tol:
+                            break
+                    out[t] = np.where(observed, c, np.nan)
+                    r = d[seen] - (p - rest)[seen]
+                    residual[t] = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
+                if progress is not None:
+                    progress(1)
+        finally:
+            model.reset()
     return (out, residual) if return_residual else out

@@ -298,3 +298,27 @@ def test_bad_method(model):
         model.equilibrate(method="magic")
     with pytest.raises(ValueError, match="method"):
         model.step(method="euler")
+
+
+def test_equilibrium_started_from_a_prediction(model):
+    from synth.sensitivity import equilibrium_sensitivity
+
+    model.reset()
+    model.set_contractions({"zygomaticus_major_l": 0.4})
+    model.equilibrate(tol=1e-7, max_iter=50000)
+    base = model.node_positions
+    dx = equilibrium_sensitivity(model, ["zygomaticus_major_l"])[0]
+    model.set_contractions({"zygomaticus_major_l": 0.45})
+    model.equilibrate(tol=1e-5, max_iter=50000, start=base + 0.05 * dx)
+    from_prediction, iterations = model.node_positions, model.solver.last_iterations
+    model.set_contractions({"zygomaticus_major_l": 0.4})
+    model.equilibrate(tol=1e-7, max_iter=50000, start=base)
+    model.set_contractions({"zygomaticus_major_l": 0.45})
+    model.equilibrate(tol=1e-5, max_iter=50000)
+    assert np.abs(model.node_positions - from_prediction).max() < 1e-3
+    assert iterations < model.solver.last_iterations
+    with pytest.raises(ValueError, match="start must be finite node positions"):
+        model.equilibrate(start=base[:5])
+    with pytest.raises(ValueError, match="start goes with method='implicit'"):
+        model.equilibrate(method="rk2", start=base)
+    model.reset()
