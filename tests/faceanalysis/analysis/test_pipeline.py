@@ -186,7 +186,7 @@ def test_landmark_tracker_without_a_face_names_the_file(tmp_path):
 
 
 def test_unknown_estimator_lists_the_choices(surprise):
-    with pytest.raises(ValueError, match="choose from joint, mesh, fused, tw93, flow"):
+    with pytest.raises(ValueError, match="choose from joint, mesh, model, fused, tw93, flow"):
         analyze(surprise["video"], estimator="magic")
 
 
@@ -715,7 +715,8 @@ def test_the_mirror_check_flags_the_values_the_mirrored_video_does_not_read(surp
 
 def test_the_mirror_check_refuses_the_estimators_that_read_the_frames(surprise, tmp_path):
     for estimator in ("flow", "fused"):
-        with pytest.raises(ValueError, match="mirror_check works with the joint, mesh, tw93"):
+        with pytest.raises(ValueError,
+                           match="mirror_check works with the joint, mesh, model, tw93"):
             analyze(surprise["video"], estimator=estimator, mirror_check=True)
     # a layout is placed on the frames as they are
     with pytest.raises(ValueError, match="mirror_check does not go with a layout"):
