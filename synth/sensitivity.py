@@ -68,7 +68,9 @@ def _coupling(system) -> sp.csr_matrix:
 
 def _colouring(system):
     """Per colour, the (row node, free column) pairs of the stiffness's nonzero 3x3 blocks,
-    cached per lattice (its topology does not change)."""
+    and the stiffness's sparse structure: where each difference's values go in its CSC data
+    and, for the symmetrisation, where each entry's transpose lies. Cached per lattice (its
+    topology does not change)."""
     lat = system.lattice
     cached = _colourings.get(lat)
     if cached is not None:
@@ -93,7 +95,28 @@ def _colouring(system):
         col_of = np.repeat(cols, np.diff(sub.indptr))
         keep = position[row_nodes] >= 0            # rows of free nodes only
         groups.append((free[cols], row_nodes[keep], position[row_nodes[keep]], col_of[keep]))
-    cached = (position, groups)
+    # the entries in the order tangent_stiffness computes them: colour, axis, row axis
+    rows, cols = [], []
+    for _, _, row_pos, col in groups:
+        for d in range(3):
+            for e in range(3):
+                rows.append(3 * row_pos + e)
+                cols.append(3 * col + d)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    nf = 3 * len(free)
+    pattern = sp.csc_matrix((np.arange(1, len(rows) + 1, dtype=np.float64), (rows, cols)),
+                            shape=(nf, nf))
+    pattern.sort_indices()
+    order = pattern.data.astype(np.int64) - 1          # CSC slot -> computed entry
+    flipped = pattern.T.tocsc()
+    flipped.sort_indices()
+    # the coupling is symmetric, so the transpose has the same structure: slot q of the
+    # transpose holds the entry computed for the mirrored slot
+    mirror = np.empty(len(order), np.int64)
+    mirror[order] = np.arange(len(order))
+    transpose = mirror[flipped.data.astype(np.int64) - 1]
+    cached = (position, groups, (pattern.indices.copy(), pattern.indptr.copy(), order,
+                                 transpose))
     _colourings[lat] = cached
     return cached
 
@@ -129,11 +152,11 @@ def tangent_stiffness(system, x: np.ndarray, *, step: float = STIFFNESS_STEP) ->
     x = np.array(x, dtype=np.float64)
     if x.shape != system.lattice.rest.shape:
         raise ValueError(f"x must have shape {system.lattice.rest.shape}, got {x.shape}")
-    position, groups = _colouring(system)
+    _, groups, (indices, indptr, order, transpose) = _colouring(system)
     nf = len(system.free)
     buf = np.empty_like(x)
-    rows, cols, vals = [], [], []
-    for nodes, row_nodes, row_pos, col in groups:
+    vals = []
+    for nodes, row_nodes, _, _ in groups:
         for d in range(3):
             x0 = x[nodes, d].copy()
             x[nodes, d] = x0 + step
@@ -141,14 +164,10 @@ def tangent_stiffness(system, x: np.ndarray, *, step: float = STIFFNESS_STEP) ->
             x[nodes, d] = x0 - step
             behind = system.forces(x, buf)[0][row_nodes]
             x[nodes, d] = x0
-            df = (behind - ahead) / (2.0 * step)                 # -df/dx, (L, 3)
-            for e in range(3):
-                rows.append(3 * row_pos + e)
-                cols.append(3 * col + d)
-                vals.append(df[:, e])
-    k = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(3 * nf, 3 * nf))
-    return ((k + k.T) * 0.5).tocsc()
+            vals.append(((behind - ahead) / (2.0 * step)).T.ravel())   # -df/dx, by row axis
+    data = np.concatenate(vals)[order]
+    data = 0.5 * (data + data[transpose])
+    return sp.csc_matrix((data, indices, indptr), shape=(3 * nf, 3 * nf))
 
 
 def _load(model, contractions: np.ndarray, jaw: float) -> np.ndarray:
