@@ -98,6 +98,7 @@ def test_cli_ceiling_prints_table_and_json(run_cli):
 @pytest.mark.parametrize("argv, match", [
     (("--suite", "ceiling", "-o", "out"), "writes nothing"),
     (("--own-response", "--truth", "t", "--estimate", "e"), "--own-response goes with"),
+    (("--model", "--truth", "t", "--estimate", "e"), "--model goes with"),
 ])
 def test_cli_ceiling_usage_errors(run_cli, argv, match):
     code, _, err = run_cli("evaluate", *argv)
@@ -130,3 +131,23 @@ def test_ceiling_of_the_mesh_observation_set():
     assert mesh["jaw_rmse_deg"] < 1.0
     for name in ("frontalis_outer_l", "frontalis_outer_r"):
         assert act[name]["r"] > 0.95 and act[name]["rmse"] < 0.1
+
+
+def test_ceiling_through_the_model():
+    # the same points, fitted through the model's own equilibrium instead of its table
+    try:
+        from trackers.landmarks import ensure_models
+
+        ensure_models()
+    except (RuntimeError, FileNotFoundError) as exc:
+        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    rep = measurement_ceiling(SMALL, estimators=("mesh", "model"))
+    mesh, model = rep["mesh"], rep["model"]
+    assert model["points"] == mesh["points"] and model["frames"] == mesh["frames"]
+
+    def rmse(r):
+        return np.array([v["rmse"] for v in _active(r).values()])
+
+    assert np.median(rmse(model)) < np.median(rmse(mesh))
+    assert rmse(model).max() < rmse(mesh).max()
+    assert model["jaw_rmse_deg"] < 1.0
