@@ -11,6 +11,7 @@ import pytest
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS, model_response
 from faceanalysis.evaluation.ceiling import measurement_ceiling, perfect_measurements
 from faceanalysis.evaluation.suite import SuiteConfig
+from tests.faceanalysis._photos import models_or_skip
 
 SMALL = SuiteConfig(identities=1, frames=6,
                     sequences=(("expression", "surprise"), ("au", "12:0.7,26:0.6")))
@@ -117,12 +118,7 @@ def test_own_response_tables_each_face():
 
 
 def test_ceiling_of_the_mesh_observation_set():
-    try:
-        from trackers.landmarks import ensure_models
-
-        ensure_models()
-    except (RuntimeError, FileNotFoundError) as exc:
-        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    models_or_skip()
     rep = measurement_ceiling(SMALL, estimators=("joint", "mesh"))
     mesh = rep["mesh"]
     assert mesh["points"][:len(MEASUREMENT_POINTS)] == list(MEASUREMENT_POINTS)
@@ -135,12 +131,7 @@ def test_ceiling_of_the_mesh_observation_set():
 
 def test_ceiling_through_the_model():
     # the same points, fitted through the model's own equilibrium instead of its table
-    try:
-        from trackers.landmarks import ensure_models
-
-        ensure_models()
-    except (RuntimeError, FileNotFoundError) as exc:
-        pytest.skip(f"the MediaPipe face models cannot be obtained here: {exc}")
+    models_or_skip()
     rep = measurement_ceiling(SMALL, estimators=("mesh", "model"))
     mesh, model = rep["mesh"], rep["model"]
     assert model["points"] == mesh["points"] and model["frames"] == mesh["frames"]
