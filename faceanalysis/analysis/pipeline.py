@@ -106,6 +106,7 @@ def default_estimator(tracker: str | None = None, *, layout=None, refine: bool =
 def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
+            personalize: bool = False,
             tracker: str | None = None, tracker_options: dict | None = None,
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
@@ -156,6 +157,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         With ``estimator='joint'``, refine every frame through the face model itself
         (:func:`faceanalysis.estimation.refine.refine_through_model`); about ten times
         slower.
+    personalize : bool, keyword-only
+        With ``estimator='model'``, fit through the generic face warped onto the
+        subject's neutral frame (:func:`faceanalysis.estimation.model_fit.personal_model`)
+        instead of the generic face itself.
     tracker_options : dict, optional
         Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
     backend : {'numpy', 'torch'}, keyword-only
@@ -222,6 +227,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         raise ValueError(f"suspect_points must be 'exclude' or 'keep', got {suspect_points!r}")
     if refine and estimator != "joint":
         raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
+    if personalize and estimator != "model":
+        raise ValueError(f"personalize works with the model estimator, not {estimator!r}")
     if mirror_check and estimator in VIDEO_ESTIMATORS:
         raise ValueError(f"mirror_check works with the "
                          f"{', '.join(e for e in ESTIMATORS if e not in VIDEO_ESTIMATORS)} "
@@ -229,7 +236,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     if mirror_check and layout is not None:
         raise ValueError("mirror_check does not go with a layout: the layout places the "
                          "contours on the video as it is, not mirrored")
-    est_options = _fit_options(estimator, refine, temporal)
+    est_options = _fit_options(estimator, refine, temporal, personalize)
     if estimator == "model" and progress:
         est_options["progress"] = True     # its fit takes about 0.1 s a frame
     if estimator in MESH_ESTIMATORS:
@@ -287,7 +294,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         "neutral_frame": int(tracks.frames[k]),
         "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
-        "refine": bool(refine), "tracker_options": dict(tracker_options or {}),
+        "refine": bool(refine), "personalize": bool(personalize),
+        "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),
         "single_frame": len(tracks) == 1,
@@ -476,10 +484,12 @@ def _warn_identifiability(video, ident: dict) -> None:
                     "<control>_identifiable (analysis.json: identifiability)", video, pairs)
 
 
-def _fit_options(estimator: str, refine: bool, temporal) -> dict:
-    """The options of ``estimator``'s fit: ``refine``, and the temporal prior's weight
-    (checked; the default where the estimator has the prior)."""
+def _fit_options(estimator: str, refine: bool, temporal, personalize: bool = False) -> dict:
+    """The options of ``estimator``'s fit: ``refine``, ``personalize``, and the temporal
+    prior's weight (checked; the default where the estimator has the prior)."""
     options = {"refine": True} if refine else {}
+    if personalize:
+        options["personalize"] = True
     if temporal is not None:
         temporal = check_temporal(temporal)
         if estimator not in TEMPORAL_ESTIMATORS:
@@ -791,13 +801,14 @@ def _model_fit(disp, response, values, success, track_conf, model_residual=None)
 
 
 def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
-               temporal: float | None = None) -> Analysis:
+               temporal: float | None = None, personalize: bool = False) -> Analysis:
     """The same tracking and calibration, another estimator: a new :class:`Analysis`.
 
     Tracking dominates the cost of an analysis, so comparing estimators this way
     costs only the estimation (and, for ``flow``, the flow pass over the video).
     ``temporal`` as in :func:`analyze`; by default the analysis's own (its
-    ``parameters.temporal``), else the estimator's default. An analysis made with
+    ``parameters.temporal``), else the estimator's default; ``personalize`` as in
+    :func:`analyze`. An analysis made with
     ``mirror_check`` repeats the check with the new estimator on its mirrored tracks
     (not with ``fused`` and ``flow``, which read the frames again: there the new
     analysis has no check, and ``parameters.mirror_check`` says so).
@@ -806,7 +817,11 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
         raise ValueError(f"unknown estimator {estimator!r}; choose from {', '.join(ESTIMATORS)}")
     if temporal is None and estimator in TEMPORAL_ESTIMATORS:
         temporal = analysis.metadata.get("parameters", {}).get("temporal")
-    est_options = _fit_options(estimator, refine, temporal)
+    if refine and estimator != "joint":
+        raise ValueError(f"refine works with the joint estimator, not {estimator!r}")
+    if personalize and estimator != "model":
+        raise ValueError(f"personalize works with the model estimator, not {estimator!r}")
+    est_options = _fit_options(estimator, refine, temporal, personalize)
     if analysis.calibration is None or analysis.response is None:
         raise ValueError("this analysis has no calibration/response to re-estimate from")
     if estimator == "flow" and analysis.tracks is None:
@@ -834,7 +849,7 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
     if track_conf is None:
         track_conf = table["confidence"].to_numpy(float)
     parameters = {**params, "estimator": estimator, "refine": bool(refine),
-                  "temporal": est_options.get("temporal"),
+                  "personalize": bool(personalize), "temporal": est_options.get("temporal"),
                   "measurement_points": list(est.response.fiducials)}
     check = None
     mirrored = analysis.mirrored_tracks

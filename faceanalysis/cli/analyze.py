@@ -52,6 +52,9 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--refine", action="store_true",
                        help="joint estimator: refine every frame through the face model itself "
                             "(more accurate where muscles interact, about ten times slower)")
+    group.add_argument("--personalize", action="store_true",
+                       help="model estimator: fit through the face model warped onto the "
+                            "subject's neutral frame instead of the generic face")
     group.add_argument("--temporal", type=non_negative_float, metavar="WEIGHT",
                        help="joint, mesh, fused: weight of the prior that draws each frame's "
                             "contractions toward its neighbours' (default 0.01), so that "
@@ -91,6 +94,8 @@ def check_analysis_options(args: argparse.Namespace) -> None:
                          "mesh; drop --tracker snakes")
     if args.refine and args.estimator not in (None, "joint"):
         raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
+    if getattr(args, "personalize", False) and args.estimator != "model":
+        raise UsageError(f"--personalize goes with --estimator model, not {args.estimator}")
     if args.temporal is not None and args.estimator not in (None, *TEMPORAL_ESTIMATORS):
         raise UsageError(f"--temporal goes with --estimator {', '.join(TEMPORAL_ESTIMATORS)}, "
                          f"not {args.estimator}")
@@ -130,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=not progress_wanted(args), estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
-        refine=args.refine, temporal=args.temporal, mirror_check=args.mirror_check,
+        refine=args.refine, personalize=args.personalize, temporal=args.temporal,
+        mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
     print(f"{closing_line(result.metadata, len(result.table))} -> {args.output}",

@@ -54,7 +54,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 _ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "tracker", "layout",
-                     "overlay", "refine", "temporal", "mirror_check", "backend", "device")
+                     "overlay", "refine", "personalize", "temporal", "mirror_check", "backend",
+                     "device")
 
 
 def _options(args: argparse.Namespace) -> dict:

@@ -55,6 +55,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="with --suite ceiling: also the model estimator (the mesh fit, "
                              "then through the generic face model's own equilibrium; each "
                              "face's own with --own-response; about 0.1 s a frame)")
+    parser.add_argument("--personalize", action="store_true",
+                        help="with --suite ceiling --model: through the generic face warped "
+                             "onto each sequence's neutral frame (not with --own-response)")
     parser.add_argument("-o", "--output", type=Path, metavar="OUT",
                         help="output folder of the suite")
     parser.add_argument("--overwrite", action="store_true",
@@ -91,9 +94,12 @@ def run(args: argparse.Namespace) -> int:
         if args.output is not None:
             raise ValueError("--suite ceiling writes nothing; it prints its table "
                              "(use --json for JSON)")
+        if args.personalize and (not args.model or args.own_response):
+            raise ValueError("--personalize goes with --model and without --own-response")
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames)
         reports = measurement_ceiling(
-            config, own_response=args.own_response, progress=progress_wanted(args),
+            config, own_response=args.own_response, personalize=args.personalize,
+            progress=progress_wanted(args),
             estimators=("joint", *(("mesh",) if args.mesh else ()),
                         *(("model",) if args.model else ()), "tw93"))
         if not args.json:
@@ -101,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(reports))
         return 0
     ceiling_only = [f for f, on in (("--own-response", args.own_response),
-                                    ("--mesh", args.mesh), ("--model", args.model)) if on]
+                                    ("--mesh", args.mesh), ("--model", args.model),
+                                    ("--personalize", args.personalize)) if on]
     if ceiling_only:
         raise ValueError(f"{ceiling_only[0]} goes with --suite ceiling")
     if args.suite:

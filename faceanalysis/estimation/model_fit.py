@@ -26,7 +26,7 @@ from faceanalysis.estimation.model_response import model_points
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.table import JAW
 
-__all__ = ["fit_through_model", "point_jacobian"]
+__all__ = ["fit_through_model", "personal_model", "point_jacobian"]
 
 #: Gauss-Newton iterations per frame at most (each one equilibrium, more when a step is
 #: halved). On exact points of the first standard-suite identity a fourth changes nothing.
@@ -40,6 +40,99 @@ TOLERANCE = 2e-3
 #: tight solve reaches, which the fit would read as muscle; at 1e-4 it is 0.02-0.03 mm
 #: (3e-5 reads exact points of the first standard-suite identity the same, 30 % slower).
 EQUILIBRIUM_TOL = 1e-4
+
+
+#: The personalisation's warp carries every this many face-mesh points (of some 330 seen):
+#: the warp interpolates its landmarks exactly, so each one adds the tracker's noise on
+#: it to the face's shape.
+WARP_EVERY = 4
+
+#: Landmarks of the warp closer than this (cm) on the model are one: the first carries it.
+WARP_SPACING = 0.1
+
+#: Blends of the warp with its affine part tried in turn, from the warp itself to its
+#: affine part alone: a warp through noisy points may fold the face.
+WARP_BLENDS = (1.0, 0.75, 0.5, 0.25, 0.0)
+
+
+def personal_model(neutral: np.ndarray, response: FiducialResponse, model, *,
+                   every: int = WARP_EVERY):
+    """``model`` personalised to a subject's neutral face seen at ``neutral``.
+
+    Kähler's landmark warp (:func:`synth.personalize.personalize_model`) takes the
+    model's skin points under the seen face-mesh points (every ``every``-th) and the
+    mesh's landmarks among ``response.fiducials`` onto their neutral x-y; their depth is
+    the model's, scaled as the x-y's affine fit scales the face, and the head frame's
+    points move with that fit. Where the warp folds the face it is blended toward its
+    affine part (:data:`WARP_BLENDS`).
+
+    Parameters
+    ----------
+    neutral : ndarray, shape (P, 2)
+        Positions of ``response.fiducials`` on the neutral frame, model cm (x = the
+        subject's left, y up); NaN where not seen.
+    response : FiducialResponse
+        Names the points.
+    model : synth.FaceModel
+        The model to personalise (not modified).
+    every : int, keyword-only
+        Every how many seen face-mesh points one carries the warp.
+
+    Returns
+    -------
+    personal : synth.FaceModel
+    blend : float
+        The share of the warp beyond its affine part that was kept (1: all of it).
+
+    Raises
+    ------
+    ValueError
+        For a ``neutral`` of the wrong shape, ``every`` < 1, or fewer than 10 seen points.
+    """
+    from synth.personalize import head_frame_points, personalize_model
+
+    names = list(response.fiducials)
+    xy = np.asarray(neutral, dtype=float)
+    if xy.shape != (len(names), 2):
+        raise ValueError(f"neutral must have shape ({len(names)}, 2), got {xy.shape}")
+    if isinstance(every, bool) or int(every) != every or every < 1:
+        raise ValueError(f"every must be a positive integer, got {every!r}")
+    seen = np.isfinite(xy).all(axis=1)
+    mesh = [j for j, n in enumerate(names) if n.startswith(MESH_POINT_PREFIX) and seen[j]]
+    mesh = mesh[::int(every)]
+    marks = [j for j, n in enumerate(names)
+             if n in model.mesh.landmarks and not n.startswith(MESH_POINT_PREFIX) and seen[j]]
+    use = mesh + marks
+    if len(use) < 10:
+        raise ValueError(f"personalising the model needs at least 10 seen points, got {len(use)}")
+    v = model.surface_vertices
+    table = surface_points([names[j] for j in mesh])
+    src = np.array([table[names[j]][1] @ v[table[names[j]][0]] for j in mesh]
+                   + [v[model.mesh.landmarks[names[j]]] for j in marks])
+    # face-mesh points that share a skin point (or nearly) would make the warp's system
+    # singular: the first of them carries it
+    near = np.linalg.norm(src[:, None] - src[None], axis=2) < WARP_SPACING
+    keep = ~np.triu(near, 1).any(axis=0)
+    src, dst = src[keep], xy[use][keep]
+    # the x-y's affine fit scales the face; the depth, unseen, is scaled as much
+    a, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], dst, rcond=None)
+    scale = float(np.sqrt(abs(np.linalg.det(a[:2]))))
+    origin, nose = head_frame_points(model.mesh)
+    source = np.vstack([src, origin, nose])
+    frame = np.array([origin, nose])
+    target = np.vstack([np.c_[dst, scale * src[:, 2]],
+                        np.c_[np.c_[frame[:, :2], np.ones(2)] @ a, scale * frame[:, 2]]])
+    design = np.c_[source, np.ones(len(source))]
+    affine = design @ np.linalg.lstsq(design, target, rcond=None)[0]
+    for blend in WARP_BLENDS:
+        try:
+            personal, _ = personalize_model(model, source, affine + blend * (target - affine))
+        except ValueError:
+            if blend == WARP_BLENDS[-1]:
+                raise
+            continue
+        return personal, blend
+    raise AssertionError("unreachable")
 
 
 def _split(points) -> tuple[list, list, list]:

@@ -27,6 +27,7 @@ them through one path: one fill of the table, one model-fit check, one confidenc
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -37,9 +38,11 @@ from faceanalysis.estimation.estimators import estimate_joint, estimate_tw93
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import Tracks
 
-__all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "Estimate", "Observations", "estimate_fused",
-           "estimate_mesh", "estimate_model", "mesh_fit", "mesh_regions", "regions_lost",
-           "run_estimator"]
+__all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "Estimate", "Observations",
+           "estimate_fused", "estimate_mesh", "estimate_model", "mesh_fit", "mesh_neutral",
+           "mesh_regions", "regions_lost", "run_estimator"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -204,6 +207,30 @@ def mesh_observations(obs: Observations, response: FiducialResponse) -> np.ndarr
     return d
 
 
+def mesh_neutral(obs: Observations, response: FiducialResponse) -> np.ndarray:
+    """Positions (model cm, x = the subject's left, y up) of ``response.fiducials`` on the
+    neutral frame, through the calibration: the contour points as calibrated, the face-mesh
+    points from the tracks' landmarks; NaN where not seen, shape (P, 2)."""
+    from faceanalysis.estimation.mesh_points import MESH_POINT_PREFIX
+    from faceanalysis.tracking import to_head_frame
+
+    tracks, cal, k = obs.tracks, obs.calibration, obs.neutral
+    if cal is None or tracks is None or tracks.landmarks is None or tracks.landmarks[k] is None:
+        raise ValueError("the neutral positions need the neutral frame's calibration and "
+                         "the landmark tracker's face mesh on it")
+    inverse = np.linalg.inv(cal.matrix)
+    names = response.fiducials
+    out = np.full((len(names), 2), np.nan)
+    for j, n in enumerate(names):
+        if not n.startswith(MESH_POINT_PREFIX) and n in obs.response.fiducials:
+            out[j] = (cal.neutral[obs.response.fiducials.index(n)] - cal.offset) @ inverse.T
+    mesh = [j for j, n in enumerate(names) if n.startswith(MESH_POINT_PREFIX)]
+    idx = [int(names[j].removeprefix(MESH_POINT_PREFIX)) for j in mesh]
+    image = np.asarray(tracks.landmarks[k], dtype=float)[idx, :2]
+    out[mesh] = (to_head_frame(image, tracks.heads[k]) - cal.offset) @ inverse.T
+    return out
+
+
 #: The face's regions by their contours: a region is lost on a frame where every one of
 #: its contours is (:func:`regions_lost`).
 REGIONS = {"brow_l": ("brow_l",), "brow_r": ("brow_r",),
@@ -271,19 +298,29 @@ def estimate_mesh(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
 
 
 def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
-                   temporal: float = TEMPORAL, progress: bool = False) -> Estimate:
+                   temporal: float = TEMPORAL, personalize: bool = False,
+                   progress: bool = False) -> Estimate:
     """The ``model`` estimator: the ``mesh`` fit (:func:`estimate_mesh`) as the first guess,
     then every frame fitted through the face model's own equilibrium, with the
     equilibrium's sensitivity as the Jacobian
     (:func:`~faceanalysis.estimation.model_fit.fit_through_model`) and the same points,
     weights and priors. About 0.1 s a frame. The identifiability simulation runs the
-    ``mesh`` fit (the table standing in for the model: the same points and priors)."""
-    from faceanalysis.estimation.model_fit import fit_through_model
+    ``mesh`` fit (the table standing in for the model: the same points and priors).
+
+    ``personalize``: fit through the generic face warped onto the subject's neutral frame
+    (:func:`~faceanalysis.estimation.model_fit.personal_model` of :func:`mesh_neutral`)
+    instead of the generic face itself."""
+    from faceanalysis.estimation.model_fit import fit_through_model, personal_model
     from synth.model import FaceModel
 
     first = estimate_mesh(obs, contour_weight=contour_weight, temporal=temporal)
     response, d, options = first.response, first.displacements, first.fit_options
     initial = first.values[list(response.muscles)].to_numpy(float)
+    model = FaceModel.default()
+    if personalize:
+        model, blend = personal_model(mesh_neutral(obs, response), response, model)
+        log.info("the face model personalised to the neutral frame (%.0f %% of the warp "
+                 "beyond its affine part)", 100 * blend)
     bar = None
     if progress:
         from faceanalysis.tracking import progress_bar
@@ -291,7 +328,7 @@ def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
         bar = progress_bar(len(d), True, "fit")
     try:
         values, residual = fit_through_model(
-            d, response, FaceModel.default(), initial, weights=options["weights"],
+            d, response, model, initial, weights=options["weights"],
             sparsity=options["sparsity"], robust=options["robust"], knee=options["debias"],
             temporal=temporal, inner_iterations=options["inner_iterations"],
             return_residual=True, progress=None if bar is None else bar.update)

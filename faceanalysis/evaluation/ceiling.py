@@ -26,13 +26,14 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
-from faceanalysis.estimation.model_fit import fit_through_model
+from faceanalysis.estimation.model_fit import fit_through_model, personal_model
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
 from faceanalysis.estimation.registry import mesh_fit, mesh_response
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.evaluation.scores import pool, public
 from faceanalysis.evaluation.suite import SuiteConfig, script_kwargs
 from faceanalysis.io.table import JAW, MUSCLES
+from faceanalysis.tracking import to_head_frame
 
 __all__ = ["perfect_measurements", "measurement_ceiling"]
 
@@ -94,10 +95,21 @@ def _displacements(points: np.ndarray, response: FiducialResponse,
     return (image - image[0]) @ np.linalg.inv(cal.matrix).T
 
 
+def _neutral(points: np.ndarray, response: FiducialResponse, calibrate_on: int) -> np.ndarray:
+    """The first frame's ``points`` in model cm through the calibration of
+    :func:`_displacements`: what an analysis's neutral frame gives
+    (:func:`~faceanalysis.estimation.registry.mesh_neutral`)."""
+    image = points[0] * np.array([1.0, -1.0])
+    head = np.array([0.0, 0.0, 1.0, 0.0])
+    cal = calibrate(image[:calibrate_on], head, response.rest[:calibrate_on])
+    return (to_head_frame(image, head) - cal.offset) @ np.linalg.inv(cal.matrix).T
+
+
 def measurement_ceiling(config: SuiteConfig | None = None, *,
                         estimators=("joint", "tw93"),
                         response: FiducialResponse | None = None,
-                        own_response: bool = False, progress: bool = False) -> dict:
+                        own_response: bool = False, personalize: bool = False,
+                        progress: bool = False) -> dict:
     """Score the fiducial estimators on perfect measurements of the suite's faces.
 
     Parameters
@@ -119,6 +131,10 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         per identity), and fit ``model`` through the identity's own model: what is left is
         the table's approximation (none for ``model``) and what the points cannot tell
         apart.
+    personalize : bool, keyword-only
+        Fit ``model`` through the generic face personalised to each sequence's neutral
+        frame (:func:`~faceanalysis.estimation.model_fit.personal_model` of its exact
+        points), as ``estimate_model(personalize=True)`` does. Not with ``own_response``.
     progress : bool
         Progress bar on stderr.
 
@@ -159,6 +175,9 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
     if bad or not estimators:
         raise ValueError(f"unknown estimators {bad} for the ceiling; choose from "
                          f"{', '.join(choices)}")
+    if personalize and (own_response or "model" not in estimators):
+        raise ValueError("personalize goes with the model estimator and without own_response "
+                         "(each face's own model needs no personalising)")
     if config is None:
         config = SuiteConfig()
     if response is None:
@@ -192,8 +211,8 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                 exact = perfect_measurements(model, truth, table.fiducials)
                 disp = _displacements(exact, table)
                 if mtable is not None:
-                    mdisp = _displacements(perfect_measurements(model, truth, mtable.fiducials),
-                                           mtable, calibrate_on=len(MEASUREMENT_POINTS))
+                    mexact = perfect_measurements(model, truth, mtable.fiducials)
+                    mdisp = _displacements(mexact, mtable, calibrate_on=len(MEASUREMENT_POINTS))
                 mesh_values = None
                 if mtable is not None:
                     mesh_values, mesh_options = mesh_fit(mdisp, mtable)
@@ -201,8 +220,13 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                     if est == "mesh":
                         values = dict(zip(mtable.muscles, mesh_values.T))
                     elif est == "model":
+                        through = model if own_response else generic
+                        if personalize:
+                            through, _ = personal_model(
+                                _neutral(mexact, mtable, len(MEASUREMENT_POINTS)), mtable,
+                                generic)
                         fitted = fit_through_model(
-                            mdisp, mtable, model if own_response else generic, mesh_values,
+                            mdisp, mtable, through, mesh_values,
                             weights=mesh_options["weights"],
                             sparsity=mesh_options["sparsity"],
                             robust=mesh_options["robust"], knee=mesh_options["debias"],
@@ -226,4 +250,6 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
         out[est] = public(pool(reps))
         points = mesh_table.fiducials if est in ("mesh", "model") else response.fiducials
         out[est].update(points=list(points), own_response=bool(own_response))
+        if est == "model":
+            out[est]["personalized"] = bool(personalize)
     return out

@@ -221,6 +221,36 @@ def test_model_estimator_fits_the_same_points_through_the_model(jaw_and_smile):
     assert not np.allclose(b.fit_residual, a.fit_residual)
 
 
+def test_model_estimator_through_the_personalised_face(jaw_and_smile):
+    from faceanalysis.analysis.pipeline import reestimate
+    from faceanalysis.estimation.registry import Observations, mesh_neutral, mesh_response
+
+    _, a = jaw_and_smile
+    # the neutral frame's points through the calibration lie where the generic face,
+    # which was rendered, has them, give or take how the landmark model places them
+    response = mesh_response()
+    k = int(np.flatnonzero(a.tracks.frames == a.metadata["parameters"]["neutral_frame"])[0])
+    obs = Observations(tracks=a.tracks, response=a.response, displacements=None, neutral=k,
+                       options={}, calibration=a.calibration)
+    neutral = mesh_neutral(obs, response)
+    assert np.isfinite(neutral).all(axis=1).sum() > 250
+    dist = np.linalg.norm(neutral - response.rest, axis=1)
+    assert np.nanmedian(dist) < 0.3
+    b = reestimate(a, "model", personalize=True)
+    assert b.metadata["parameters"]["personalize"] is True
+    t = b.table
+    jaw = t["jaw_rotation"].to_numpy()
+    assert jaw[9] > 0.08 and jaw[9] > jaw[11:].max() + 0.05
+    zyg = (t["zygomaticus_major_l"] + t["zygomaticus_major_r"]).to_numpy() / 2
+    assert zyg[-1] > max(0.02, 2 * zyg[:2].max())
+    assert t.loc[:1, list(MUSCLES)].max().max() <= 0.1
+    generic = reestimate(a, "model")
+    assert generic.metadata["parameters"]["personalize"] is False
+    assert not np.allclose(b.fit_residual, generic.fit_residual, equal_nan=True)
+    with pytest.raises(ValueError, match="personalize works with the model estimator"):
+        reestimate(a, "mesh", personalize=True)
+
+
 def test_mesh_estimator_needs_the_landmark_tracker(jaw_and_smile):
     from faceanalysis.analysis.pipeline import reestimate
     from faceanalysis.tracking import Tracks

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from faceanalysis.estimation.estimators import estimate_joint
-from faceanalysis.estimation.model_fit import fit_through_model, point_jacobian
+from faceanalysis.estimation.model_fit import fit_through_model, personal_model, point_jacobian
 from faceanalysis.estimation.model_response import model_points, model_response
 
 TRUTH = (("zygomaticus_major_l", 0.8), ("risorius_l", 0.5), ("frontalis_major_r", 0.6),
@@ -114,3 +114,67 @@ def test_bad_arguments_are_refused(setup):
         fit_through_model(d, response, model, initial, knee=0.0)
     with pytest.raises(ValueError, match="weights"):
         fit_through_model(d, response, model, initial, weights=np.ones(3))
+
+
+@pytest.fixture(scope="module")
+def other_face():
+    """The generic face's mesh response, and another face's neutral points in its model cm
+    (calibrated on the contour points, as an analysis's neutral frame is)."""
+    import pandas as pd
+
+    from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
+    from faceanalysis.estimation.registry import mesh_response
+    from faceanalysis.evaluation.ceiling import _neutral, perfect_measurements
+    from synth.face_shape import FaceShape
+    from synth.model import FaceModel
+
+    response = mesh_response()
+    other = FaceModel.build(FaceShape.random(1001))
+    exact = perfect_measurements(other, pd.DataFrame({"jaw_rotation": [0.0]}),
+                                 response.fiducials)
+    return response, _neutral(exact, response, len(MEASUREMENT_POINTS))
+
+
+def _rest_points(model, response):
+    model.reset()
+    return model_points(model, model.equilibrate(tol=1e-6), response.fiducials)
+
+
+def test_the_personal_model_takes_the_subjects_neutral_shape(setup, other_face):
+    model, *_ = setup
+    response, neutral = other_face
+    personal, blend = personal_model(neutral, response, model)
+    assert blend == 1.0
+    generic = np.linalg.norm(_rest_points(model, response) - neutral, axis=1)
+    own = np.linalg.norm(_rest_points(personal, response) - neutral, axis=1)
+    # the generic face lies about 2 mm from this face's points; its personalised copy at
+    # rest within a few hundredths of a millimetre of them (the warp carries every fourth
+    # face-mesh point; the rest follow the skin between them)
+    assert np.median(generic) > 0.1
+    assert np.median(own) < 0.02 and np.percentile(own, 90) < 0.06
+    assert personal.muscle_names == model.muscle_names
+    # the generic model is left as it was
+    assert np.median(np.linalg.norm(_rest_points(model, response) - neutral, axis=1)) \
+        == pytest.approx(np.median(generic))
+
+
+def test_a_warp_that_would_fold_the_face_is_blended_toward_its_affine_part(setup, other_face):
+    model, *_ = setup
+    response, neutral = other_face
+    bad = neutral.copy()
+    mesh = [j for j, n in enumerate(response.fiducials) if n.startswith("mesh_")]
+    bad[mesh[40]] += [4.0, 0.0]             # one point 4 cm across the cheek
+    personal, blend = personal_model(bad, response, model)
+    assert 0.0 <= blend < 1.0
+    assert np.isfinite(personal.surface_vertices).all()
+
+
+def test_personal_model_refuses_bad_arguments(setup, other_face):
+    model, *_ = setup
+    response, neutral = other_face
+    with pytest.raises(ValueError, match="neutral must have shape"):
+        personal_model(neutral[:5], response, model)
+    with pytest.raises(ValueError, match="every"):
+        personal_model(neutral, response, model, every=0)
+    with pytest.raises(ValueError, match="at least 10 seen points"):
+        personal_model(np.full_like(neutral, np.nan), response, model)
