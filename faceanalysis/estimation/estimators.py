@@ -506,13 +506,17 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
 
 
 def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
-           iterations: int = 300, tol: float = 1e-9) -> np.ndarray:
+           iterations: int = 300, tol: float = 1e-9, precondition: bool = True) -> np.ndarray:
     """Solve ``min 0.5 x'Hx - g'x`` s.t. ``lo <= x <= hi`` for a batch of small problems.
 
-    Accelerated projected gradient (FISTA) with step ``1 / ||H||_F`` (Frobenius norm,
-    ``>= lambda_max(H)``), problem by problem (compiled); each problem stops early when
-    none of its variables moved by more than ``tol`` over an iteration (checked every
-    tenth).
+    Accelerated projected gradient (FISTA) on the Jacobi-scaled problem (each variable
+    scaled by the square root of its diagonal entry, which keeps the box a box), with step
+    ``1 / ||H_s||_F`` (Frobenius norm, ``>= lambda_max``), problem by problem (compiled);
+    each problem stops early when none of its variables moved by more than ``tol`` over an
+    iteration (checked every tenth). The controls' Hessians are ill-conditioned mostly
+    through their scales (a jaw moving hundreds of points, a muscle a few): condition
+    numbers of 1e4-5e4 fall to 1e2-6e2 scaled, so that a few hundred iterations reach the
+    optimum.
 
     Parameters
     ----------
@@ -521,10 +525,30 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     grad0 : ndarray, shape (T, M)
     lo, hi : ndarray, shape (T, M)
         Bounds (``lo <= 0 <= hi``: the start point 0 is feasible).
+    iterations : int, keyword-only
+        At most this many iterations per problem.
+    tol : float, keyword-only
+        A problem stops when no variable moved by more than this over an iteration.
+    precondition : bool, keyword-only
+        Scale the variables as above (default). False: FISTA on the problem as given,
+        whose few hundred iterations leave the directions of the smallest curvature short
+        of the optimum: a damped step, which a Gauss-Newton fit through a model that is
+        not its own surrogate (:mod:`faceanalysis.estimation.model_fit`,
+        :mod:`faceanalysis.estimation.refine`) relies on where the points barely determine
+        a direction.
 
     Returns
     -------
     ndarray, shape (T, M)
+
+    Examples
+    --------
+    Two variables on scales a hundred times apart, the large one bounded:
+
+    >>> h = np.array([[[1e4, 50.0], [50.0, 1.0]]])
+    >>> g = np.array([[2e4, 1.0]])
+    >>> np.round(box_qp(h, g, np.zeros((1, 2)), np.array([[1.0, 10.0]])), 4)
+    array([[1., 0.]])
     """
     hess = np.ascontiguousarray(hess, dtype=float)
     grad0 = np.ascontiguousarray(grad0, dtype=float)
@@ -533,12 +557,17 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     if hess.ndim != 3 or hess.shape[1] != hess.shape[2] or grad0.shape != hess.shape[:2]:
         raise ValueError(f"hess must have shape (T, M, M) and grad0 (T, M), got {hess.shape} "
                          f"and {grad0.shape}")
-    # the Frobenius norm bounds the largest eigenvalue from above (and matched it within
-    # 0.1 % on the suite: one direction dominates these Hessians) at 1 % of eigvalsh's cost
-    lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", hess, hess)), 1e-300)
-    x = np.zeros_like(grad0)
-    _fista_nb(hess, grad0, lo, hi, lipschitz, int(iterations), float(tol), x)
-    return x
+    # x = y / d: the scaled Hessian has a unit diagonal; a variable no point moves (a zero
+    # diagonal) keeps its scale
+    d = np.sqrt(np.maximum(np.einsum("tii->ti", hess), 0.0))
+    floor = 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300)
+    d = np.where(d > floor, d, 1.0) if precondition else np.ones_like(d)
+    scaled = hess / d[:, :, None] / d[:, None, :]
+    lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", scaled, scaled)), 1e-300)
+    y = np.zeros_like(grad0)
+    _fista_nb(scaled, grad0 / d, lo * d, hi * d, lipschitz, int(iterations),
+              float(tol) * d.min(axis=1), y)
+    return np.clip(y / d, lo, hi)          # (lo * d) / d is lo only to rounding
 
 
 @numba.njit(cache=True, fastmath=True, nogil=True)
@@ -596,7 +625,7 @@ def _fista_nb(hess, grad0, lo, hi, lipschitz, iterations, tol, x):
                 moved = max(moved, abs(d))
                 y[i] = new + mom * d
                 x[f, i] = new
-            if k % 10 == 9 and moved < tol:
+            if k % 10 == 9 and moved < tol[f]:
                 break
             t = t_new
 

@@ -342,8 +342,10 @@ def fit_through_model(displacements: np.ndarray, response: FiducialResponse, mod
                         sw = np.repeat(pw, 2)
                         hess = (jac.T * sw) @ jac + np.diag(prior.nu)
                         grad0 = (jac.T * sw) @ r.ravel() - mu_t - prior.nu * (c - prior.centre)
+                        # the truncated solve damps the step where the points barely
+                        # determine a direction, which the model's nonlinearity punishes
                         step = box_qp(hess[None], grad0[None], -c[None], (hi - c)[None],
-                                      iterations=inner_iterations)[0]
+                                      iterations=inner_iterations, precondition=False)[0]
                         for frac in (1.0, 0.5, 0.25):
                             trial = np.clip(c + frac * step, 0.0, hi)
                             t_skin, t_p = equilibrium(trial)

@@ -76,7 +76,8 @@ def refine_through_model(displacements: np.ndarray, response: FiducialResponse, 
             jac = response.jacobian(c[None])[0]                       # (K, M)
             hess = (jac.T @ jac + np.diag(lam))[None]
             grad0 = (jac.T @ res - lam * c)[None]
-            step = box_qp(hess, grad0, -c[None], (upper - c)[None], iterations=200)[0]
+            step = box_qp(hess, grad0, -c[None], (upper - c)[None], iterations=200,
+                          precondition=False)[0]
             c = np.clip(c + step, 0.0, upper)
             if np.max(np.abs(step) / upper) < tol:
                 break

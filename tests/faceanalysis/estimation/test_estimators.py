@@ -224,6 +224,30 @@ def test_box_qp_solves_each_problem_of_a_batch_on_its_own(rng):
         box_qp(hess[:, :4], grad0, lo, hi)
 
 
+def test_box_qp_reaches_the_optimum_of_badly_scaled_problems(rng):
+    # variables on scales 300 times apart (a jaw moving hundreds of points, a muscle a
+    # few): condition numbers of 5e4-2e5, as the controls' Hessians have
+    from scipy.optimize import lsq_linear
+
+    from faceanalysis.estimation.estimators import box_qp
+
+    n_t, m = 5, 8
+    scales = np.geomspace(1.0, 300.0, m)
+    a = rng.normal(size=(n_t, 40, m)) * scales
+    hess = np.matmul(a.transpose(0, 2, 1), a)
+    truth = rng.uniform(-0.5, 1.5, size=(n_t, m)) / scales      # some outside the box
+    grad0 = np.einsum("tij,tj->ti", hess, truth)
+    lo, hi = np.zeros((n_t, m)), np.ones((n_t, m)) / scales
+    best = np.stack([lsq_linear(a[t], a[t] @ truth[t], bounds=(lo[t], hi[t]), tol=1e-14,
+                                method="bvls").x for t in range(n_t)])
+    x = box_qp(hess, grad0, lo, hi, iterations=400)
+    np.testing.assert_allclose(x * scales, best * scales, atol=1e-6)
+    assert np.all(x >= lo) and np.all(x <= hi)
+    # unscaled, the same iterations leave the flat directions far from the optimum
+    plain = box_qp(hess, grad0, lo, hi, iterations=400, precondition=False)
+    assert np.abs((plain - best) * scales).max() > 0.05
+
+
 def test_response_predicts_piecewise_linear_plus_interactions(rng):
     resp = _response(rng)
     pairs = np.array([[0, 1], [2, 3]])
