@@ -162,7 +162,8 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
                    initial: np.ndarray | None = None, robust: float | None = ROBUST,
                    robust_rounds: int = 2, debias: bool | float = False,
                    quadratic: tuple[np.ndarray, np.ndarray] | None = None,
-                   temporal: float = 0.0, threads: int | None = None) -> np.ndarray:
+                   temporal: float = 0.0, threads: int | None = None,
+                   precondition: bool = False) -> np.ndarray:
     """Bounded least-squares fit of all contractions at once, frame by frame.
 
     Minimises, for each frame independently,
@@ -233,6 +234,14 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         choice on the one its neighbours made, while a control the points determine barely
         feels it. The rows are taken as consecutive frames; 0 (default) fits each on its
         own, as independent samples need.
+    precondition : bool, keyword-only
+        Solve each Gauss-Newton step's bounded quadratic to its optimum (:func:`box_qp`
+        on the Jacobi-scaled problem). False (default): ``inner_iterations`` of
+        projected gradient on the problem as given, which stops short of the optimum in
+        the directions the points barely determine and so acts as a prior there: on the
+        16 contour points of a real clip the converged fit spikes more (cap12: 436
+        single-frame spikes against 278). The ``mesh`` fit, on hundreds of points,
+        converges (:data:`~faceanalysis.estimation.registry.MESH_FIT`).
     threads : int, keyword-only, optional
         Frames are independent problems: a long video's are fitted in chunks, this many at
         once (default :func:`faceanalysis.tracking.thread_budget`; the same numbers for any
@@ -276,7 +285,7 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
     fit = dict(weights=weights, regularization=regularization, sparsity=sparsity,
                outer_iterations=outer_iterations, inner_iterations=inner_iterations,
                robust=robust, robust_rounds=robust_rounds, debias=debias,
-               quadratic=quadratic, threads=threads)
+               quadratic=quadratic, threads=threads, precondition=precondition)
     first = _fit_frames(displacements, response, initial=initial, **fit)
     if not temporal or len(first) < 3:
         return first
@@ -312,7 +321,7 @@ def check_temporal(temporal) -> float:
 
 def _fit_frames(displacements, response, *, weights, regularization, sparsity,
                 outer_iterations, inner_iterations, initial, robust, robust_rounds, debias,
-                quadratic, threads, anchor=None):
+                quadratic, threads, precondition, anchor=None):
     """:func:`estimate_joint` without its temporal prior: the frames fitted independently
     (in chunks, on threads), each control drawn toward ``anchor = (nu, centre)`` where
     ``centre`` is finite."""
@@ -348,6 +357,7 @@ def _fit_frames(displacements, response, *, weights, regularization, sparsity,
                 initial=None if init is None else init[a:a + chunk], robust=robust,
                 robust_rounds=robust_rounds, debias=debias,
                 quadratic=None if quadratic is None else (qh, qg[a:a + chunk]), threads=1,
+                precondition=precondition,
                 anchor=None if anchor is None else (anchor[0], anchor[1][a:a + chunk]))
 
         workers = min(int(threads), -(-n_t // chunk))
@@ -369,7 +379,7 @@ def _fit_frames(displacements, response, *, weights, regularization, sparsity,
     with _one_blas_thread():
         c = _estimate_joint(displacements, response, weights, regularization, sparsity,
                             outer_iterations, inner_iterations, initial, quadratic=quadratic,
-                            anchor=anchor)
+                            anchor=anchor, precondition=precondition)
         d = np.asarray(displacements, dtype=float)
         fw = None
         for _ in range(robust_rounds if robust is not None else 0):
@@ -377,7 +387,8 @@ def _fit_frames(displacements, response, *, weights, regularization, sparsity,
             c = np.where(np.isfinite(c), _estimate_joint(
                 d, response, weights, regularization, sparsity,
                 max(1, outer_iterations // 2),
-                inner_iterations, np.nan_to_num(c), fw, quadratic=quadratic, anchor=anchor), c)
+                inner_iterations, np.nan_to_num(c), fw, quadratic=quadratic, anchor=anchor,
+                precondition=precondition), c)
         if debias:
             if robust is not None:
                 fw = _huber_weights(d, response, c, robust)
@@ -391,7 +402,8 @@ def _fit_frames(displacements, response, *, weights, regularization, sparsity,
                 c = np.where(np.isfinite(c), _estimate_joint(
                     d, response, weights, regularization, 0.0 if share is None else sparsity,
                     max(1, outer_iterations // 2), inner_iterations, c0, fw, support=support,
-                    quadratic=quadratic, prior_share=share, anchor=anchor), c)
+                    quadratic=quadratic, prior_share=share, anchor=anchor,
+                    precondition=precondition), c)
         return c
 
 
@@ -403,7 +415,8 @@ def _huber_weights(d, response, c, robust):
 
 def _estimate_joint(displacements, response, weights, regularization, sparsity,
                     outer_iterations, inner_iterations, initial, frame_weights=None,
-                    support=None, quadratic=None, prior_share=None, anchor=None):
+                    support=None, quadratic=None, prior_share=None, anchor=None,
+                    precondition=False):
     d = _check_displacements(displacements, response)
     if not regularization >= 0:
         raise ValueError(f"regularization must be >= 0, got {regularization}")
@@ -485,7 +498,8 @@ def _estimate_joint(displacements, response, weights, regularization, sparsity,
         if quadratic is not None:
             hess = hess + qh_t
             grad0 = grad0 + qg - np.einsum("tmn,tn->tm", qh_t, c)
-        step = box_qp(hess, grad0, -c, hi - c, iterations=inner_iterations)
+        step = box_qp(hess, grad0, -c, hi - c, iterations=inner_iterations,
+                      precondition=precondition)
         # Backtracking: the surrogate is piecewise linear, so a full Gauss-Newton step
         # can overshoot a breakpoint; keep, per frame, the longest of 1, 1/2, 1/4 of
         # the step that lowers the objective (the box is convex: all stay feasible).

@@ -212,7 +212,7 @@ def estimator_errors(response: FiducialResponse, noise: float, *, points=None,
     --------
     >>> from faceanalysis.estimation.model_response import model_response
     >>> err = estimator_errors(model_response(), 0.006)
-    >>> bool(err["frontalis_inner_l"] < 0.1), bool(err["risorius_l"] > 0.1)
+    >>> bool(err["frontalis_inner_l"] < 0.1), bool(err["levator_labii_l"] > 0.1)
     (True, True)
     """
     from faceanalysis.estimation.estimators import estimate_joint

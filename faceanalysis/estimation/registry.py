@@ -144,8 +144,9 @@ def _joint(obs: Observations, *, refine: bool = False, temporal: float = TEMPORA
 #: fifth of the range on: ``debias=0.2``), so that it chooses which muscles act and does
 #: not also shrink how much, without the relaxed lasso's jump from rest to a full refit
 #: that switched a muscle near its threshold on and off from frame to frame; and the
-#: box-constrained steps are solved with 400 projected-gradient iterations (with 120, as
-#: ``joint``, the hundreds of points leave them short: a full frontalis inner read 0.77).
+#: box-constrained steps are solved to their optimum (``precondition``: projected gradient
+#: on the Jacobi-scaled problem, at most 400 iterations; unscaled, as ``joint`` solves
+#: them, the steps stop short, up to 0.6 of a control's range on a real clip).
 #: A stronger prior (0.025) or a tighter Huber threshold (0.02 cm) let more side-lit
 #: neutrals read rest, but only by ignoring real motion (a full corrugator read 0.33).
 #: On a video, each frame is drawn toward its neighbours' fits (:data:`TEMPORAL`), so that
@@ -153,7 +154,7 @@ def _joint(obs: Observations, *, refine: bool = False, temporal: float = TEMPORA
 #: single-frame pulse of orbicularis oculi, the least observed muscle, then reads 0.8 as
 #: 0.65, a three-frame one peaking at 1.0 as 0.89.
 MESH_FIT = {"sparsity": 2e-2, "robust": 0.1, "debias": 0.2, "inner_iterations": 400,
-            "temporal": TEMPORAL}
+            "precondition": True, "temporal": TEMPORAL}
 #: Weight of each contour point against each face-mesh point in the ``mesh`` fit.
 CONTOUR_WEIGHT = 5.0
 

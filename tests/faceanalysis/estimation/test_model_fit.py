@@ -45,10 +45,7 @@ def _model_residual(model, response, c, d):
 
 def test_the_fit_explains_the_model_points_the_table_does_not(setup):
     model, response, truth, d = setup
-    # the table's fit with its prior, as the estimator starts (without it the 32
-    # coordinates leave 26 controls a near-null direction that the table's fit wanders
-    # along, and the model's fit from there stalls at 0.004 cm)
-    initial = estimate_joint(d, response)
+    initial = estimate_joint(d, response, sparsity=0.0)
     fitted, residual = fit_through_model(d, response, model, initial, sparsity=0.0,
                                          robust=None, iterations=6, return_residual=True)
     assert fitted.shape == initial.shape
