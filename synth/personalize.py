@@ -27,7 +27,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 __all__ = ["LandmarkWarp", "fit_landmark_warp", "warp_mesh", "personalize_model",
-           "head_frame_points", "check_warp"]
+           "personalize_in_plane", "head_frame_points", "check_warp"]
+
+#: Blends of a warp with its best affine part tried in turn by :func:`personalize_in_plane`,
+#: from the warp itself to the affine part alone.
+WARP_BLENDS = (1.0, 0.75, 0.5, 0.25, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -258,3 +262,75 @@ def personalize_model(model, source, target, *, kernel: str = "linear", width: f
     warp = fit_landmark_warp(source, target, kernel=kernel, width=width)
     mesh = warp_mesh(model.mesh, warp, lattice=model.lattice)
     return FaceModel(mesh, muscles=model.muscles, **model_options), warp
+
+
+def personalize_in_plane(model, source, xy, *, kernel: str = "linear", width: float = 3.0):
+    """``model`` warped so that its points ``source`` land on ``xy`` in the image plane.
+
+    Depth is not observed: each point keeps the model's, scaled by the subject's overall
+    size in the plane (the square root of the determinant of the best affine map of the
+    x-y; keeping depth unscaled where the face is narrower would tilt short muscles such as
+    the corrugator into the skull). The head frame's points (:func:`head_frame_points`)
+    stay where they are, their depth scaled alike. Where the warp gives no valid model (it
+    folds the face, or leaves a muscle without tissue to pull) it is blended toward the
+    best 3-D affine map of the same correspondences (:data:`WARP_BLENDS`).
+
+    Parameters
+    ----------
+    model : FaceModel
+        Not modified.
+    source : (N, 3) array_like
+        Points on ``model`` at rest (cm).
+    xy : (N, 2) array_like
+        Where their x-y should go (cm).
+    kernel, width
+        See :func:`fit_landmark_warp`.
+
+    Returns
+    -------
+    model : FaceModel
+    warp : LandmarkWarp
+    blend : float
+        The share of the warp beyond its affine part that was kept (1: all of it).
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match, or no blend down to the affine map gives a valid model.
+
+    Examples
+    --------
+    >>> from synth.model import FaceModel
+    >>> generic = FaceModel.default()
+    >>> lm = generic.landmark_positions()
+    >>> names = ["brow_mid_l", "brow_mid_r", "mouth_corner_l", "mouth_corner_r", "chin",
+    ...          "nose_tip"]
+    >>> p = np.array([lm[k] for k in names])
+    >>> xy = 1.1 * p[:, :2]                               # a face a tenth larger
+    >>> personal, warp, blend = personalize_in_plane(generic, p, xy)
+    >>> blend, bool(np.allclose(personal.landmark_positions()["chin"][:2], xy[4]))
+    (1.0, True)
+    """
+    src = np.asarray(source, dtype=np.float64)
+    target_xy = np.asarray(xy, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] != 3 or target_xy.shape != (len(src), 2):
+        raise ValueError(f"source must have shape (N, 3) and xy (N, 2), got {src.shape} and "
+                         f"{target_xy.shape}")
+    a, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], target_xy, rcond=None)
+    depth_scale = float(np.sqrt(abs(np.linalg.det(a[:2]))))
+    frame = np.array(head_frame_points(model.mesh))
+    points = np.vstack([src, frame])
+    target = np.vstack([np.c_[target_xy, depth_scale * src[:, 2]],
+                        np.c_[frame[:, :2], depth_scale * frame[:, 2]]])
+    design = np.c_[points, np.ones(len(points))]
+    affine = design @ np.linalg.lstsq(design, target, rcond=None)[0]
+    last = None
+    for blend in WARP_BLENDS:
+        try:
+            personal, warp = personalize_model(model, points, affine + blend * (target - affine),
+                                               kernel=kernel, width=width)
+        except ValueError as exc:
+            last = exc
+            continue
+        return personal, warp, blend
+    raise ValueError(f"no warp, down to an affine one, gives a valid model ({last})")

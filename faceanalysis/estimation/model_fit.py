@@ -50,21 +50,15 @@ WARP_EVERY = 4
 #: Landmarks of the warp closer than this (cm) on the model are one: the first carries it.
 WARP_SPACING = 0.1
 
-#: Blends of the warp with its affine part tried in turn, from the warp itself to its
-#: affine part alone: a warp through noisy points may fold the face.
-WARP_BLENDS = (1.0, 0.75, 0.5, 0.25, 0.0)
-
-
 def personal_model(neutral: np.ndarray, response: FiducialResponse, model, *,
                    every: int = WARP_EVERY):
     """``model`` personalised to a subject's neutral face seen at ``neutral``.
 
-    Kähler's landmark warp (:func:`synth.personalize.personalize_model`) takes the
+    Kähler's landmark warp (:func:`synth.personalize.personalize_in_plane`) takes the
     model's skin points under the seen face-mesh points (every ``every``-th) and the
-    mesh's landmarks among ``response.fiducials`` onto their neutral x-y; their depth is
-    the model's, scaled as the x-y's affine fit scales the face, and the head frame's
-    points move with that fit. Where the warp folds the face it is blended toward its
-    affine part (:data:`WARP_BLENDS`).
+    mesh's landmarks among ``response.fiducials`` onto their neutral x-y, their depth the
+    model's scaled as the face; where the warp folds the face it is blended toward its
+    affine part.
 
     Parameters
     ----------
@@ -87,9 +81,10 @@ def personal_model(neutral: np.ndarray, response: FiducialResponse, model, *,
     Raises
     ------
     ValueError
-        For a ``neutral`` of the wrong shape, ``every`` < 1, or fewer than 10 seen points.
+        For a ``neutral`` of the wrong shape, ``every`` < 1, fewer than 10 seen points, or
+        no warp down to an affine one that gives a valid model.
     """
-    from synth.personalize import head_frame_points, personalize_model
+    from synth.personalize import personalize_in_plane
 
     names = list(response.fiducials)
     xy = np.asarray(neutral, dtype=float)
@@ -114,25 +109,8 @@ def personal_model(neutral: np.ndarray, response: FiducialResponse, model, *,
     near = np.linalg.norm(src[:, None] - src[None], axis=2) < WARP_SPACING
     keep = ~np.triu(near, 1).any(axis=0)
     src, dst = src[keep], xy[use][keep]
-    # the x-y's affine fit scales the face; the depth, unseen, is scaled as much
-    a, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], dst, rcond=None)
-    scale = float(np.sqrt(abs(np.linalg.det(a[:2]))))
-    origin, nose = head_frame_points(model.mesh)
-    source = np.vstack([src, origin, nose])
-    frame = np.array([origin, nose])
-    target = np.vstack([np.c_[dst, scale * src[:, 2]],
-                        np.c_[np.c_[frame[:, :2], np.ones(2)] @ a, scale * frame[:, 2]]])
-    design = np.c_[source, np.ones(len(source))]
-    affine = design @ np.linalg.lstsq(design, target, rcond=None)[0]
-    for blend in WARP_BLENDS:
-        try:
-            personal, _ = personalize_model(model, source, affine + blend * (target - affine))
-        except ValueError:
-            if blend == WARP_BLENDS[-1]:
-                raise
-            continue
-        return personal, blend
-    raise AssertionError("unreachable")
+    personal, _, blend = personalize_in_plane(model, src, dst)
+    return personal, blend
 
 
 def _split(points) -> tuple[list, list, list]:

@@ -145,7 +145,7 @@ def fit_to_points(model, framing: Framing, points: dict, *, kernel: str = "linea
         A name the model does not have, or no warp down to an affine one gives a valid
         model.
     """
-    from synth.personalize import head_frame_points, personalize_model
+    from synth.personalize import personalize_in_plane
 
     lm = model.landmark_positions()
     unknown = sorted(set(points) - set(lm))
@@ -155,34 +155,15 @@ def fit_to_points(model, framing: Framing, points: dict, *, kernel: str = "linea
     names = list(points)
     src = np.array([lm[n] for n in names], dtype=float)
     xy = framing.invert(np.array([points[n] for n in names], dtype=float))
-    # depth is not observed: the model's, scaled by the subject's overall size in the image
-    # plane (keeping depth unscaled where the face is narrower would tilt short muscles
-    # such as the corrugator into the skull)
-    A, *_ = np.linalg.lstsq(np.c_[src[:, :2], np.ones(len(src))], xy, rcond=None)
-    depth_scale = float(np.sqrt(abs(np.linalg.det(A[:2]))))
-    o3, n3 = head_frame_points(model.mesh)         # pinned: they define the framing
-    source = np.vstack([src, o3, n3])
-    target = np.vstack([np.c_[xy, depth_scale * src[:, 2]],
-                        [o3[0], o3[1], depth_scale * o3[2]],
-                        [n3[0], n3[1], depth_scale * n3[2]]])
-    # the best 3-D affine map of the landmarks: the fallback when the full warp cannot
-    # make a valid model (a fold, or a muscle left without tissue to pull)
-    B, *_ = np.linalg.lstsq(np.c_[source, np.ones(len(source))], target, rcond=None)
-    affine = np.c_[source, np.ones(len(source))] @ B
-    for alpha in (1.0, 0.75, 0.5, 0.25, 0.0):
-        try:
-            personal, warp = personalize_model(model, source, affine + alpha * (target - affine),
-                                               kernel=kernel)
-        except ValueError as exc:
-            log.warning("personalisation: the landmark warp at %.0f%% gives no valid model "
-                        "(%s); trying a smoother one", 100 * alpha, exc)
-            continue
-        if alpha < 1.0:
-            log.warning("personalisation: the model follows the subject's landmarks at %.0f%% "
-                        "only (see the landmark error in the report)", 100 * alpha)
-        return personal, warp
-    raise ValueError("the subject's neutral landmarks cannot be fitted by the face model "
-                     "(every warp, down to an affine one, failed)")
+    try:
+        personal, warp, blend = personalize_in_plane(model, src, xy, kernel=kernel)
+    except ValueError as exc:
+        raise ValueError("the subject's neutral landmarks cannot be fitted by the face model "
+                         f"(every warp, down to an affine one, failed: {exc})") from None
+    if blend < 1.0:
+        log.warning("personalisation: the model follows the subject's landmarks at %.0f%% "
+                    "only (see the landmark error in the report)", 100 * blend)
+    return personal, warp
 
 
 def subject_series(subject) -> tuple[Series, Path | None]:

@@ -9,6 +9,7 @@ from synth.personalize import (
     check_warp,
     fit_landmark_warp,
     head_frame_points,
+    personalize_in_plane,
     personalize_model,
     warp_mesh,
 )
@@ -123,3 +124,20 @@ def test_warp_mesh_keeps_topology_and_uv(generic, landmarks):
     np.testing.assert_array_equal(mesh.triangles, generic.mesh.triangles)
     np.testing.assert_array_equal(mesh.uv, generic.mesh.uv)
     assert np.all(mesh.tissue_thickness > 0)
+
+
+def test_in_plane_a_folding_warp_falls_back_toward_its_affine_part(generic, landmarks):
+    points = landmarks[:-2]                           # (the head frame's are added)
+    xy = points[:, :2].copy()
+    xy[[6, 7], 0] = xy[[7, 6], 0]                    # mirrored mouth corners: a fold
+    personal, _, blend = personalize_in_plane(generic, points, xy)
+    assert blend < 1.0
+    assert np.isfinite(personal.surface_vertices).all()
+    # where nothing folds, the whole warp is kept and the points land where asked
+    wider = points[:, :2] * [1.08, 1.0]
+    personal, _, blend = personalize_in_plane(generic, points, wider)
+    assert blend == 1.0
+    moved = personal.landmark_positions()
+    np.testing.assert_allclose([moved[n][:2] for n in NAMES], wider, atol=1e-6)
+    with pytest.raises(ValueError, match="xy"):
+        personalize_in_plane(generic, points, wider[:3])
