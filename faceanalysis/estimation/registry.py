@@ -320,8 +320,10 @@ def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
     model = FaceModel.default()
     if personalize:
         model, blend = personal_model(mesh_neutral(obs, response), response, model)
-        log.info("the face model personalised to the neutral frame (%.0f %% of the warp "
-                 "beyond its affine part)", 100 * blend)
+        if blend < 1.0:
+            log.warning("the face model follows the neutral frame's points at %.0f %% of the "
+                        "warp beyond its affine part only (the full warp folds the face)",
+                        100 * blend)
     bar = None
     if progress:
         from faceanalysis.tracking import progress_bar
