@@ -238,10 +238,10 @@ def estimate_joint(displacements: np.ndarray, response: FiducialResponse, *,
         Solve each Gauss-Newton step's bounded quadratic to its optimum (:func:`box_qp`
         on the Jacobi-scaled problem). False (default): ``inner_iterations`` of
         projected gradient on the problem as given, which stops short of the optimum in
-        the directions the points barely determine and so acts as a prior there: on the
-        16 contour points of a real clip the converged fit spikes more (cap12: 436
-        single-frame spikes against 278). The ``mesh`` fit, on hundreds of points,
-        converges (:data:`~faceanalysis.estimation.registry.MESH_FIT`).
+        the directions the points barely determine and so acts as a prior there (on the
+        16 contour points of a real clip the converged fit jumps more from frame to
+        frame). The ``mesh`` fit, on hundreds of points, converges
+        (:data:`~faceanalysis.estimation.registry.MESH_FIT`).
     threads : int, keyword-only, optional
         Frames are independent problems: a long video's are fitted in chunks, this many at
         once (default :func:`faceanalysis.tracking.thread_budget`; the same numbers for any
