@@ -95,7 +95,8 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     if args.refine and args.estimator not in (None, "joint"):
         raise UsageError(f"--refine goes with --estimator joint, not {args.estimator}")
     if getattr(args, "personalize", False) and args.estimator != "model":
-        raise UsageError(f"--personalize goes with --estimator model, not {args.estimator}")
+        raise UsageError("--personalize goes with --estimator model, not "
+                         f"{args.estimator or 'the default estimator'}")
     if args.temporal is not None and args.estimator not in (None, *TEMPORAL_ESTIMATORS):
         raise UsageError(f"--temporal goes with --estimator {', '.join(TEMPORAL_ESTIMATORS)}, "
                          f"not {args.estimator}")

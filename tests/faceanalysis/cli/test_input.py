@@ -58,6 +58,7 @@ def test_end_not_after_start_is_a_usage_error(run_cli, tmp_path, command, start,
     (("--estimator", "mesh", "--tracker", "snakes"), "--estimator mesh reads the landmark"),
     (("--estimator", "tw93", "--refine"), "--refine goes with --estimator joint"),
     (("--estimator", "mesh", "--personalize"), "--personalize goes with --estimator model"),
+    (("--personalize",), "--personalize goes with --estimator model, not the default"),
     (("--estimator", "flow", "--temporal", "0"), "--temporal goes with --estimator joint"),
     (("--temporal", "-0.5"), "--temporal: must be a number >= 0"),
 ])
