@@ -238,16 +238,21 @@ class FaceModel:
 
         self.set_contractions(aus_to_contractions(expression_aus(name, emphasis=emphasis)))
 
-    def _apply_controls(self, previous_jaw: float) -> None:
+    def muscle_load(self, contractions: np.ndarray, jaw_rotation: float) -> np.ndarray:
+        """The muscles' nodal forces (n_nodes, 3) at ``contractions`` (one per
+        :attr:`muscle_names`) with the jaw at ``jaw_rotation`` (radians): linear in the
+        contractions; the muscles over the mandible turn with it."""
         f = np.zeros(self.lattice.rest.shape)
         if len(self._force_nodes):
-            nodal = np.tensordot(self._contractions, self._basis, axes=1)
-            if self._jaw != 0.0:
-                # muscle geometry over the mandible turns with it
+            nodal = np.tensordot(np.asarray(contractions, dtype=float), self._basis, axes=1)
+            if jaw_rotation != 0.0:
                 w = self.lattice.jaw_weight[self._force_nodes]
-                nodal = rotate_about_jaw(nodal, w, np.zeros(3), self._jaw)
+                nodal = rotate_about_jaw(nodal, w, np.zeros(3), jaw_rotation)
             f[self._force_nodes] = nodal
-        self.system.set_external(f)
+        return f
+
+    def _apply_controls(self, previous_jaw: float) -> None:
+        self.system.set_external(self.muscle_load(self._contractions, self._jaw))
         if previous_jaw != self._jaw or self.system.jaw_rotation != self._jaw:
             self.system.set_jaw(self._jaw)
             # warm start: carry the jaw-borne tissue along with the rotation

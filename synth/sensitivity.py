@@ -31,9 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .lattice import rotate_about_jaw
-
-__all__ = ["tangent_stiffness", "equilibrium_sensitivity", "JAW"]
+__all__ = ["tangent_stiffness", "equilibrium_sensitivity", "stiffness_factor", "JAW"]
 
 #: The jaw's control name (as in :meth:`synth.FaceModel.set_contractions`).
 JAW = "jaw_rotation"
@@ -170,18 +168,6 @@ def tangent_stiffness(system, x: np.ndarray, *, step: float = STIFFNESS_STEP) ->
     return sp.csc_matrix((data, indices, indptr), shape=(3 * nf, 3 * nf))
 
 
-def _load(model, contractions: np.ndarray, jaw: float) -> np.ndarray:
-    """The muscles' nodal forces (n_nodes, 3) at ``contractions`` with the jaw at ``jaw``."""
-    f = np.zeros(model.lattice.rest.shape)
-    if len(model._force_nodes):
-        nodal = np.tensordot(contractions, model._basis, axes=1)
-        if jaw != 0.0:
-            w = model.lattice.jaw_weight[model._force_nodes]
-            nodal = rotate_about_jaw(nodal, w, np.zeros(3), jaw)
-        f[model._force_nodes] = nodal
-    return f
-
-
 def equilibrium_sensitivity(model, controls, *, factor=None) -> np.ndarray:
     """``dx/dc``: how the model's equilibrium moves per unit of each control.
 
@@ -237,7 +223,7 @@ def equilibrium_sensitivity(model, controls, *, factor=None) -> np.ndarray:
         if name != JAW:
             unit = np.zeros(len(names))
             unit[names.index(name)] = 1.0
-            loads[:, i] = _load(model, unit, jaw)[free].ravel()
+            loads[:, i] = model.muscle_load(unit, jaw)[free].ravel()
             continue
         # the jaw moves the fixed nodes it carries, the skull's and the lips' normals and
         # the muscles over the mandible: the free nodes' force change at fixed positions
@@ -245,7 +231,7 @@ def equilibrium_sensitivity(model, controls, *, factor=None) -> np.ndarray:
         saved = system.f_ext
         try:
             system.set_jaw(jaw + JAW_STEP)
-            system.set_external(_load(model, c, jaw + JAW_STEP))
+            system.set_external(model.muscle_load(c, jaw + JAW_STEP))
             xj = x.copy()
             system.apply_boundary(xj)
             f1 = system.forces(xj)[0][free]

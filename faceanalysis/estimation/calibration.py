@@ -64,6 +64,10 @@ class Calibration:
         q = to_head_frame(fiducials, head)
         return (q - self.neutral) @ np.linalg.inv(self.matrix).T
 
+    def to_model(self, points: np.ndarray) -> np.ndarray:
+        """Head-frame positions (..., 2) in model cm: the inverse of the map."""
+        return (np.asarray(points, dtype=float) - self.offset) @ np.linalg.inv(self.matrix).T
+
 
 def calibrate(neutral_fiducials: np.ndarray, neutral_head: np.ndarray,
               model_rest: np.ndarray, *, valid: np.ndarray | None = None) -> Calibration:

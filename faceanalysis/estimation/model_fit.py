@@ -26,7 +26,7 @@ from faceanalysis.estimation.model_response import model_points
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.table import JAW
 
-__all__ = ["fit_through_model", "personal_model", "point_jacobian"]
+__all__ = ["fit_through_model", "mesh_fit_keywords", "personal_model", "point_jacobian"]
 
 #: Gauss-Newton iterations per frame at most (each one equilibrium, more when a step is
 #: halved). On exact points of the first standard-suite identity a fourth changes nothing.
@@ -41,7 +41,6 @@ TOLERANCE = 2e-3
 #: (3e-5 reads exact points of the first standard-suite identity the same, 30 % slower).
 EQUILIBRIUM_TOL = 1e-4
 
-
 #: The personalisation's warp carries every this many face-mesh points (of some 330 seen):
 #: the warp interpolates its landmarks exactly, so each one adds the tracker's noise on
 #: it to the face's shape.
@@ -49,6 +48,16 @@ WARP_EVERY = 4
 
 #: Landmarks of the warp closer than this (cm) on the model are one: the first carries it.
 WARP_SPACING = 0.1
+
+
+def mesh_fit_keywords(options: dict) -> dict:
+    """The keywords of :func:`fit_through_model` that carry over the ``mesh`` fit's
+    ``options`` (:func:`~faceanalysis.estimation.registry.mesh_fit`): the same point
+    weights, prior, Huber threshold, concave knee, temporal pull and inner iterations."""
+    return {"weights": options["weights"], "sparsity": options["sparsity"],
+            "robust": options["robust"], "knee": options["debias"],
+            "temporal": options["temporal"], "inner_iterations": options["inner_iterations"]}
+
 
 def personal_model(neutral: np.ndarray, response: FiducialResponse, model, *,
                    every: int = WARP_EVERY):
@@ -119,7 +128,8 @@ def _split(points) -> tuple[list, list, list]:
 
     mesh = [j for j, n in enumerate(points) if n.startswith(MESH_POINT_PREFIX)]
     curve = [j for j, n in enumerate(points) if n in CURVE_POINTS]
-    other = [j for j in range(len(points)) if j not in set(mesh) | set(curve)]
+    taken = set(mesh) | set(curve)
+    other = [j for j in range(len(points)) if j not in taken]
     return mesh, other, curve
 
 

@@ -219,16 +219,15 @@ def mesh_neutral(obs: Observations, response: FiducialResponse) -> np.ndarray:
     if cal is None or tracks is None or tracks.landmarks is None or tracks.landmarks[k] is None:
         raise ValueError("the neutral positions need the neutral frame's calibration and "
                          "the landmark tracker's face mesh on it")
-    inverse = np.linalg.inv(cal.matrix)
     names = response.fiducials
     out = np.full((len(names), 2), np.nan)
     for j, n in enumerate(names):
         if not n.startswith(MESH_POINT_PREFIX) and n in obs.response.fiducials:
-            out[j] = (cal.neutral[obs.response.fiducials.index(n)] - cal.offset) @ inverse.T
+            out[j] = cal.to_model(cal.neutral[obs.response.fiducials.index(n)])
     mesh = [j for j, n in enumerate(names) if n.startswith(MESH_POINT_PREFIX)]
     idx = [int(names[j].removeprefix(MESH_POINT_PREFIX)) for j in mesh]
     image = np.asarray(tracks.landmarks[k], dtype=float)[idx, :2]
-    out[mesh] = (to_head_frame(image, tracks.heads[k]) - cal.offset) @ inverse.T
+    out[mesh] = cal.to_model(to_head_frame(image, tracks.heads[k]))
     return out
 
 
@@ -311,7 +310,11 @@ def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
     ``personalize``: fit through the generic face warped onto the subject's neutral frame
     (:func:`~faceanalysis.estimation.model_fit.personal_model` of :func:`mesh_neutral`)
     instead of the generic face itself."""
-    from faceanalysis.estimation.model_fit import fit_through_model, personal_model
+    from faceanalysis.estimation.model_fit import (
+        fit_through_model,
+        mesh_fit_keywords,
+        personal_model,
+    )
     from synth.model import FaceModel
 
     first = estimate_mesh(obs, contour_weight=contour_weight, temporal=temporal)
@@ -331,10 +334,8 @@ def estimate_model(obs: Observations, *, contour_weight: float = CONTOUR_WEIGHT,
         bar = progress_bar(len(d), True, "fit")
     try:
         values, residual = fit_through_model(
-            d, response, model, initial, weights=options["weights"],
-            sparsity=options["sparsity"], robust=options["robust"], knee=options["debias"],
-            temporal=temporal, inner_iterations=options["inner_iterations"],
-            return_residual=True, progress=None if bar is None else bar.update)
+            d, response, model, initial, **mesh_fit_keywords(options), return_residual=True,
+            progress=None if bar is None else bar.update)
     finally:
         if bar is not None:
             bar.close()

@@ -26,7 +26,11 @@ import pandas as pd
 
 from faceanalysis.estimation.calibration import calibrate
 from faceanalysis.estimation.estimators import POINT_ESTIMATORS, estimate
-from faceanalysis.estimation.model_fit import fit_through_model, personal_model
+from faceanalysis.estimation.model_fit import (
+    fit_through_model,
+    mesh_fit_keywords,
+    personal_model,
+)
 from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
 from faceanalysis.estimation.registry import mesh_fit, mesh_response
 from faceanalysis.estimation.response import FiducialResponse
@@ -102,7 +106,7 @@ def _neutral(points: np.ndarray, response: FiducialResponse, calibrate_on: int) 
     image = points[0] * np.array([1.0, -1.0])
     head = np.array([0.0, 0.0, 1.0, 0.0])
     cal = calibrate(image[:calibrate_on], head, response.rest[:calibrate_on])
-    return (to_head_frame(image, head) - cal.offset) @ np.linalg.inv(cal.matrix).T
+    return cal.to_model(to_head_frame(image, head))
 
 
 def measurement_ceiling(config: SuiteConfig | None = None, *,
@@ -225,13 +229,8 @@ def measurement_ceiling(config: SuiteConfig | None = None, *,
                             through, _ = personal_model(
                                 _neutral(mexact, mtable, len(MEASUREMENT_POINTS)), mtable,
                                 generic)
-                        fitted = fit_through_model(
-                            mdisp, mtable, through, mesh_values,
-                            weights=mesh_options["weights"],
-                            sparsity=mesh_options["sparsity"],
-                            robust=mesh_options["robust"], knee=mesh_options["debias"],
-                            temporal=mesh_options["temporal"],
-                            inner_iterations=mesh_options["inner_iterations"])
+                        fitted = fit_through_model(mdisp, mtable, through, mesh_values,
+                                                   **mesh_fit_keywords(mesh_options))
                         values = dict(zip(mtable.muscles, fitted.T))
                     else:
                         values = dict(zip(table.muscles,
