@@ -10,7 +10,8 @@ runs by default with it (``tracker="snakes"``: the snakes of 004, ``joint``;
 ``tracker="landmarks"``, the default: MediaPipe's face detector and mesh holding the snakes,
 :class:`trackers.AnchoredTracker`, and the ``mesh`` fit, with LiteRT, the landmark model's
 default runtime where ``ai-edge-litert`` is installed, and with ``cv2.dnn``, the runtime
-everywhere else), from the same run of :func:`~faceanalysis.analysis.pipeline.analyze`:
+everywhere else; and with LiteRT and ``eyes=True``, the iris model's eyelids on every frame
+too), from the same run of :func:`~faceanalysis.analysis.pipeline.analyze`:
 
 * ``analysis``: tracking (landmarks where used, potentials, snake relaxation, head frame
   or pose, fiducials) + calibration + estimation (the fit, the identifiability of each
@@ -78,6 +79,10 @@ LANDMARKS = ("landmarks + mesh (cv2.dnn)",
 LANDMARKS_LITERT = ("landmarks + mesh (LiteRT)",
                     {"tracker": "landmarks", "tracker_options": {"runtime": "litert"}},
                     100.0, 0.5, None)
+#: ``--eyes``: the iris model on every frame as well (no target: an option)
+LANDMARKS_EYES = ("landmarks + mesh + eyes (LiteRT)",
+                  {"tracker": "landmarks", "tracker_options": {"runtime": "litert"},
+                   "eyes": True}, None, None, None)
 
 
 def _mediapipe_python() -> str | None:
@@ -175,7 +180,7 @@ def run(quick: bool = False) -> list[Figure]:
     configs = [SNAKES, LANDMARKS]
     runtimes = ["opencv"]
     if litert_available():
-        configs.append(LANDMARKS_LITERT)
+        configs += [LANDMARKS_LITERT, LANDMARKS_EYES]
         runtimes.append("litert")
     else:
         print("ai-edge-litert is not importable: the LiteRT runtime is not measured",

@@ -260,6 +260,10 @@ class Tracks:
     pose : ndarray, shape (T, 2)
         Head pitch and yaw in degrees relative to the tracker's first frame (landmark
         tracker); NaN on lost frames and with the snakes tracker.
+    eyes : ndarray, shape (T, 2)
+        Each eye's lid gap (the subject's left, then right) over the inter-ocular
+        distance, traced by the iris model (landmark tracker,
+        :mod:`trackers.landmarks.eyes`); NaN on lost frames and with the snakes tracker.
     tracker : str
         Which tracker ran (:data:`TRACKERS`).
     landmarks : list
@@ -292,6 +296,7 @@ class Tracks:
     stretch: np.ndarray
     contours: list
     pose: np.ndarray | None = None
+    eyes: np.ndarray | None = None
     tracker: str = "snakes"
     landmarks: list | None = None
     timings: dict = field(default_factory=dict)
@@ -301,6 +306,8 @@ class Tracks:
     def __post_init__(self):
         if self.pose is None:
             self.pose = np.full((len(self.frames), 2), np.nan)
+        if self.eyes is None:
+            self.eyes = np.full((len(self.frames), 2), np.nan)
         if self.landmarks is None:
             self.landmarks = [None] * len(self.frames)
         if self.lost_reasons is None:
@@ -464,6 +471,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     nan_stretch = np.full(len(points), np.nan)
     nan_head = np.full(4, np.nan)
     frames, stamps, ok, conf, poses, mesh, reasons = [], [], [], [], [], [], []
+    lids = []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
     kind, tracker = tracker, None
     waiting = _Waiting()
@@ -520,6 +528,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     pose = np.array([res.extra["head_pitch"], res.extra["head_yaw"]])
                     c = min(c, float(res.extra["presence"]))
                 poses.append(pose)
+                lids.append(res.extra.get("eye_gaps", nan_pose) if good else nan_pose)
                 mesh.append(_mesh(res) if good else None)
                 ok.append(good)
                 reasons.append(None if good else _lost_reason(frame.ok, res))
@@ -560,7 +569,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
-                  pose=np.stack(poses), tracker=kind, landmarks=mesh, mirrored=bool(mirror),
+                  pose=np.stack(poses), eyes=np.stack(lids).astype(float), tracker=kind,
+                  landmarks=mesh, mirrored=bool(mirror),
                   lost_reasons=reasons,
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),

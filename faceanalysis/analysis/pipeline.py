@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from faceanalysis.analysis.eyes import eye_closures, eye_openness
 from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
@@ -43,6 +44,7 @@ from faceanalysis.estimation.registry import (
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import analysis_metadata, quality_summary
 from faceanalysis.io.table import (
+    EYE_COLUMNS,
     FIDUCIALS,
     HEAD_COLUMNS,
     JAW,
@@ -80,6 +82,10 @@ MAX_FIT_RESIDUAL = 0.5
 #: from 17.5 degrees on, none of the 40 turned ones reads rest (median 0.35).
 MAX_HEAD_TURN = 15.0
 
+#: The neutral frame's eyes narrower than this share of their median gap: a warning (their
+#: openness is relative to the neutral frame's).
+NEUTRAL_EYES = 0.75
+
 __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "MAX_HEAD_TURN", "analyze",
            "analyze_to_folder", "default_estimator", "reestimate"]
 
@@ -106,7 +112,7 @@ def default_estimator(tracker: str | None = None, *, layout=None, refine: bool =
 def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
-            personalize: bool = False,
+            personalize: bool = False, eyes: bool = False,
             tracker: str | None = None, tracker_options: dict | None = None,
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
@@ -161,6 +167,12 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         With ``estimator='model'``, fit through the generic face warped onto the
         subject's neutral frame (:func:`faceanalysis.estimation.model_fit.personal_model`)
         instead of the generic face itself.
+    eyes : bool, keyword-only
+        Trace both eyes' lids on every frame with MediaPipe's iris model (landmark
+        tracker; about 2 ms a frame): ``eye_openness_l`` / ``_r`` in the table (each eye's
+        lid gap over the neutral frame's) and the eye closures and blinks in
+        ``analysis.json`` (``eyes``, :func:`faceanalysis.analysis.eyes.eye_closures`).
+        Without it those columns are empty.
     tracker_options : dict, optional
         Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
     backend : {'numpy', 'torch'}, keyword-only
@@ -236,6 +248,11 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     if mirror_check and layout is not None:
         raise ValueError("mirror_check does not go with a layout: the layout places the "
                          "contours on the video as it is, not mirrored")
+    if eyes:
+        if resolve_tracker(tracker, layout) != "landmarks":
+            raise ValueError("eyes works with the landmark tracker, not the snakes (the iris "
+                             "model is placed from the face mesh)")
+        tracker_options = {**(tracker_options or {}), "eyes": True}
     est_options = _fit_options(estimator, refine, temporal, personalize)
     if estimator == "model" and progress:
         est_options["progress"] = True     # its fit takes about 0.1 s a frame
@@ -294,14 +311,15 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         "neutral_frame": int(tracks.frames[k]),
         "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
-        "refine": bool(refine), "personalize": bool(personalize),
+        "refine": bool(refine), "personalize": bool(personalize), "eyes": bool(eyes),
         "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),
         "single_frame": len(tracks) == 1,
         "pose_correction": pose_applied,
     }
-    table = _tracking_table(tracks)
+    table = _tracking_table(tracks, k)
+    eyes = _eye_summary(table, tracks, k, video)
     parameters["measurement_points"] = list(est.response.fiducials)
     parameters["mirror_check"] = bool(mirror_check)
     parameters["suspect_points"] = suspect_points
@@ -332,7 +350,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
-                                        "identifiability": ident})
+                                        "identifiability": ident, "eyes": eyes})
     if metadata.get("quality") is not None:
         metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
@@ -650,18 +668,40 @@ def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: Fiducial
     return correct_pose(disp, pose, k, rest, reference=head_frame_points()), True
 
 
-def _tracking_table(tracks: Tracks) -> pd.DataFrame:
-    """The tracking columns of ``contractions.csv`` (the controls follow)."""
+def _tracking_table(tracks: Tracks, k: int) -> pd.DataFrame:
+    """The tracking columns of ``contractions.csv`` (the controls follow); the eyes'
+    openness relative to row ``k``, the neutral frame."""
     table = empty_table(len(tracks), frames=tracks.frames.tolist(),
                         timestamps=tracks.timestamps.tolist())
     table["success"] = tracks.success.astype(np.int64)
     table["confidence"] = tracks.confidence
     table[list(HEAD_COLUMNS)] = tracks.heads
     table[list(POSE_COLUMNS)] = tracks.pose
+    table[list(EYE_COLUMNS)] = eye_openness(tracks.eyes, k)
     for j, name in enumerate(FIDUCIALS):
         table[f"fid_{name}_x"] = tracks.fiducials[:, j, 0]
         table[f"fid_{name}_y"] = tracks.fiducials[:, j, 1]
     return table
+
+
+def _eye_summary(table: pd.DataFrame, tracks: Tracks, k: int, video) -> dict | None:
+    """``analysis.json``'s ``eyes``: the neutral frame's lid gaps and the closures of
+    :func:`~faceanalysis.analysis.eyes.eye_closures`; None without measured eyes. Warns
+    when the neutral frame's eyes are narrower than usual (the openness is relative to
+    them)."""
+    summary = eye_closures(table[list(EYE_COLUMNS)].to_numpy(float), tracks.frames,
+                           tracks.timestamps)
+    if summary is None:
+        return None
+    neutral = tracks.eyes[k]
+    typical = np.nanmedian(tracks.eyes[tracks.success], axis=0)
+    if (neutral < NEUTRAL_EYES * typical).any():
+        log.warning("%s: on the neutral frame %d the eyes are narrower than on most frames "
+                    "(lid gaps %.2f and %.2f of their median): eye_openness is relative to "
+                    "them; give another --neutral frame", video, int(tracks.frames[k]),
+                    *(neutral / typical))
+    return {"source": "MediaPipe iris landmark model", "neutral_lid_gap_iod":
+            [round(float(g), 4) for g in neutral], **summary}
 
 
 def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,

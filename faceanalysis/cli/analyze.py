@@ -55,6 +55,10 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--personalize", action="store_true",
                        help="model estimator: fit through the face model warped onto the "
                             "subject's neutral frame instead of the generic face")
+    group.add_argument("--eyes", action="store_true",
+                       help="trace the eyelids with MediaPipe's iris model (about 2 ms a "
+                            "frame): eye_openness_l/_r columns and the blinks in "
+                            "analysis.json; landmark tracker only")
     group.add_argument("--temporal", type=non_negative_float, metavar="WEIGHT",
                        help="joint, mesh, fused: weight of the prior that draws each frame's "
                             "contractions toward its neighbours' (default 0.01), so that "
@@ -97,6 +101,9 @@ def check_analysis_options(args: argparse.Namespace) -> None:
     if getattr(args, "personalize", False) and args.estimator != "model":
         raise UsageError("--personalize goes with --estimator model, not "
                          f"{args.estimator or 'the default estimator'}")
+    if getattr(args, "eyes", False) and (args.tracker == "snakes" or args.layout is not None):
+        raise UsageError("--eyes goes with the landmark tracker; drop --tracker snakes and "
+                         "--layout")
     if args.temporal is not None and args.estimator not in (None, *TEMPORAL_ESTIMATORS):
         raise UsageError(f"--temporal goes with --estimator {', '.join(TEMPORAL_ESTIMATORS)}, "
                          f"not {args.estimator}")
@@ -136,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=not progress_wanted(args), estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
-        refine=args.refine, personalize=args.personalize, temporal=args.temporal,
+        refine=args.refine, personalize=args.personalize, eyes=args.eyes,
+        temporal=args.temporal,
         mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")

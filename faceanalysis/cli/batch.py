@@ -54,8 +54,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 _ANALYSIS_OPTIONS = ("fps", "start", "end", "estimator", "neutral", "tracker", "layout",
-                     "overlay", "refine", "personalize", "temporal", "mirror_check", "backend",
-                     "device")
+                     "overlay", "refine", "personalize", "eyes", "temporal", "mirror_check",
+                     "backend", "device")
 
 
 def _options(args: argparse.Namespace) -> dict:

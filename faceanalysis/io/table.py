@@ -50,6 +50,7 @@ __all__ = [
     "HEAD_COLUMNS",
     "IDENTIFIABLE_COLUMNS",
     "POSE_COLUMNS",
+    "EYE_COLUMNS",
     "JAW",
     "MUSCLES",
     "MUSCLE_BASES",
@@ -82,6 +83,11 @@ HEAD_COLUMNS: tuple[str, ...] = ("head_x", "head_y", "head_scale", "head_roll")
 #: first frame (the landmark tracker; empty with the snakes tracker).
 POSE_COLUMNS: tuple[str, ...] = ("head_pitch", "head_yaw")
 
+#: How far each eye is open (the subject's left, then right): its lid gap over the neutral
+#: frame's, 0 closed, above 1 wider than at rest (the landmark tracker; empty with the
+#: snakes tracker).
+EYE_COLUMNS: tuple[str, ...] = ("eye_openness_l", "eye_openness_r")
+
 #: ``fid_<name>_x``, ``fid_<name>_y`` for every fiducial.
 FIDUCIAL_COLUMNS: tuple[str, ...] = tuple(
     f"fid_{name}_{axis}" for name in FIDUCIALS for axis in ("x", "y"))
@@ -105,6 +111,7 @@ _DECIMALS: dict[str, int] = {
     **{c: 3 for c in ("head_x", "head_y", "head_scale")},
     "head_roll": 6,
     **{c: 3 for c in POSE_COLUMNS},
+    **{c: 4 for c in EYE_COLUMNS},
     **{c: 3 for c in FIDUCIAL_COLUMNS},
     **{c: 6 for c in MUSCLES},
     JAW: 6,
@@ -165,9 +172,10 @@ def contraction_columns() -> list[str]:
     --------
     >>> cols = contraction_columns()
     >>> cols[:5], len(cols)
-    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 124)
+    (['frame', 'timestamp', 'success', 'confidence', 'head_x'], 126)
     """
-    return [*FRAME_COLUMNS, *HEAD_COLUMNS, *POSE_COLUMNS, *FIDUCIAL_COLUMNS, *MUSCLES, JAW,
+    return [*FRAME_COLUMNS, *HEAD_COLUMNS, *POSE_COLUMNS, *EYE_COLUMNS, *FIDUCIAL_COLUMNS,
+            *MUSCLES, JAW,
             *AU_COLUMNS, *IDENTIFIABLE_COLUMNS]
 
 
@@ -429,10 +437,11 @@ def measured_values(table: pd.DataFrame, columns=None) -> pd.DataFrame:
 
 
 def _with_optional(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with empty pose and identifiability columns where it has none: tables written
-    before these were measured, the snakes tracker's (no pose) and a synthetic sequence's
-    ``truth.csv`` are still tables."""
-    missing = [c for c in (*POSE_COLUMNS, *IDENTIFIABLE_COLUMNS) if c not in df.columns]
+    """``df`` with empty pose, eye and identifiability columns where it has none: tables
+    written before these were measured, the snakes tracker's (no pose) and a synthetic
+    sequence's ``truth.csv`` are still tables."""
+    missing = [c for c in (*POSE_COLUMNS, *EYE_COLUMNS, *IDENTIFIABLE_COLUMNS)
+               if c not in df.columns]
     if not missing:
         return df
     df = df.copy()
@@ -443,14 +452,14 @@ def _with_optional(df: pd.DataFrame) -> pd.DataFrame:
 
 def required_columns() -> list[str]:
     """The columns a contractions table must have: :func:`contraction_columns` less the
-    pose and identifiability columns, which a table may lack (read back empty).
+    pose, eye and identifiability columns, which a table may lack (read back empty).
 
     Examples
     --------
     >>> len(required_columns()), "head_pitch" in required_columns()
     (76, False)
     """
-    optional = {*POSE_COLUMNS, *IDENTIFIABLE_COLUMNS}
+    optional = {*POSE_COLUMNS, *EYE_COLUMNS, *IDENTIFIABLE_COLUMNS}
     return [c for c in contraction_columns() if c not in optional]
 
 

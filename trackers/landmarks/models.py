@@ -1,6 +1,7 @@
 """The MediaPipe model files: pinned, checked by sha256, cached per user.
 
-The ``.tflite`` files (face detection, face mesh, palm detection and hand landmarks; and the
+The ``.tflite`` files (face detection, face mesh, palm detection, hand landmarks and the iris
+model's eye contours; and the
 wheel's licence, Apache-2.0) are taken from the
 ``mediapipe`` wheel on PyPI, which is the publisher's own package; the project never ships
 them. The first call of :func:`ensure_models` downloads that wheel with pip (which honours the
@@ -44,6 +45,10 @@ MODEL_FILES = {
     "hand_landmark": (
         "mediapipe/modules/hand_landmark/hand_landmark_lite.tflite",
         "048edd3645c9bf7397d19a9f6e3a42957d6e414c9bea6598030a2e9b624156e6"),
+    # the eyelids (:mod:`trackers.landmarks.eyes`)
+    "iris_landmark": (
+        "mediapipe/modules/iris_landmark/iris_landmark.tflite",
+        "d1744d2a09c25f501d39eba4faff47e53ecca8852c5ce19bce8eeac39357521f"),
 }
 #: The files the face mesh's own results depend on (cache keys of what is derived from them).
 FACE_MODEL_FILES = {k: MODEL_FILES[k] for k in ("face_detection", "face_landmark")}
@@ -184,7 +189,7 @@ def ensure_models(*, wheel: str | os.PathLike | None = None,
     -------
     dict
         ``{"face_detection": Path, "face_landmark": Path, "palm_detection": Path,
-        "hand_landmark": Path}``.
+        "hand_landmark": Path, "iris_landmark": Path}``.
 
     Raises
     ------

@@ -59,6 +59,7 @@ def test_end_not_after_start_is_a_usage_error(run_cli, tmp_path, command, start,
     (("--estimator", "tw93", "--refine"), "--refine goes with --estimator joint"),
     (("--estimator", "mesh", "--personalize"), "--personalize goes with --estimator model"),
     (("--personalize",), "--personalize goes with --estimator model, not the default"),
+    (("--eyes", "--tracker", "snakes"), "--eyes goes with the landmark tracker"),
     (("--estimator", "flow", "--temporal", "0"), "--temporal goes with --estimator joint"),
     (("--temporal", "-0.5"), "--temporal: must be a number >= 0"),
 ])

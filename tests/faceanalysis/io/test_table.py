@@ -51,14 +51,15 @@ def test_schema_matches_design():
     assert cols[:8] == ["frame", "timestamp", "success", "confidence",
                         "head_x", "head_y", "head_scale", "head_roll"]
     assert cols[8:10] == ["head_pitch", "head_yaw"]
-    assert cols[10:12] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
+    assert cols[10:12] == ["eye_openness_l", "eye_openness_r"]
+    assert cols[12:14] == ["fid_brow_inner_l_x", "fid_brow_inner_l_y"]
     assert cols.index(JAW) == cols.index("orbicularis_oculi_r") + 1
     assert cols[cols.index(JAW) + 1:][:len(AU_COLUMNS)] == list(AU_COLUMNS)
     assert AU_COLUMNS[0] == "AU01_r" and AU_COLUMNS[-1] == "AU27_r" and len(AU_COLUMNS) == 16
     assert cols[-len(IDENTIFIABLE_COLUMNS):] == list(IDENTIFIABLE_COLUMNS)
     assert IDENTIFIABLE_COLUMNS[0] == f"{MUSCLES[0]}_identifiable"
     assert IDENTIFIABLE_COLUMNS[-1] == "AU27_identifiable"
-    assert len(cols) == len(set(cols)) == 4 + 4 + 2 + 22 + 29 + 1 + 16 + 30 + 16
+    assert len(cols) == len(set(cols)) == 4 + 4 + 2 + 2 + 22 + 29 + 1 + 16 + 30 + 16
 
 
 def test_round_trip(tmp_path):

@@ -77,7 +77,7 @@ def test_offline_install_from_a_local_wheel(tmp_models, local_wheel, monkeypatch
     monkeypatch.setenv("FACEANALYSIS_MODEL_WHEEL", str(local_wheel))
     paths = M.ensure_models(download=False)
     assert set(paths) == {"face_detection", "face_landmark", "palm_detection",
-                          "hand_landmark"} and M.models_available()
+                          "hand_landmark", "iris_landmark"} and M.models_available()
     assert (tmp_models / "LICENSE_mediapipe.txt").is_file()
     umask = os.umask(0)
     os.umask(umask)
