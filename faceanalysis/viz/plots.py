@@ -19,7 +19,7 @@ from matplotlib.patches import Patch
 
 from faceanalysis.io.outputs import atomic_path
 from faceanalysis.io.report import lost_reasons_text
-from faceanalysis.io.table import JAW, MUSCLE_BASES, MUSCLES
+from faceanalysis.io.table import EYE_COLUMNS, JAW, MUSCLE_BASES, MUSCLES
 
 __all__ = ["plot_contractions", "save_figure"]
 
@@ -110,6 +110,9 @@ def _lost_label(n: int, reasons) -> str:
     return f"lost frames ({n}: {text})"             # some of them without a known reason
 
 
+_EYE_COLOUR = "#2f6f8f"
+
+
 def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
                       muscles: Sequence[str] | None = None, title: str | None = None,
                       layout: str = "auto", dpi: int = 150,
@@ -140,8 +143,9 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
     layout : {'auto', 'single', 'stacked'}, keyword-only
         ``single``: every muscle on one axis, like Fig. 8 of 004. ``stacked``: one
         panel per muscle (pair) sharing the time axis, readable when many muscles
-        are active. ``auto`` (default) stacks when more than five muscles (pairs)
-        are drawn.
+        are active, and one for the eyes' openness where ``df`` has it
+        (``eye_openness_l``/``_r``, ``--eyes``). ``auto`` (default) stacks when more
+        than five muscles (pairs) are drawn or the eyes were measured.
     dpi : int, keyword-only
         Resolution of the saved file (150 by default).
     not_identifiable : sequence of str, keyword-only
@@ -207,10 +211,18 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         jaw = np.degrees(pd.to_numeric(df[JAW], errors="coerce").to_numpy(float))
         if not (np.isfinite(jaw).any() and np.nanmax(np.abs(jaw)) > 0):
             jaw = None
-    stacked = layout == "stacked" or (layout == "auto" and len(bases) > 5)
+    eyes = None
+    if all(c in df for c in EYE_COLUMNS):
+        eyes = df[list(EYE_COLUMNS)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+        if not np.isfinite(eyes).any():
+            eyes = None
+    stacked = layout == "stacked" or (layout == "auto" and (len(bases) > 5
+                                                            or eyes is not None))
+    if not stacked:
+        eyes = None
 
     if stacked:
-        n_panels = max(1, len(bases)) + (jaw is not None)
+        n_panels = max(1, len(bases)) + (eyes is not None) + (jaw is not None)
         fig = Figure(figsize=(10, min(1.1 + 0.85 * n_panels, 40)), layout="constrained")
         FigureCanvasAgg(fig)
         axes = list(fig.subplots(n_panels, 1, sharex=True, squeeze=False)[:, 0])
@@ -252,6 +264,15 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         main.set_ylim(0, 1)
         main.text(0.5, 0.5, f"no muscle reaches a contraction of {ACTIVE_THRESHOLD:g}",
                   transform=main.transAxes, ha="center", va="center", color="#666666")
+
+    if eyes is not None:
+        eax = axes[max(1, len(bases))]
+        for j, ls in enumerate(("-", "--")):
+            eax.plot(x, eyes[:, j], color=_EYE_COLOUR, lw=1.3, ls=ls, label=EYE_COLUMNS[j])
+        eax.set_ylim(0, max(1.2, 1.1 * float(np.nanmax(eyes))))
+        eax.set_ylabel("eyes open\n(1: as neutral)", rotation=0, ha="right", va="center",
+                       fontsize=8)
+        eax.tick_params(labelsize=7)
 
     if jaw is not None:
         jax = axes[-1] if stacked else main.twinx()

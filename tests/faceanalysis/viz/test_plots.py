@@ -150,3 +150,19 @@ def test_frames_with_the_head_turned_are_hatched(table):
         t.get_text() for t in plot_contractions(table).legends[0].get_texts())
     with pytest.raises(ValueError, match="turned must have one value per row"):
         plot_contractions(table, turned=turned[:5])
+
+
+def test_measured_eyes_get_a_panel_above_the_jaw(table):
+    from faceanalysis.io.table import EYE_COLUMNS
+
+    table[list(EYE_COLUMNS)] = 1.0
+    table.loc[50:53, list(EYE_COLUMNS)] = 0.1          # a blink
+    fig = plot_contractions(table)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    # two muscle panels, the eyes, the jaw: stacked though few muscles are active
+    assert len(fig.axes) == 4 and labels[2].startswith("eyes open") and labels[3] == "jaw (deg)"
+    assert [line.get_label() for line in fig.axes[2].lines] == list(EYE_COLUMNS)
+    assert np.nanmin(fig.axes[2].lines[0].get_ydata()) == pytest.approx(0.1)
+    # without them (empty columns, the snakes tracker) the plot is as before
+    table[list(EYE_COLUMNS)] = np.nan
+    assert len(plot_contractions(table).axes) == 2
