@@ -546,9 +546,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                                              channel_order="bgr")
                     shown = None if res is None else res.contours
                     hands = None if res is None else res.extra.get("hands")
+                    eyelids = None if not good else res.extra.get("eyelids")
                     why = reasons[-1] and LOST_REASONS[reasons[-1]][0]
                     writer.write(_draw(frame, shown, fids, head if good else None,
-                                       why or not good, hands))
+                                       why or not good, hands, eyelids))
                 if bar is not None:
                     bar.update(1)
         if frames and not any(ok) and layout is None:
@@ -724,9 +725,10 @@ def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
     return tracker, res
 
 
-def _draw(frame, contours, fids, head, lost, hands=None):
+def _draw(frame, contours, fids, head, lost, hands=None, eyelids=None):
     from faceanalysis.viz.overlay import draw_overlay
 
     return draw_overlay(frame.image, contours=contours,
                         fiducials=dict(zip(FIDUCIALS, fids.tolist())), head=head, lost=lost,
-                        label=f"frame {frame.index}  {frame.timestamp:.2f} s", hands=hands)
+                        label=f"frame {frame.index}  {frame.timestamp:.2f} s", hands=hands,
+                        eyelids=eyelids)

@@ -335,7 +335,8 @@ class AnchoredTracker:
     eyes : bool
         Trace both eyes' lids with MediaPipe's iris model (:mod:`trackers.landmarks.eyes`)
         on every frame: ``extra['eye_gaps']``, each eye's lid gap (subject's left, then
-        right) over the inter-ocular distance. Read in a thread while the snakes relax
+        right) over the inter-ocular distance, and ``extra['eyelids']``, their contours
+        (:func:`~trackers.landmarks.eyes.eyelid_contours`). Read in a thread while the snakes relax
         (``prefetch``); it costs about 2 ms a frame with LiteRT, 5 with ``cv2.dnn``.
     runtime : str
         The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
@@ -605,6 +606,7 @@ class AnchoredTracker:
 
             contours = lids.result() if lids is not None else self._eyelids(frame, lm.points)
             extra["eye_gaps"] = lid_gaps(contours) / max(iod, 1e-9)
+            extra["eyelids"] = contours
         return self._in_input_pixels(TrackResult(index, res.contours, quality,
                                                  res.iterations, res.converged, res.head,
                                                  res.fiducials, extra))
@@ -686,6 +688,8 @@ class AnchoredTracker:
         extra = dict(result.extra)
         extra["landmarks"] = up(extra["landmarks"])
         extra["hands"] = [up(h) for h in extra.get("hands", [])]
+        if "eyelids" in extra:
+            extra["eyelids"] = up(extra["eyelids"])
         extra["landmarks_z"] = np.asarray(extra["landmarks_z"], float) * k
         return replace(result, contours={n: up(c) for n, c in result.contours.items()},
                        fiducials={n: tuple(float(v) for v in up(f))

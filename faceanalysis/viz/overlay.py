@@ -29,6 +29,10 @@ _MIDLINE = (255, 200, 0)
 _HEAD = (255, 255, 255)
 _LOST = (40, 40, 230)
 _HAND = (0, 140, 255)       # BGR orange: a hand over the face
+_EYELID = (255, 200, 0)     # BGR light blue: the lids traced by the iris model
+#: The lid contour's points round the eye: the lower lid from the outer corner to the inner,
+#: then the upper lid back from inside to outside.
+_ROUND_THE_EYE = [*range(9), *range(15, 8, -1)]
 
 
 def _fixed(points: np.ndarray) -> np.ndarray:
@@ -70,7 +74,8 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
                  = None, fiducials: Mapping[str, Sequence[float]] | None = None,
                  head: Sequence[float] | None = None, lost: bool | str = False,
                  label: str | None = None,
-                 hands: Sequence[np.ndarray] | None = None) -> np.ndarray:
+                 hands: Sequence[np.ndarray] | None = None,
+                 eyelids: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """Draw tracking results on a copy of a frame.
 
     Parameters
@@ -98,6 +103,9 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     hands : sequence of (21, 2) arrays, optional
         Hands over the face (``TrackResult.extra['hands']``), each drawn as the outline of
         its points' convex hull.
+    eyelids : sequence of (16, 2) arrays, optional
+        Each eye's lid contour (``TrackResult.extra['eyelids']``, ``--eyes``; the order of
+        :func:`trackers.landmarks.eyes.eyelid_contours`), drawn as a closed outline.
 
     Returns
     -------
@@ -136,6 +144,15 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
             raise ValueError(f"hands must be (K, 2) arrays of (x, y), got shape {points.shape}")
         hull = cv2.convexHull(points.astype(np.float32))[:, 0]
         cv2.polylines(canvas, [_fixed(hull)], True, _HAND, thick, cv2.LINE_AA, _SHIFT)
+
+    for lids in () if eyelids is None else eyelids:
+        points = np.asarray(lids, dtype=float)
+        if points.shape != (16, 2):
+            raise ValueError(f"eyelids must be (16, 2) arrays of (x, y), got shape "
+                             f"{points.shape}")
+        if np.isfinite(points).all():
+            cv2.polylines(canvas, [_fixed(points[_ROUND_THE_EYE])], True, _EYELID, thick,
+                          cv2.LINE_AA, _SHIFT)
 
     if fiducials is not None:
         for name, point in fiducials.items():

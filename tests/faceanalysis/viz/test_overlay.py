@@ -76,3 +76,15 @@ def test_a_hand_is_drawn_as_its_outline():
     assert not out[45:75, 55:105].any()              # its inside is left as it was
     with pytest.raises(ValueError, match="hands"):
         draw_overlay(np.zeros((20, 20), np.uint8), hands=[np.zeros((3, 3))])
+
+
+def test_the_lids_are_drawn_round_the_eye():
+    t = np.linspace(0, np.pi, 9)
+    lower = np.c_[80 - 40 * np.cos(t), 60 + 15 * np.sin(t)]      # outer corner to inner
+    upper = np.c_[80 - 40 * np.cos(t[1:8]), 60 - 15 * np.sin(t[1:8])]
+    out = draw_overlay(np.zeros((120, 160, 3), np.uint8), eyelids=[np.r_[lower, upper]])
+    assert out[60 + 15, 75:85].any() and out[60 - 15, 75:85].any()   # both lids
+    # round the eye, not across it: the inner corner does not join the upper lid's start
+    assert not out[52:68, 60:100].any()
+    with pytest.raises(ValueError, match="eyelids"):
+        draw_overlay(np.zeros((20, 20), np.uint8), eyelids=[np.zeros((15, 2))])
