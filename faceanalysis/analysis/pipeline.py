@@ -169,7 +169,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         instead of the generic face itself.
     eyes : bool, keyword-only
         Trace both eyes' lids on every frame with MediaPipe's iris model (landmark
-        tracker; about 2 ms a frame): ``eye_openness_l`` / ``_r`` in the table (each eye's
+        tracker; about 2.5 ms a frame): ``eye_openness_l`` / ``_r`` in the table (each eye's
         lid gap over the neutral frame's) and the eye closures and blinks in
         ``analysis.json`` (``eyes``, :func:`faceanalysis.analysis.eyes.eye_closures`).
         Without it those columns are empty.
