@@ -319,7 +319,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         "pose_correction": pose_applied,
     }
     table = _tracking_table(tracks, k)
-    eyes = _eye_summary(table, tracks, k, video)
+    eye_summary = _eye_summary(table, tracks, k, video)
     parameters["measurement_points"] = list(est.response.fiducials)
     parameters["mirror_check"] = bool(mirror_check)
     parameters["suspect_points"] = suspect_points
@@ -350,7 +350,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
-                                        "identifiability": ident, "eyes": eyes})
+                                        "identifiability": ident, "eyes": eye_summary})
     if metadata.get("quality") is not None:
         metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
