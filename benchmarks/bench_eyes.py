@@ -14,6 +14,11 @@ analysis with ``eyes=True``; reported:
   :func:`trackers.landmarks.eyes.eyelid_contours` on the clip's frames (decoded beforehand,
   one thread, the runtime the analysis uses).
 
+And on the IMM photographs (``annotated/imm_dev``, 20 people), each person's neutral (type 1)
+then a second photograph analysed as a two-frame video: the eyes' openness (mean of both) on a
+second neutral under a side light (type 5: how far a still eye's reading wanders) and on the
+smile (type 2: a smile's cheek raise narrows the eyes).
+
 No peer: MediaPipe's face mesh has no eye closure output of its own. Skipped, with the reason,
 without the real clips or the landmark models.
 """
@@ -56,6 +61,37 @@ def _mesh_gaps(landmarks) -> np.ndarray:
 
 def _open_share(gaps: np.ndarray) -> np.ndarray:
     return gaps / np.nanpercentile(gaps, 90, axis=0)
+
+
+def _imm() -> list[Figure]:
+    import tempfile
+
+    from faceanalysis.analysis.pipeline import analyze
+
+    imm = REAL.parent / "annotated" / "imm_dev"
+    if not imm.is_dir():
+        print(f"# {imm} is absent: the photographs are skipped", file=sys.stderr)
+        return []
+    seen = {2: [], 5: []}
+    for person in range(21, 41):
+        for second in seen:
+            with tempfile.TemporaryDirectory() as tmp:
+                for j, kind in enumerate((1, second)):
+                    img = cv2.imread(str(next(imm.glob(f"{person}-{kind}?.jpg"))))
+                    cv2.imwrite(f"{tmp}/{j}.png", img)
+                a = analyze(tmp, fps=1.0, eyes=True, temporal=0)
+                seen[second].append(float(np.nanmean(
+                    a.table[["eye_openness_l", "eye_openness_r"]].to_numpy(float)[1])))
+    side, smile = np.array(seen[5]), np.array(seen[2])
+    case = "IMM photographs, 20 people"
+    return [
+        Figure("eyes", case, "side-lit neutral: eye openness, median", float(np.median(side)),
+               "", True, extra={"p10_p90": np.percentile(side, [10, 90]).round(3).tolist()}),
+        Figure("eyes", case, "smile: eye openness, median", float(np.median(smile)), "", False,
+               extra={"p10_p90": np.percentile(smile, [10, 90]).round(3).tolist()}),
+        Figure("eyes", case, "smiles with narrower eyes than the neutral", int((smile < 1).sum()),
+               "of 20", True),
+    ]
 
 
 def run(quick: bool = False) -> list[Figure]:
@@ -118,4 +154,6 @@ def run(quick: bool = False) -> list[Figure]:
         figures.append(Figure("eyes", case, "eye stage alone (both eyes)",
                               1e3 * (time.perf_counter() - t0) / len(placed), "ms/frame",
                               False, extra={"frames": len(placed)}))
+    if not quick:
+        figures += _imm()
     return figures
