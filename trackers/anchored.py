@@ -394,6 +394,7 @@ class AnchoredTracker:
         self.eyes = bool(eyes)
         self.runtime = runtime
         self._eye_pool: ThreadPoolExecutor | None = None
+        self._iris = None      # (model path, runtime) of the eyes, resolved on first use
         if head_frame not in ("landmarks", "tracker"):
             raise ValueError(f"head_frame must be 'landmarks' or 'tracker', got {head_frame!r}")
         self.head_frame = head_frame
@@ -760,10 +761,17 @@ class AnchoredTracker:
     def _eyelids(self, frame, points) -> np.ndarray:
         """Both eyes' lid contours on ``frame``
         (:func:`trackers.landmarks.eyes.eyelid_contours`)."""
-        from trackers.landmarks.eyes import eyelid_contours
+        from trackers.landmarks._image import check_image
+        from trackers.landmarks.eyes import _run
+        from trackers.landmarks.models import ensure_models
+        from trackers.landmarks.runtime import check_runtime, load_network
 
-        return eyelid_contours(frame, points, channel_order=self.channel_order,
-                               runtime=self.runtime)
+        if self._iris is None:
+            # resolved once: the model files' checks and 'auto''s search for LiteRT cost
+            # file-system calls, which a frame need not repeat
+            self._iris = (str(ensure_models()["iris_landmark"]), check_runtime(self.runtime))
+        net = load_network(self._iris[0], runtime=self._iris[1])
+        return _run(net, check_image(frame, self.channel_order), points, self.channel_order)
 
     def close(self) -> None:
         """Stop the landmark model's prefetch thread and the hands' and eyes' threads, if
