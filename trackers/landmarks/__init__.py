@@ -1,5 +1,6 @@
 """Learned face landmarks: MediaPipe's face detector and 468-point face mesh; its palm detector
-and 21-point hand landmarks, which tell a hand held over the face.
+and 21-point hand landmarks, which tell a hand held over the face; its iris landmark model,
+which traces the eyelids where the mesh does not follow them shut (:mod:`.eyes`).
 
 Why these models: on a hand-annotated talking-face clip the mesh is within 0.033 of the
 inter-ocular distance on average (MediaPipe's own pipeline, with its attention model, 0.036)
