@@ -336,8 +336,8 @@ class AnchoredTracker:
         Trace both eyes' lids with MediaPipe's iris model (:mod:`trackers.landmarks.eyes`)
         on every frame: ``extra['eye_gaps']``, each eye's lid gap (subject's left, then
         right) over the inter-ocular distance, and ``extra['eyelids']``, their contours
-        (:func:`~trackers.landmarks.eyes.eyelid_contours`). Read in a thread while the snakes relax
-        (``prefetch``); it costs about 2.5 ms a frame with LiteRT, 5 with ``cv2.dnn``.
+        (:func:`~trackers.landmarks.eyes.eyelid_contours`). Read in a thread while the
+        snakes relax (``prefetch``); about 2.5 ms a frame with LiteRT, 5 with ``cv2.dnn``.
     runtime : str
         The landmark model's runtime (see :func:`trackers.landmarks.load_network`).
     prefetch : bool
