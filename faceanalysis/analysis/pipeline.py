@@ -86,6 +86,11 @@ MAX_HEAD_TURN = 15.0
 #: openness is relative to the neutral frame's).
 NEUTRAL_EYES = 0.75
 
+#: Outer eye corners closer than this (pixels, on the neutral frame): a warning that eye
+#: closures may be missed. On cap13 shrunk to 51 px both blinks are found, to 41 px the one
+#: caught half-shut on a single frame is not, to 21 px neither.
+SMALL_EYES_PX = 45.0
+
 __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "MAX_HEAD_TURN", "analyze",
            "analyze_to_folder", "default_estimator", "reestimate"]
 
@@ -685,23 +690,31 @@ def _tracking_table(tracks: Tracks, k: int) -> pd.DataFrame:
 
 
 def _eye_summary(table: pd.DataFrame, tracks: Tracks, k: int, video) -> dict | None:
-    """``analysis.json``'s ``eyes``: the neutral frame's lid gaps and the closures of
-    :func:`~faceanalysis.analysis.eyes.eye_closures`; None without measured eyes. Warns
-    when the neutral frame's eyes are narrower than usual (the openness is relative to
-    them)."""
+    """``analysis.json``'s ``eyes``: the neutral frame's lid gaps and outer eye corners'
+    distance, and the closures of :func:`~faceanalysis.analysis.eyes.eye_closures`; None
+    without measured eyes. Warns when the neutral frame's eyes are narrower than usual (the
+    openness is relative to them) or smaller than :data:`SMALL_EYES_PX`."""
     summary = eye_closures(table[list(EYE_COLUMNS)].to_numpy(float), tracks.frames,
                            tracks.timestamps)
     if summary is None:
         return None
     neutral = tracks.eyes[k]
     typical = np.nanmedian(tracks.eyes[tracks.success], axis=0)
+    mesh = tracks.landmarks[k]
+    corners = None if mesh is None else float(np.hypot(*(mesh[33, :2] - mesh[263, :2])))
+    if corners is not None and corners < SMALL_EYES_PX:
+        log.warning("%s: the outer eye corners lie %.0f px apart on the neutral frame: at "
+                    "under %.0f px the lids are too small to read reliably, and eye closures "
+                    "(blinks most) may be missed", video, corners, SMALL_EYES_PX)
     if (neutral < NEUTRAL_EYES * typical).any():
         log.warning("%s: on the neutral frame %d the eyes are narrower than on most frames "
                     "(lid gaps %.2f and %.2f of their median): eye_openness is relative to "
                     "them; give another --neutral frame", video, int(tracks.frames[k]),
                     *(neutral / typical))
     return {"source": "MediaPipe iris landmark model", "neutral_lid_gap_iod":
-            [round(float(g), 4) for g in neutral], **summary}
+            [round(float(g), 4) for g in neutral],
+            "eye_corner_distance_px": None if corners is None else round(corners, 1),
+            **summary}
 
 
 def _contractions(table: pd.DataFrame, values: pd.DataFrame, disp: np.ndarray,

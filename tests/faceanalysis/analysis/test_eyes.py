@@ -69,6 +69,21 @@ def test_eyes_open_as_at_rest_on_a_still_face(still_face, tmp_path):
     np.testing.assert_allclose(back[list(EYE_COLUMNS)].to_numpy(float), o, atol=1e-4)
 
 
+def test_small_eyes_are_warned_about(still_face, tmp_path, caplog):
+    img = cv2.imread(str(still_face / "00.png"))
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), cv2.resize(img, (96, 96),
+                                                            interpolation=cv2.INTER_AREA))
+    a = analyze(tmp_path, fps=25, eyes=True)
+    corners = a.metadata["eyes"]["eye_corner_distance_px"]
+    assert corners < 45
+    assert any("eye closures (blinks most) may be missed" in r.message for r in caplog.records)
+    caplog.clear()
+    big = analyze(still_face, fps=25, end=2, eyes=True)
+    assert big.metadata["eyes"]["eye_corner_distance_px"] > 100
+    assert not any("may be missed" in r.message for r in caplog.records)
+
+
 def test_without_eyes_the_columns_are_empty(still_face):
     a = analyze(still_face, fps=25, end=2)
     assert a.table[list(EYE_COLUMNS)].isna().all().all()
