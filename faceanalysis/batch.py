@@ -182,6 +182,12 @@ def _summarise(folder: Path) -> dict:
     record["mean_confidence"] = _finite_or_nan(quality.get("mean_confidence"))
     record["frames_over_fit_limit"] = _finite_or_nan(fit.get("frames_over_limit"))
     record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
+    eyes = metadata.get("eyes") if isinstance(metadata, dict) else None
+    if isinstance(eyes, dict):
+        # with --eyes: how often the eyes shut
+        record["blinks"] = _finite_or_nan(eyes.get("blinks"))
+        record["blinks_per_minute"] = _finite_or_nan(eyes.get("blinks_per_minute"))
+        record["eye_closures"] = len(eyes.get("closures") or ())
     columns = [c for c in table.columns
                if _is_contraction_column(c) and pd.api.types.is_numeric_dtype(table[c])]
     # a value the analysis flags as not measured (it leans on the prior that muscles rest)

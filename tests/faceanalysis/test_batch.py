@@ -525,3 +525,19 @@ def test_the_summary_averages_only_the_measured_values(tmp_path):
     assert np.isnan(row["mean_mentalis_l"])                          # never measured
     assert row["mean_jaw_rotation"] == pytest.approx(0.1)
     assert row["mean_zygomaticus_major_l_identifiable"] == pytest.approx(2 / 3)
+
+
+def test_the_summary_counts_the_blinks_of_an_analysis_with_eyes(tmp_path):
+    table = pd.DataFrame({"frame": [0, 1, 2], "timestamp": [0.0, 0.04, 0.08],
+                          "success": [1, 1, 1], "confidence": [1.0, 1.0, 1.0],
+                          "eye_openness_l": [1.0, 0.1, 1.0], "eye_openness_r": [1.0, 0.2, 0.9]})
+    table.to_csv(tmp_path / "contractions.csv", index=False)
+    eyes = {"blinks": 1, "blinks_per_minute": 500.0,
+            "closures": [{"first": 1, "last": 1, "duration_s": 0.04, "blink": True}]}
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {}, "eyes": eyes}))
+    row = batch._summarise(tmp_path)
+    assert (row["blinks"], row["blinks_per_minute"], row["eye_closures"]) == (1, 500.0, 1)
+    assert row["mean_eye_openness_r"] == pytest.approx(0.7)
+    # without --eyes (null) there are no blink columns
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {}, "eyes": None}))
+    assert "blinks" not in batch._summarise(tmp_path)
