@@ -300,7 +300,12 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         t1 = time.perf_counter()
         try:
             with _quiet_tracking():
-                mirrored = track(video, mirror=True, keep_contours=False, **track_options)
+                options = track_options
+                if eyes:
+                    # the check compares the controls: the mirrored eyes would go unread
+                    options = {**track_options, "tracker_options": {
+                        k: v for k, v in tracker_options.items() if k != "eyes"}}
+                mirrored = track(video, mirror=True, keep_contours=False, **options)
         except (ValueError, FaceAnalysisError) as exc:
             # (the snakes' face detector may find no face in the mirrored frames)
             check = _skipped(f"the mirrored video could not be tracked ({exc})")

@@ -105,3 +105,10 @@ def test_a_real_blink_is_found(real_video_dir, models):
     closures = a.metadata["eyes"]["closures"]
     assert [(c["first"] >= 97, c["last"] <= 102, c["blink"]) for c in closures] == [
         (True, True, True)]
+
+
+def test_the_mirror_check_does_not_read_the_mirrored_eyes(still_face):
+    a = analyze(still_face, fps=25, eyes=True, mirror_check=True)
+    assert np.isfinite(a.tracks.eyes).all()
+    assert np.isnan(a.mirrored_tracks.eyes).all()           # not read: nothing uses them
+    assert a.metadata["parameters"]["tracker_options"] == {"eyes": True}
