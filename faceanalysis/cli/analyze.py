@@ -56,7 +56,7 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                        help="model estimator: fit through the face model warped onto the "
                             "subject's neutral frame instead of the generic face")
     group.add_argument("--eyes", action="store_true",
-                       help="trace the eyelids with MediaPipe's iris model (about 2 ms a "
+                       help="trace the eyelids with MediaPipe's iris model (about 2.5 ms a "
                             "frame): eye_openness_l/_r columns and the blinks in "
                             "analysis.json; landmark tracker only")
     group.add_argument("--temporal", type=non_negative_float, metavar="WEIGHT",

@@ -7,6 +7,7 @@ import pytest
 from faceanalysis.analysis.eyes import eye_closures, eye_openness
 from faceanalysis.analysis.pipeline import analyze, analyze_to_folder
 from faceanalysis.io.table import EYE_COLUMNS, read_contractions
+from tests.faceanalysis._photos import models_or_skip
 
 
 def test_openness_is_relative_to_the_neutral_row():
@@ -37,12 +38,7 @@ def test_closures_end_at_unmeasured_frames_and_one_eye_is_not_a_closure():
 
 @pytest.fixture(scope="module")
 def models():
-    from trackers.landmarks import ensure_models
-
-    try:
-        return ensure_models()
-    except (OSError, RuntimeError) as exc:
-        pytest.skip(f"the landmark model is not available: {exc}")
+    models_or_skip()
 
 
 @pytest.fixture(scope="module")
