@@ -438,6 +438,7 @@ class AnchoredTracker:
         self._since_hand = HAND_MEMORY + 1   # tracked frames since one showed a hand
         self._offsets: dict[str, np.ndarray] = {}
         self._unreferenced: set[str] = set()
+        self._carried: dict[int, np.ndarray] = {}   # frozen contours: first frame's nodes
 
     def track(self, frame, *, next_frame=None) -> TrackResult | None:
         """Track one frame; ``None`` when no face is found on it.
@@ -539,11 +540,23 @@ class AnchoredTracker:
             # spring's pull toward the raw curves, which would otherwise be released
             # over the next frames as a creep
             res = self.tracker.track(frame, targets=targets, head=self.tracker.ref_head)
+            if self.head_frame == "landmarks" and self.backend == "numpy":
+                # the hairline served the first frame's head frame (004's); from here on
+                # the rigid landmarks carry the head frame and nothing reads the hairline,
+                # which, free, crept down the temples on real faces: it is carried with
+                # the head instead of relaxed (a fifth of the nodes, a quarter of the
+                # potentials' area)
+                k = self.tracker.names.index("hairline")
+                self.tracker.system.freeze(k)
+                self._carried = {k: self.tracker.system.contour_points(k)}
             first = True
         else:
             first = False
             a, b = rigid_similarity(self._ref_rigid, rigid)
             head = _apply_similarity(self.tracker.ref_head, a, b)
+            for k, ref in self._carried.items():
+                z = a * (ref[:, 0] + 1j * ref[:, 1]) + b
+                self.tracker.system.set_contour(k, np.c_[z.real, z.imag], reset_rest=False)
             targets = self._node_targets(curves, a)
             if self._gap:
                 self._replace(targets, head)
@@ -639,13 +652,12 @@ class AnchoredTracker:
             system = self.tracker.system
             hulls = [cv2.convexHull(h.astype(np.float32))[:, 0].astype(float) for h in hands]
             margin = HAND_MARGIN * iod
-            for k, name in enumerate(self.tracker.names):
-                pts = system.contour_points(k)
-                inside = np.zeros(len(pts), bool)
-                for hull in hulls:
-                    inside |= near_convex_polygon(pts, hull, margin)
-                if inside.mean() >= HAND_COVER:
-                    under.add(name)
+            # all nodes at once, then each contour's share
+            inside = np.zeros(system.n_nodes, bool)
+            for hull in hulls:
+                inside |= near_convex_polygon(system.X, hull, margin)
+            share = np.add.reduceat(inside, system.starts[:-1]) / np.diff(system.starts)
+            under = {name for name, f in zip(self.tracker.names, share) if f >= HAND_COVER}
         return hands, under, deepened
 
     def _factor(self, points) -> int:

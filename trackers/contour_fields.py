@@ -70,18 +70,22 @@ class ContourFields:
             raise ValueError(f"frame {self.index} is {W}x{H} but the layout was made for "
                              f"{self.frame_size[0]}x{self.frame_size[1]}")
         X = self.system.X
+        frozen = self.system.frozen
+        moving = ~frozen[self.system.node_contour] if frozen.any() else None
         # nodes pushed out of the frame (by the image force or a re-initialisation)
         # are put back on its border; their contour is reported lost this frame
         out = (X[:, 0] < 0) | (X[:, 1] < 0) | (X[:, 0] > W - 1) | (X[:, 1] > H - 1)
+        if moving is not None:
+            out &= moving            # a frozen contour is carried, not tracked
         self._clipped = set()
         if out.any():
             for k in np.unique(self.system.node_contour[out]):
                 self._clipped.add(int(k))
-            np.clip(X[:, 0], 0, W - 1, out=X[:, 0])
-            np.clip(X[:, 1], 0, H - 1, out=X[:, 1])
+            X[out] = np.clip(X[out], 0, [W - 1, H - 1])
         m = self.motion_margin
-        lo = np.floor(X.min(0) - m).astype(int)
-        hi = np.ceil(X.max(0) + m).astype(int) + 1
+        live = X if moving is None else X[moving]
+        lo = np.floor(live.min(0) - m).astype(int)
+        hi = np.ceil(live.max(0) + m).astype(int) + 1
         pad = int(np.ceil(3 * self.sigma_max)) + 3
         X0, Y0 = max(lo[0] - pad, 0), max(lo[1] - pad, 0)
         X1, Y1 = min(hi[0] + pad, W), min(hi[1] + pad, H)
@@ -94,10 +98,19 @@ class ContourFields:
         _boxes_nb(X, self.system.starts, float(m), int(X0), int(Y0), gw, gh, bx)
         boxes = [tuple(int(v) for v in b) for b in bx]
         origins = np.c_[bx[:, 0] + X0, bx[:, 1] + Y0].astype(np.float64)
-        Ps = potentials_in_boxes(gray, self.specs, boxes)
+        if moving is None:
+            Ps = potentials_in_boxes(gray, self.specs, boxes)
+        else:
+            # a frozen contour reads no field: a 2x2 stand-in keeps one field per contour
+            active = np.flatnonzero(~frozen)
+            Ps = [np.zeros((2, 2), np.float32)] * len(self.names)
+            for k, P in zip(active, potentials_in_boxes(
+                    gray, [self.specs[k] for k in active], [boxes[k] for k in active])):
+                Ps[k] = P
+            origins[frozen] = 0.0
         # the potentials the ends are found on, in the same boxes, where they differ
         # from those the contours relax on (the free snakes' brows); ``_refine`` reads them
-        ends = self._end_only
+        ends = [k for k in self._end_only if not frozen[k]]
         self._end_fields = dict(zip(ends, potentials_in_boxes(
             gray, [self.end_specs[k] for k in ends], [boxes[k] for k in ends]))) \
             if ends else {}
@@ -107,6 +120,9 @@ class ContourFields:
         out = {}
         X, st = self.system.X, self.system.starts
         for k, name in enumerate(self.names):
+            if self.system.frozen[k]:
+                out[name] = 0.0          # it lies in no field
+                continue
             pts = X[st[k]:st[k + 1]]
             out[name] = float(_mean_depth_nb(Ps[k], pts, float(origins[k][0]),
                                              float(origins[k][1])))

@@ -15,13 +15,14 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
+def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts, frozen, node_contour):
     """Solve A X = R in place for the two columns of R (banded Cholesky + cyclic fix).
 
     A is block diagonal, one block a contour (``starts``): the substitution chains of
     the contours and of the two columns are independent, and are run interleaved so
     that each division's latency is hidden behind the others (1.7x faster than one
-    chain after the other, the very same numbers).
+    chain after the other, the very same numbers). The blocks of ``frozen`` contours
+    are left as they are.
     """
     K = starts.shape[0] - 1
     longest = 0
@@ -31,7 +32,7 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
     for jj in range(longest):
         for k in range(K):
             j = starts[k] + jj
-            if j >= starts[k + 1]:
+            if j >= starts[k + 1] or frozen[k]:
                 continue
             s0 = R[j, 0]
             s1 = R[j, 1]
@@ -47,7 +48,7 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
     for jj in range(longest):
         for k in range(K):
             i = starts[k + 1] - 1 - jj
-            if i < starts[k]:
+            if i < starts[k] or frozen[k]:
                 continue
             s0 = R[i, 0]
             s1 = R[i, 1]
@@ -62,6 +63,8 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
     for c in range(2):
         # low-rank (Woodbury) corrections of closed contours
         for k in range(cidx.shape[0]):
+            if frozen[node_contour[crange[k, 0]]]:
+                continue
             g0 = 0.0
             g1 = 0.0
             g2 = 0.0
@@ -77,11 +80,13 @@ def _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _first_outside(X, fidx, fgeom):
+def _first_outside(X, fidx, fgeom, frozen, node_contour):
     """The first node outside its field (``fgeom`` rows: x, y of the field's [0, 0],
     its height and width), or -1: the test of ``ContourSystem.outside_fields`` without
-    its temporary arrays."""
+    its temporary arrays. Nodes of ``frozen`` contours read no field."""
     for i in range(X.shape[0]):
+        if frozen[node_contour[i]]:
+            continue
         k = fidx[i]
         x = X[i, 0] - fgeom[k, 0]
         y = X[i, 1] - fgeom[k, 1]
@@ -106,11 +111,12 @@ def _pgrad(P, k, y, x, h, w):
 def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_contour,
                   cb, zc, cidx, ccoef, cM, crange, fields, fgeom, from_potential, gdt, dt,
                   tol, min_iter, max_iter, outside, split, max_step, prv, normal_only,
-                  use_rms, starts, each):
+                  use_rms, starts, each, frozen):
     n = X.shape[0]
     K = starts.shape[0] - 1
     R = np.empty((n, 2))
     done = np.zeros(K, np.bool_)
+    # a frozen contour keeps its nodes and rest lengths: no field, no solve, no move
     cmove = np.zeros(K)
     it = 0
     move = np.inf
@@ -118,6 +124,8 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
     while it < max_iter:
         # right-hand side: gamma/dt x + p F(x) + f_user + anchors
         for i in range(n):
+            if frozen[node_contour[i]]:
+                continue
             fx = 0.0
             fy = 0.0
             k = fidx[i]
@@ -190,7 +198,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
         # explicit tension (eq. 7) and viscoelastic rest lengths (eq. 8)
         for i in range(n):
             j = nxt[i]
-            if j < 0 or a_s[i] == 0.0:
+            if j < 0 or a_s[i] == 0.0 or frozen[node_contour[i]]:
                 continue
             rx = X[j, 0] - X[i, 0]
             ry = X[j, 1] - X[i, 1]
@@ -206,13 +214,13 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             rest[i] += dt * nu_s[i] * e
             if rest[i] < 0.0:
                 rest[i] = 0.0
-        _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts)
+        _solve_inplace(cb, R, zc, cidx, ccoef, cM, crange, starts, frozen, node_contour)
         move2 = 0.0
         sum2 = 0.0
         if each:
             cmove[:] = 0.0
         for i in range(n):
-            if each and done[node_contour[i]]:
+            if each and done[node_contour[i]] or frozen[node_contour[i]]:
                 continue
             dx = R[i, 0] - X[i, 0]
             dy = R[i, 1] - X[i, 1]
@@ -230,6 +238,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             X[i, 0] = R[i, 0]
             X[i, 1] = R[i, 1]
         move = np.sqrt(move2)
+        # frozen nodes count as nodes that did not move
         rms = np.sqrt(sum2 / n)
         it += 1
         if each:
@@ -237,7 +246,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             if it >= min_iter:
                 left = 0
                 for k in range(K):
-                    if not done[k]:
+                    if not done[k] and not frozen[k]:
                         if cmove[k] < tol * tol:
                             done[k] = True
                         else:

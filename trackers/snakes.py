@@ -207,6 +207,7 @@ class ContourSystem:
         self.anchor = np.zeros((N, 2))
         self.rest = np.zeros(N)
         self.closed = np.array([c.closed for c in contours], bool)
+        self.frozen = np.zeros(len(contours), np.bool_)
         for k, c in enumerate(contours):
             s, e = int(self.starts[k]), int(self.starts[k + 1])
             n = e - s
@@ -436,13 +437,34 @@ class ContourSystem:
         Returns
         -------
         ndarray of bool, (n_nodes,)
-            :meth:`relax` refuses to start while any is true.
+            :meth:`relax` refuses to start while any is true (frozen contours'
+            nodes are never outside: they read no field).
         """
         g = np.c_[np.asarray(origin, dtype=np.float64).reshape(-1, 2),
                   np.asarray(shapes, dtype=np.float64).reshape(-1, 2)][self.fidx]
         rel = self.X - g[:, :2]
-        return ((rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > g[:, 3] - 1)
-                | (rel[:, 1] > g[:, 2] - 1))
+        return (((rel[:, 0] < 0) | (rel[:, 1] < 0) | (rel[:, 0] > g[:, 3] - 1)
+                 | (rel[:, 1] > g[:, 2] - 1)) & ~self.frozen[self.node_contour])
+
+    def freeze(self, k, frozen: bool = True) -> None:
+        """Hold contour ``k`` (index or name) out of :meth:`relax` (or let it back in).
+
+        A frozen contour's nodes and rest lengths stay as they are (:meth:`set_contour`
+        still moves them), it reads no field (its field may be any 2x2 array) and its
+        nodes count in no movement test: a contour nothing reads costs nothing.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> a = np.c_[np.linspace(2, 12, 6), np.full(6, 5.0)]
+        >>> system = ContourSystem([a, a + [0, 4]])
+        >>> system.freeze(1)
+        >>> P = np.tile(np.arange(16.0)[:, None], (1, 16))   # pulls every node up
+        >>> _ = system.relax(potentials=[P, np.zeros((2, 2))], max_iter=5)
+        >>> bool(system.contour_points(0)[0, 1] < 5), system.contour_points(1)[0].tolist()
+        (True, [2.0, 9.0])
+        """
+        self.frozen[self._index(k)] = bool(frozen)
 
     # ------------------------------------------------------------------ dynamics
     def relax(self, forces=None, *, potentials=None, origin=(0.0, 0.0), user_forces=None,
@@ -550,7 +572,7 @@ class ContourSystem:
         fgeom[:, 2:] = np.asarray(shapes, dtype=np.float64)
         if not checked and not np.isfinite(data).all():
             raise ValueError("forces / potentials contain NaN or infinite values")
-        i = _first_outside(self.X, self.fidx, fgeom)
+        i = _first_outside(self.X, self.fidx, fgeom, self.frozen, self.node_contour)
         if i >= 0:
             k = int(self.node_contour[i])
             ox, oy, Hk, Wk = fgeom[self.fidx[i]]
@@ -582,7 +604,7 @@ class ContourSystem:
                                  float(self.gdt[0]), float(self.dts[0]), tol, min_iter,
                                  max_iter, outside, self.split, self.max_step, self.prv,
                                  self.normal_only, criterion == "rms", self.starts,
-                                 criterion == "each")
+                                 criterion == "each", self.frozen)
         if not np.isfinite(self.X).all():
             raise FloatingPointError("contour positions became non-finite; the parameters "
                                      "are unstable for this potential (lower p or a)")
@@ -604,7 +626,7 @@ class ContourSystem:
         if R.shape != (self.n_nodes, 2):
             raise ValueError(f"rhs must have shape ({self.n_nodes}, 2), got {R.shape}")
         _solve_inplace(self._cb, R, self._zc, self._cidx, self._ccoef, self._cM, self._crange,
-                       self.starts)
+                       self.starts, np.zeros_like(self.frozen), self.node_contour)
         return R
 
     def matrix(self) -> np.ndarray:

@@ -424,7 +424,7 @@ class Tracker(HeadFrameSearch, ContourFields):
         gox, goy = float(gorigin[0]), float(gorigin[1])
         for k, name in enumerate(self.names):
             c = self.layout.contours[name]
-            if c.ends == "free":
+            if c.ends == "free" or self.system.frozen[k]:
                 continue
             fresh = name in placed
             hold = self.end_hold > 0 and np.any(self.springs[name])
@@ -614,7 +614,8 @@ class Tracker(HeadFrameSearch, ContourFields):
             stretch = length / max(self.ref_length.get(name, length), 1e-9)
             shape = _shape_change(pts, self.ref_shape[name], closed) \
                 if name in self.ref_shape else 0.0
-            lost = (not np.isfinite(pts).all() or depth < self.lost_depth
+            lost = (self.system.frozen[k] or not np.isfinite(pts).all()
+                    or depth < self.lost_depth
                     or not self.stretch_range[0] <= stretch <= self.stretch_range[1]
                     or shape > self.max_shape_change
                     or bool(outside[k]) or k in self._clipped)
@@ -725,11 +726,13 @@ class Tracker(HeadFrameSearch, ContourFields):
         # the mouth) is re-placed on its 1st, 2nd, 4th, 8th... lost frame, at least every
         # REINIT_EVERY frames: each re-placement costs a second relaxation of all contours
         lost = [k for k in lost if self.names[k] in self.replace_lost
-                and _retry_now(self._lost_streak[self.names[k]])]
+                and not self.system.frozen[k] and _retry_now(self._lost_streak[self.names[k]])]
         reinit = set()
         if lost and not first:
-            base = self.last_head if quality["hairline"].lost or quality["nose_tip"].lost \
-                else head
+            # (a frozen contour is carried by the head, not lost)
+            base = self.last_head if any(
+                quality[n].lost and not self.system.frozen[self.names.index(n)]
+                for n in ("hairline", "nose_tip")) else head
             for k in lost:
                 pts = placed.get(self.names[k])
                 if pts is None:
@@ -751,7 +754,8 @@ class Tracker(HeadFrameSearch, ContourFields):
             self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
             head = given_head if given_head is not None else self._head(frame)
         if not first and not placed:
-            n_lost = sum(q.lost for q in quality.values())
+            n_lost = sum(q.lost for k, q in enumerate(quality.values())
+                         if not self.system.frozen[k])
             self._failing = self._failing + 1 if n_lost >= 3 else 0
             if (self.redetect and self._failing >= 3
                     and self.index - self._last_detect >= self._redetect_wait):

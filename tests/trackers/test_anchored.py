@@ -455,3 +455,26 @@ def test_points_near_a_hand_are_those_opencv_finds_within_the_margin(rng):
     # a hull of two points is a segment: only its margin counts
     assert near_convex_polygon([[1, 0.5], [1, 2]], [[0, 0], [2, 0]], 1.0).tolist() == [
         True, False]
+
+
+def test_the_hairline_is_carried_with_the_head_after_the_first_frame(face_truth):
+    # only 004's head frame on the first frame reads the hairline: later frames move it
+    # with the rigid landmarks' similarity instead of relaxing it, and it counts in no
+    # quality (it is reported lost: not held by the image)
+    img, _ = face_truth
+    tracker = AnchoredTracker()
+    first = tracker.track(img)
+    assert not first.quality["hairline"].lost
+    moved = tracker.track(_shift(img, 6, 4))
+    assert tracker.tracker.system.frozen[tracker.tracker.names.index("hairline")]
+    assert moved.quality["hairline"].lost
+    shift = moved.contours["hairline"] - first.contours["hairline"]
+    np.testing.assert_allclose(shift, np.broadcast_to([6, 4], shift.shape), atol=1.0)
+    # its shape is the first frame's: a similarity, not a relaxation
+    d0 = np.diff(first.contours["hairline"], axis=0)
+    d1 = np.diff(moved.contours["hairline"], axis=0)
+    np.testing.assert_allclose(np.hypot(*d1.T) / np.hypot(*d0.T),
+                               np.full(len(d0), np.hypot(*d1.T).sum() / np.hypot(*d0.T).sum()),
+                               rtol=1e-6)
+    # the other contours are tracked as before
+    assert not any(moved.quality[n].lost for n in moved.quality if n != "hairline")

@@ -320,3 +320,27 @@ def test_non_finite_or_outside_fields_of_different_shapes_are_refused():
     fresh.relax(potentials=good, tol=0.0, max_iter=5)
     s.relax(potentials=good, tol=0.0, max_iter=5)
     np.testing.assert_array_equal(s.X, fresh.X)
+
+
+def test_a_frozen_contour_stays_put_reads_no_field_and_leaves_the_others_as_they_were():
+    yy, xx = np.mgrid[:64, :64]
+    img = ((xx - 32) ** 2 + (yy - 32) ** 2 < 15 ** 2).astype(float)
+    P = gaussian_potential(img, 2.0).astype(np.float32)
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    ring = Contour(np.c_[32 + 18 * np.cos(t), 32 + 18 * np.sin(t)], closed=True)
+    line = np.c_[np.linspace(80, 120, 10), np.full(10, 90.0)]      # off every field
+    params = SnakeParams(p=paper_equivalent_strength(2.0))
+    alone = ContourSystem([ring], params)
+    ref = alone.relax(potentials=P, max_iter=300)
+    both = ContourSystem([ring, line], params)
+    both.freeze(1)
+    # the frozen contour's field may be any 2x2 array: its nodes read none
+    res = both.relax(potentials=[P, np.zeros((2, 2), np.float32)], origin=[(0, 0), (0, 0)],
+                     max_iter=300)
+    np.testing.assert_array_equal(both.contour_points(1), line)
+    np.testing.assert_allclose(both.contour_points(0), alone.contour_points(0), atol=1e-12)
+    assert res.iterations == ref.iterations and not res.outside.any()
+    assert not both.outside_fields([(64, 64), (2, 2)], [(0, 0), (0, 0)]).any()
+    both.freeze(1, False)                  # back in: now it must lie in its field
+    with pytest.raises(ValueError, match="outside"):
+        both.relax(potentials=[P, np.zeros((2, 2), np.float32)], origin=[(0, 0), (0, 0)])
