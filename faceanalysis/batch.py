@@ -130,9 +130,9 @@ def _default_task(path: Path, output: Path, **options):
 
 
 def _is_contraction_column(name: str) -> bool:
-    if name in _NOT_CONTRACTION or name.startswith(_NOT_CONTRACTION_PREFIXES):
-        return False
-    return not (name.startswith("AU") and name.endswith("_r"))
+    """A column the summary averages: contractions, the jaw, AU intensities, eye openness
+    and the share of frames each is measured (``_identifiable``)."""
+    return not (name in _NOT_CONTRACTION or name.startswith(_NOT_CONTRACTION_PREFIXES))
 
 
 def _finite_or_nan(value) -> float:
@@ -495,8 +495,9 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
         One row per video, in input order, as written to ``out/summary.csv``:
         ``video, output, status`` ("ok" or "failed"), ``resumed`` (finished by an
         earlier run and skipped), ``frames, frames_lost, duration_s, processing_s,
-        error`` and ``mean_<column>`` for every contraction column (over the frames
-        tracked successfully).
+        error`` and ``mean_<column>`` for every contraction, ``AUxx_r`` and eye-openness
+        column (over the frames tracked successfully where it is measured) and
+        ``mean_<column>_identifiable`` (the share of them where it is).
 
     Raises
     ------

@@ -199,7 +199,9 @@ def test_process_video_marker_and_completeness(corpus, tmp_path):
     ok = table["success"].to_numpy()
     assert row["mean_zygomaticus_major_l"] == pytest.approx(
         table["zygomaticus_major_l"][ok].mean())
-    assert "mean_AU12_r" not in row and "mean_head_x" not in row and "mean_frame" not in row
+    # the AU intensities are averaged as the contractions are (researchers read AUs)
+    assert row["mean_AU12_r"] == pytest.approx(table["AU12_r"][ok].mean())
+    assert "mean_head_x" not in row and "mean_frame" not in row
 
     assert is_complete(folder, video, options={"gain": 2.0})
     assert "other options" in completion_problem(folder, video, options={"gain": 1.0})
