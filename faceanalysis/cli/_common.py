@@ -96,8 +96,19 @@ class _StderrHandler(logging.StreamHandler):
         pass
 
 
+#: The toolkit's own loggers, which ``-v`` opens to debug messages.
+OWN_LOGGERS = ("faceanalysis", "trackers", "synth")
+
+
 def configure_logging(verbosity: int = 0, quiet: bool = False) -> None:
-    """Logs go to stderr so that stdout stays clean for tables and JSON."""
-    level = logging.WARNING if quiet else (logging.DEBUG if verbosity > 0 else logging.INFO)
+    """Logs go to stderr so that stdout stays clean for tables and JSON.
+
+    ``-v`` shows the toolkit's own debug messages, ``-vv`` every library's too (one -v
+    printed some 200 lines of Matplotlib's font matching for each plot).
+    """
+    level = logging.WARNING if quiet else (logging.DEBUG if verbosity > 1 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s: %(message)s", force=True,
                         handlers=[_StderrHandler()])
+    own = logging.DEBUG if verbosity == 1 and not quiet else logging.NOTSET
+    for name in OWN_LOGGERS:
+        logging.getLogger(name).setLevel(own)

@@ -103,7 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"faceanalysis {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="more log output on stderr")
+                        help="more log output on stderr: the toolkit's debug messages (-vv: every "
+                             "library's too)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for name, module_name in SUBCOMMANDS.items():
         module = importlib.import_module(f"faceanalysis.cli.{module_name}")

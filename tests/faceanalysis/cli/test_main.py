@@ -135,3 +135,38 @@ def test_logs_follow_stderr_after_it_is_replaced():
     finally:
         root.handlers[:] = handlers
         root.setLevel(level)
+
+
+def test_one_v_shows_the_toolkit_s_debug_messages_and_two_every_library_s():
+    import contextlib
+    import io
+    import logging
+
+    from faceanalysis.cli._common import OWN_LOGGERS, configure_logging
+
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    try:
+        for verbosity, library_too in ((1, False), (2, True)):
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                configure_logging(verbosity)
+                logging.getLogger("faceanalysis.analysis.pipeline").debug("ours")
+                logging.getLogger("trackers.anchored").debug("tracker's")
+                logging.getLogger("matplotlib.font_manager").debug("findfont")
+                logging.getLogger("matplotlib").info("library info")
+            out = err.getvalue()
+            assert "DEBUG: ours" in out and "DEBUG: tracker's" in out, out
+            assert ("findfont" in out) == library_too, out
+            assert "INFO: library info" in out
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            configure_logging(0)
+            logging.getLogger("faceanalysis.analysis.pipeline").debug("ours")
+            logging.getLogger("faceanalysis").info("progress")
+        assert err.getvalue() == "INFO: progress\n"
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
+        for name in OWN_LOGGERS:
+            logging.getLogger(name).setLevel(logging.NOTSET)
