@@ -75,4 +75,5 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+    # the public names only (not ``importlib`` or ``annotations``): what tab completion offers
+    return sorted(__all__)

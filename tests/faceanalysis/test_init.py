@@ -14,6 +14,8 @@ def test_every_exported_name_resolves_to_its_defining_module():
         value = getattr(fa, name)
         assert value is getattr(importlib.import_module(module), name), name
         assert name in dir(fa)
+    # what tab completion offers is the public names, not the module's own imports
+    assert set(dir(fa)) == set(fa.__all__)
 
 
 def test_the_readme_names_are_there():
