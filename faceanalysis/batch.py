@@ -182,6 +182,9 @@ def _summarise(folder: Path) -> dict:
     record["mean_confidence"] = _finite_or_nan(quality.get("mean_confidence"))
     record["frames_over_fit_limit"] = _finite_or_nan(fit.get("frames_over_limit"))
     record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
+    cuts = quality.get("shot_cuts")
+    # an edited video: the face after a cut may be someone else (analyses that say so)
+    record["shot_cuts"] = len(cuts) if isinstance(cuts, list) else math.nan
     eyes = metadata.get("eyes") if isinstance(metadata, dict) else None
     if isinstance(eyes, dict):
         # with --eyes: how often the eyes shut

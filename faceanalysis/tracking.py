@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
+from faceanalysis.io.cuts import content_change, shot_cuts, thumbnail
 from faceanalysis.io.report import LOST_REASONS, input_metadata
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
@@ -281,6 +282,9 @@ class Tracks:
         Per frame, why it was lost (a code of
         :data:`~faceanalysis.io.report.LOST_REASONS`); None where it was
         tracked (or, for tracks not made by :func:`track`, where the reason is not known).
+    cuts : list of int
+        Frame numbers where a new shot begins (:func:`faceanalysis.io.cuts.shot_cuts`);
+        empty for tracks not made by :func:`track`.
     """
 
     video: str
@@ -302,6 +306,7 @@ class Tracks:
     timings: dict = field(default_factory=dict)
     mirrored: bool = False
     lost_reasons: list | None = None
+    cuts: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.pose is None:
@@ -483,7 +488,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     try:
         # decoding runs ahead in a thread; closing() stops it before the source closes
         # (frames are flipped in the decoding thread, not on the tracker's time)
-        with source, closing(read_ahead(_mirrored(source) if mirror else source)) as decoded:
+        changes: dict[int, float] = {}
+        with source, closing(read_ahead(_with_changes(
+                _mirrored(source) if mirror else source, changes))) as decoded:
             upcoming = next(decoded, None)
             while upcoming is not None:
                 frame = upcoming
@@ -576,7 +583,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                   fiducials=np.stack(fid_rows), point_names=points,
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames),
-                                              "cpu_s": time.process_time() - c_start})
+                                              "cpu_s": time.process_time() - c_start},
+                  cuts=shot_cuts([changes.get(i, np.nan) for i in frames], frames))
 
 
 def lost_reason_counts(reasons) -> dict[str, int]:
@@ -600,6 +608,20 @@ def _lost_reason(decoded: bool, result) -> str:
     if result is None:
         return "no_face"
     return "hand" if result.extra.get("hands") else "contours"
+
+
+def _with_changes(frames, changes: dict):
+    """``frames`` as they are; each decoded frame's :func:`~faceanalysis.io.cuts.
+    content_change` from the last decoded one goes into ``changes`` (frame number ->
+    change), in the thread that decodes them."""
+    prev = None
+    for frame in frames:
+        if frame.ok and frame.image is not None:
+            thumb = thumbnail(frame.image)
+            if prev is not None:
+                changes[frame.index] = content_change(prev, thumb)
+            prev = thumb
+        yield frame
 
 
 def _mirrored(frames):

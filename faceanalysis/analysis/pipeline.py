@@ -364,12 +364,14 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     "compare frames of similar pose (head_pitch, head_yaw)", video, turned,
                     int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
     _warn_identifiability(video, ident)
+    _warn_cuts(video, tracks, k)
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
                                         "identifiability": ident, "eyes": eye_summary})
     if metadata.get("quality") is not None:
         metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
+        metadata["quality"]["shot_cuts"] = list(tracks.cuts)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
                "total_s": elapsed, "frames": len(tracks),
                "track_cpu_s": tracks.timings["cpu_s"], "estimate_cpu_s": c_estimate}
@@ -683,6 +685,20 @@ def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: Fiducial
     # the model's x-y, which the calibration was fitted to, with the generic face's depth
     rest[:, :2] = response.rest
     return correct_pose(disp, pose, k, rest, reference=head_frame_points()), True
+
+
+def _warn_cuts(video, tracks: Tracks, k: int) -> None:
+    """A warning for each shot cut (:attr:`Tracks.cuts`) with tracked frames on both
+    sides: the face after it may be another person or another view, measured against the
+    neutral frame of another shot."""
+    tracked = tracks.frames[tracks.success]
+    across = [c for c in tracks.cuts if (tracked < c).any() and (tracked >= c).any()]
+    if across:
+        log.warning("%s: a shot cut at frame%s %s, with a face on both sides: the face "
+                    "after a cut can be another person or seen from another camera, and is "
+                    "measured against the neutral frame %d all the same; analyse each shot "
+                    "on its own (--start, --end)", video, "s" if len(across) > 1 else "",
+                    ", ".join(map(str, across)), int(tracks.frames[k]))
 
 
 def _tracking_table(tracks: Tracks, k: int) -> pd.DataFrame:

@@ -824,3 +824,34 @@ def test_the_analysis_says_why_frames_were_lost(run_cli, surprise, tmp_path):
     # and the plot's legend
     legend = [t.get_text() for t in analyze(folder, fps=10).plot().legends[0].get_texts()]
     assert "lost frames (2 without a face)" in legend
+
+
+def test_a_shot_cut_between_two_faces_is_reported(tmp_path, caplog, surprise):
+    from synth.render.sequence import synthesize
+    from tests.faceanalysis._photos import models_or_skip
+
+    models_or_skip()
+    shots = []
+    for seed, background in ((3, None), (8, (150, 90, 40))):
+        images = synthesize(frames=5, size=192, seed=seed, flow=False, texture_size=256,
+                            supersample=1).images
+        for img in images:
+            img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
+            if background is not None:
+                # another shot: another person, further away, in front of another wall
+                wall = np.empty_like(img)
+                wall[:] = background
+                wall[26:166, 30:170] = cv2.resize(img, (140, 140), interpolation=cv2.INTER_AREA)
+                img = wall
+            shots.append(img)
+    for i, img in enumerate(shots):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), img)
+    with caplog.at_level("WARNING"):
+        a = analyze(tmp_path, fps=10.0)
+    assert a.metadata["quality"]["shot_cuts"] == [5]
+    assert a.table["success"].all()
+    assert "shot cut at frame 5, with a face on both sides" in caplog.text
+    assert "neutral frame 0" in caplog.text
+    # a shot without a cut reports none
+    still = analyze(surprise["video"], end=8)
+    assert still.metadata["quality"]["shot_cuts"] == []
