@@ -11,7 +11,9 @@ least :data:`MIN_SHOT` frames after the last one.
 
 On the real clips of ``../shared/data/real`` the largest change between consecutive
 frames without a cut is 7.2 (a laughing, turning head); the edits between a face and a
-title card change by 68-132.
+title card change by 68-132. A 640x360 frame costs 0.2 ms (most of it the area-mean
+shrinking, which keeps sensor noise out of the change: a plain bilinear shrink took the
+laughing head's largest change to 10.6).
 """
 
 from __future__ import annotations
