@@ -753,6 +753,8 @@ class AnchoredTracker:
         placed = t._set_targets(targets)
         t._held_ends.clear()
         for k, name in enumerate(t.names):
+            if t.system.frozen[k]:
+                continue                      # carried with the head, not placed
             pts = placed.get(name)
             if pts is None:
                 pts = t._layout_points(k, head)

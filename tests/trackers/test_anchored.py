@@ -478,3 +478,8 @@ def test_the_hairline_is_carried_with_the_head_after_the_first_frame(face_truth)
                                rtol=1e-6)
     # the other contours are tracked as before
     assert not any(moved.quality[n].lost for n in moved.quality if n != "hairline")
+    # and a face that comes back finds it carried there too, not placed from the template
+    assert tracker.track(np.full_like(img, 128)) is None
+    back = tracker.track(_shift(img, 2, 1))
+    np.testing.assert_allclose(back.contours["hairline"] - first.contours["hairline"],
+                               np.broadcast_to([2, 1], shift.shape), atol=1.0)
