@@ -118,8 +118,9 @@ class Analysis:
         the points cannot tell apart are drawn faded."""
         kwargs.setdefault("not_identifiable", _not_identifiable(self.metadata))
         kwargs.setdefault("turned", _turned(self.table, self.metadata))
-        kwargs.setdefault("lost_reasons", (self.metadata.get("quality") or {}).get(
-            "lost_reasons"))
+        quality = self.metadata.get("quality") or {}
+        kwargs.setdefault("lost_reasons", quality.get("lost_reasons"))
+        kwargs.setdefault("cuts", quality.get("shot_cuts") or ())
         return plot_contractions(self.table, path, **kwargs)
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
@@ -238,7 +239,9 @@ class OutputFolder:
                                     not_identifiable=_not_identifiable(metadata),
                                     turned=_turned(table, metadata),
                                     lost_reasons=(metadata.get("quality") or {}).get(
-                                        "lost_reasons"))
+                                        "lost_reasons"),
+                                    cuts=(metadata.get("quality") or {}).get("shot_cuts")
+                                    or ())
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)

@@ -118,7 +118,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                       layout: str = "auto", dpi: int = 150,
                       not_identifiable: Sequence[str] = (),
                       turned: Sequence[bool] | np.ndarray | None = None,
-                      lost_reasons: dict | None = None) -> Figure:
+                      lost_reasons: dict | None = None,
+                      cuts: Sequence[int] = ()) -> Figure:
     """Plot muscle contractions over time, one line per muscle.
 
     Left and right muscles of a pair share a colour: solid for the subject's
@@ -161,6 +162,10 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         How many frames were lost for each reason (``analysis.json``
         ``quality.lost_reasons``): the legend says why (e.g. "lost frames (168 under a
         hand)").
+    cuts : sequence of int, keyword-only
+        Frame numbers where a new shot begins (``analysis.json`` ``quality.shot_cuts``):
+        a vertical line each, so that a reader sees where the face may be another
+        person's or seen from another camera. Frames ``df`` does not hold are left out.
 
     Returns
     -------
@@ -306,6 +311,14 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                            lw=0, zorder=0)
         handles.append(Patch(facecolor="none", edgecolor="#c08a3e", hatch="///", alpha=0.5,
                              label=f"head turned ({int(turned.sum())})"))
+    if len(cuts) and "frame" in df:
+        rows = np.flatnonzero(np.isin(pd.to_numeric(df["frame"]).to_numpy(), list(cuts)))
+        if rows.size:
+            for ax in axes:
+                for r in rows:
+                    ax.axvline(x[r], color="#7a3ec0", lw=1.2, ls=(0, (4, 2)), zorder=1)
+            handles.append(Line2D([], [], color="#7a3ec0", lw=1.2, ls=(0, (4, 2)),
+                                  label=f"shot cut ({rows.size})"))
     for ax in axes:
         ax.grid(True, color="#dddddd", lw=0.6)
         ax.set_axisbelow(True)

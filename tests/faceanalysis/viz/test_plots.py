@@ -166,3 +166,16 @@ def test_measured_eyes_get_a_panel_above_the_jaw(table):
     # without them (empty columns, the snakes tracker) the plot is as before
     table[list(EYE_COLUMNS)] = np.nan
     assert len(plot_contractions(table).axes) == 2
+
+
+def test_shot_cuts_are_drawn_where_they_are(table):
+    for layout in ("single", "stacked"):
+        fig = plot_contractions(table, cuts=[45, 500], layout=layout)   # 500: not in it
+        panels = fig.axes if layout == "stacked" else fig.axes[:1]  # (single: jaw's twin)
+        for ax in panels:
+            lines = [ln for ln in ax.get_lines() if ln.get_color() == "#7a3ec0"]
+            assert [ln.get_xdata()[0] for ln in lines] == [pytest.approx(45 / 30)]
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "shot cut (1)" in legend
+    assert not any("shot cut" in t.get_text()
+                   for t in plot_contractions(table).legends[0].get_texts())
