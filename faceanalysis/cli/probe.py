@@ -14,16 +14,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Describe the input as the analysis reads it: kind, size, pixel type, frame rate "
         "and its origin, frames announced by the container. With --decode, every frame of "
-        "the range is decoded and the undecodable ones are counted (memory stays flat).")
+        "the range is decoded, the undecodable ones are counted and the shots are found "
+        "(a cut: the whole picture changes at once, an edit; analyse each shot on its own "
+        "with --start/--end). Memory stays flat.")
     parser.epilog = ("examples:\n  faceanalysis probe clip.mp4\n"
                      "  faceanalysis probe frames/ --fps 25 --decode --json")
     add_input_options(parser)
     parser.add_argument("--decode", action="store_true",
-                        help="decode every frame of the range and count the lost ones")
+                        help="decode every frame of the range, count the lost ones and list "
+                             "the shots")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
+    from faceanalysis.io.cuts import content_change, shot_cuts, thumbnail
     from faceanalysis.io.report import input_metadata
 
     with open_input(args, min_size=None) as source:
@@ -31,11 +35,21 @@ def run(args: argparse.Namespace) -> int:
         info["n_frames"] = source.n_frames
         if args.decode:
             decoded = lost = 0
+            numbers, changes, last = [], [], None
             for frame in source:
                 decoded += frame.ok
                 lost += not frame.ok
+                numbers.append(frame.index)
+                thumb = thumbnail(frame.image) if frame.ok else None
+                changes.append(float("nan") if thumb is None or last is None
+                               else content_change(last, thumb))
+                last = thumb if thumb is not None else last
+            cuts = shot_cuts(changes, numbers)
+            starts = numbers[:1] + cuts
+            ends = [c - 1 for c in cuts] + numbers[-1:]
             info.update(frames_decoded=decoded, frames_lost_mid_stream=lost,
-                        frames_undecodable=source.n_failed, missing_tail=source.missing_tail)
+                        frames_undecodable=source.n_failed, missing_tail=source.missing_tail,
+                        shot_cuts=cuts, shots=[[a, b] for a, b in zip(starts, ends)])
         else:
             for key in ("frames_undecodable", "missing_tail"):
                 info.pop(key, None)

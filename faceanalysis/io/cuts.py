@@ -38,7 +38,7 @@ def thumbnail(frame, *, channel_order: str = "bgr") -> np.ndarray:
 
     Parameters
     ----------
-    frame : ndarray, shape (H, W) or (H, W, 1|3|4), uint8
+    frame : ndarray, shape (H, W) or (H, W, 1|3|4), uint8 or uint16
     channel_order : {'bgr', 'rgb'}
 
     Returns
@@ -57,9 +57,11 @@ def thumbnail(frame, *, channel_order: str = "bgr") -> np.ndarray:
         img = img[:, :, :3]                      # alpha is not picture
     elif img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
+    if img.dtype == np.uint16:
+        img = cv2.convertScaleAbs(img, alpha=1.0 / 257.0)      # 16-bit images: to 8 bits
     if img.ndim not in (2, 3) or img.ndim == 3 and img.shape[2] != 3 or img.dtype != np.uint8:
-        raise ValueError(f"frame must be a uint8 (H, W) or (H, W, 1|3|4) array, got "
-                         f"{img.dtype} {np.shape(frame)}")
+        raise ValueError(f"frame must be a uint8 or uint16 (H, W) or (H, W, 1|3|4) array, "
+                         f"got {img.dtype} {np.shape(frame)}")
     h, w = img.shape[:2]
     small = cv2.resize(img, (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))),
                        interpolation=cv2.INTER_AREA)

@@ -70,3 +70,21 @@ def test_probe_prints_the_real_end_of_the_range(run_cli, tmp_path):
     code, out, err = run_cli("probe", clip)
     assert code == 0 and "None" not in out, out
     assert "[0, 12]" in out, out
+
+
+def test_probe_decode_lists_the_shots(run_cli, tmp_path):
+    clip = tmp_path / "cut.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 20, (96, 72))
+    rng = np.random.default_rng(0)
+    for i in range(40):
+        # a slowly brightening grey room, then, from frame 25, a green one
+        colour = (60 + i,) * 3 if i < 25 else (40, 160, 60)
+        frame = np.full((72, 96, 3), colour, np.uint8)
+        writer.write(np.clip(frame + rng.integers(-2, 3, frame.shape), 0, 255).astype(np.uint8))
+    writer.release()
+    code, out, err = run_cli("probe", clip, "--json", "--decode")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["shot_cuts"] == [25] and info["shots"] == [[0, 24], [25, 39]]
+    code, out, _ = run_cli("probe", clip, "--json", "--decode", "--start", "30")
+    assert json.loads(out)["shots"] == [[30, 39]]

@@ -18,6 +18,7 @@ def test_thumbnails_keep_the_aspect_and_refuse_what_is_not_a_picture():
     assert thumbnail(np.zeros((360, 640, 4), np.uint8)).shape == (36, 64, 3)
     with pytest.raises(ValueError, match="uint8"):
         thumbnail(np.zeros((36, 64, 3), np.float32))
+    assert thumbnail(np.full((36, 64), 65535, np.uint16)).max() == 255
     with pytest.raises(ValueError, match="channel_order"):
         thumbnail(np.zeros((36, 64, 3), np.uint8), channel_order="hsv")
 
