@@ -66,7 +66,8 @@ __all__ = ["DEFAULT_SPRINGS", "END_HOLD", "LOWER_FACE", "MAX_DISAGREEMENT", "MAX
 #: up, and was lost on 756 of 1337 frames as the mouth opened (2 at 0.02); on 20 people's
 #: photographs its centre lies 0.053 inter-ocular distances from the hand-placed border
 #: instead of 0.077 (the mesh's own point 0.049), and the rendered faces' fiducials are
-#: unchanged. The hairline has no landmarks and stays a free snake.
+#: unchanged. The hairline has no landmarks: a free snake on the first frame, then
+#: carried with the head (see :meth:`AnchoredTracker.track`).
 DEFAULT_SPRINGS = {"hairline": 0.0, "brow_l": 0.005, "brow_r": 0.005, "furrow_l": 0.01,
                    "furrow_r": 0.01, "nose_tip": 0.005, "upper_lip": 0.005,
                    "lower_lip": 0.02, "chin_boss": 0.01}
