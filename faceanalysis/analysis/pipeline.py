@@ -697,7 +697,8 @@ def _warn_cuts(video, tracks: Tracks, k: int) -> None:
         log.warning("%s: a shot cut at frame%s %s, with a face on both sides: the face "
                     "after a cut can be another person or seen from another camera, and is "
                     "measured against the neutral frame %d all the same; analyse each shot "
-                    "on its own (--start, --end)", video, "s" if len(across) > 1 else "",
+                    "on its own (--start, --end; 'faceanalysis probe --decode' lists them)",
+                    video, "s" if len(across) > 1 else "",
                     ", ".join(map(str, across)), int(tracks.frames[k]))
 
 
