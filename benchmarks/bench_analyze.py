@@ -28,8 +28,9 @@ frame, then each frame cropped from the last landmarks) on the same frames, deco
 beforehand, per runtime.
 
 Cases: a rendered 640x360 happiness sequence of the project's face model (with head
-motion and noise), and ``WolfgangLanger_Pexels.mp4`` from ``../shared/data/real`` (or
-``$FACEANALYSIS_REAL_DATA``) when present.
+motion and noise), and ``WolfgangLanger_Pexels.mp4`` (640x360: crying, a hand over the
+mouth, a laugh with the head turned) and ``cap13_edit2.mp4`` (400x300, a talking face)
+from ``../shared/data/real`` (or ``$FACEANALYSIS_REAL_DATA``) when present.
 
 Peer, measured in the same run where it is installed: MediaPipe's face mesh (the
 landmark tracker the issue names) on the same frames, decode excluded
@@ -199,6 +200,11 @@ def run(quick: bool = False) -> list[Figure]:
             cases.append(("real WolfgangLanger 640x360", real, 160 if quick else None))
         else:
             print(f"# {real} is absent: the real clip is skipped", file=sys.stderr)
+        # a talking face without hands or large turns (smaller frames: the targets are
+        # set on 640x360, this is for comparison)
+        talking = REAL / "cap13_edit2.mp4"
+        if talking.is_file():
+            cases.append(("real cap13 400x300", talking, 160 if quick else None))
         peer_python = _mediapipe_python()
         for name, video, end in cases:
             for _, options, *_ in configs:   # warm-up: compiled kernels, networks
