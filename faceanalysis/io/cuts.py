@@ -7,7 +7,7 @@ detector finds them: the mean absolute change of hue, saturation and value betwe
 consecutive frames (each shrunk to :data:`THUMB_WIDTH` pixels across, hue taken the short
 way round its circle; grey frames: value alone), a cut where it reaches
 :data:`CUT_THRESHOLD` (PySceneDetect's default, on OpenCV's 0-179 / 0-255 scales) at
-least :data:`MIN_SHOT` frames after the last one.
+least :data:`MIN_SHOT` frames after the last one (or the first frame).
 
 On the real clips of ``../shared/data/real`` the largest change between consecutive
 frames without a cut is 7.2 (a laughing, turning head); the edits between a face and a
@@ -104,7 +104,9 @@ def shot_cuts(changes, frames=None, *, threshold: float = CUT_THRESHOLD,
         Their frame numbers (default ``0..T-1``).
     threshold : float
     min_shot : int
-        A change within ``min_shot`` rows of the last cut is not another cut.
+        A change within ``min_shot`` rows of the last cut, or of the first row, is not a
+        cut: a shot lasts at least that long (two photographs of a face under another
+        light are not two shots).
 
     Returns
     -------
@@ -113,10 +115,12 @@ def shot_cuts(changes, frames=None, *, threshold: float = CUT_THRESHOLD,
 
     Examples
     --------
-    >>> shot_cuts([np.nan, 1.0, 90.0, 2.0, 60.0, 1.0], min_shot=3)
-    [2]
-    >>> shot_cuts([np.nan, 1.0, 90.0, 2.0, 1.0, 60.0], [10, 11, 12, 13, 14, 15], min_shot=3)
-    [12, 15]
+    >>> shot_cuts([np.nan, 1.0, 1.0, 90.0, 2.0, 60.0, 1.0], min_shot=3)
+    [3]
+    >>> shot_cuts([np.nan, 1.0, 1.0, 90.0, 2.0, 1.0, 60.0], range(10, 17), min_shot=3)
+    [13, 16]
+    >>> shot_cuts([np.nan, 90.0], min_shot=3)
+    []
     """
     c = np.asarray(changes, dtype=float)
     f = np.arange(len(c)) if frames is None else np.asarray(frames)
@@ -126,9 +130,9 @@ def shot_cuts(changes, frames=None, *, threshold: float = CUT_THRESHOLD,
     if not (np.isfinite(threshold) and threshold > 0) or min_shot < 0:
         raise ValueError("threshold must be positive and min_shot >= 0")
     out: list[int] = []
-    last = None
+    last = 0                       # the first row begins the first shot
     for i in np.flatnonzero(np.nan_to_num(c, nan=0.0, posinf=np.inf) >= threshold):
-        if last is None or i - last >= min_shot:
+        if i - last >= min_shot:
             out.append(int(f[i]))
             last = i
     return out

@@ -833,9 +833,10 @@ def test_a_shot_cut_between_two_faces_is_reported(tmp_path, caplog, surprise):
     models_or_skip()
     shots = []
     for seed, background in ((3, None), (8, (150, 90, 40))):
-        images = synthesize(frames=5, size=192, seed=seed, flow=False, texture_size=256,
+        images = synthesize(frames=2, size=192, seed=seed, flow=False, texture_size=256,
                             supersample=1).images
-        for img in images:
+        # a shot lasts at least MIN_SHOT frames: each rendered frame held for eight
+        for img in [im for im in images for _ in range(8)]:
             img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
             if background is not None:
                 # another shot: another person, further away, in front of another wall
@@ -848,10 +849,19 @@ def test_a_shot_cut_between_two_faces_is_reported(tmp_path, caplog, surprise):
         cv2.imwrite(str(tmp_path / f"{i:03d}.png"), img)
     with caplog.at_level("WARNING"):
         a = analyze(tmp_path, fps=10.0)
-    assert a.metadata["quality"]["shot_cuts"] == [5]
+    assert a.metadata["quality"]["shot_cuts"] == [16]
     assert a.table["success"].all()
-    assert "shot cut at frame 5, with a face on both sides" in caplog.text
+    assert "shot cut at frame 16, with a face on both sides" in caplog.text
     assert "neutral frame 0" in caplog.text
     # a shot without a cut reports none
     still = analyze(surprise["video"], end=8)
     assert still.metadata["quality"]["shot_cuts"] == []
+    # nor do two photographs, one of each (a shot lasts MIN_SHOT frames)
+    pair = tmp_path / "pair"
+    pair.mkdir()
+    for i, img in enumerate((shots[0], shots[-1])):
+        cv2.imwrite(str(pair / f"{i}.png"), img)
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        assert analyze(pair, fps=1.0).metadata["quality"]["shot_cuts"] == []
+    assert "shot cut" not in caplog.text

@@ -38,11 +38,13 @@ def test_grey_frames_compare_their_values():
 
 
 def test_cuts_are_changes_over_the_threshold_a_shot_apart():
-    changes = [np.nan, 1.0, CUT_THRESHOLD + 1, 50.0, 2.0, np.nan, 3.0, 90.0]
-    assert shot_cuts(changes, min_shot=3) == [2, 7]
-    assert shot_cuts(changes, min_shot=0) == [2, 3, 7]
-    assert shot_cuts(changes, np.arange(100, 108), min_shot=3) == [102, 107]
+    changes = [np.nan, 1.0, 1.0, CUT_THRESHOLD + 1, 50.0, 2.0, np.nan, 3.0, 90.0]
+    assert shot_cuts(changes, min_shot=3) == [3, 8]
+    assert shot_cuts(changes, min_shot=0) == [3, 4, 8]
+    assert shot_cuts(changes, np.arange(100, 109), min_shot=3) == [103, 108]
     assert shot_cuts([np.nan, 1.0, 2.0]) == []
+    # the first shot lasts a shot's length too: two photographs are not two shots
+    assert shot_cuts([np.nan, 90.0]) == []
     with pytest.raises(ValueError, match="same length"):
         shot_cuts([1.0, 2.0], [0])
     with pytest.raises(ValueError, match="threshold"):
