@@ -169,6 +169,9 @@ def closing_line(metadata: dict, rows: int) -> str:
     True
     >>> closing_line({"quality": {"frames_total": 1, "frames_lost": 0}}, 1)
     'analysed 1 frame (0 lost; all 0 controls measured)'
+    >>> closing_line({"quality": {"frames_total": 9, "frames_lost": 0},
+    ...               "parameters": {"neutral_frame": 4}}, 9)
+    'analysed 9 frames (0 lost; neutral frame 4; all 0 controls measured)'
     """
     q = metadata.get("quality") or {}
     ident = metadata.get("identifiability") or {}
@@ -186,4 +189,8 @@ def closing_line(metadata: dict, rows: int) -> str:
     if reasons:
         lost += ": " + lost_reasons_text(reasons)
     total = q.get("frames_total", rows)
+    # every value is measured from the neutral frame: say which, so that it gets looked at
+    neutral = (metadata.get("parameters") or {}).get("neutral_frame")
+    if neutral is not None:
+        lost += f"; neutral frame {neutral}"
     return f"analysed {total} frame{'' if total == 1 else 's'} ({lost}; {measured})"
