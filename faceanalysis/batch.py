@@ -182,6 +182,9 @@ def _summarise(folder: Path) -> dict:
     record["mean_confidence"] = _finite_or_nan(quality.get("mean_confidence"))
     record["frames_over_fit_limit"] = _finite_or_nan(fit.get("frames_over_limit"))
     record["frames_turned"] = _finite_or_nan(turn.get("frames_over_limit"))
+    # every value of the video is measured from its neutral frame
+    params = metadata.get("parameters") if isinstance(metadata, dict) else None
+    record["neutral_frame"] = _finite_or_nan((params or {}).get("neutral_frame"))
     cuts = quality.get("shot_cuts")
     # an edited video: the face after a cut may be someone else (analyses that say so)
     record["shot_cuts"] = len(cuts) if isinstance(cuts, list) else math.nan

@@ -485,6 +485,7 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
         assert (pd.isna(row["frames_turned"]) if turned is None
                 else row["frames_turned"] == turned)
         assert row["shot_cuts"] == len(reference.metadata["quality"]["shot_cuts"]) == 0
+        assert row["neutral_frame"] == reference.metadata["parameters"]["neutral_frame"]
     # the smiling clip smiles more than the frowning one, in the summary as in the truth
     smile, brows = (by_video.loc[str(v)] for v in face_corpus["good"])
     assert smile["mean_zygomaticus_major_l"] > brows["mean_zygomaticus_major_l"]
