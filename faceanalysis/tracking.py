@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
-from faceanalysis.io.cuts import content_change, shot_cuts, thumbnail
+from faceanalysis.io.cuts import frame_changes, shot_cuts
 from faceanalysis.io.report import LOST_REASONS, input_metadata
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
@@ -584,7 +584,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                   points=np.stack(pt_rows), stretch=np.stack(stretch_rows),
                   contours=contours, timings={"track_s": t_track, "frames": len(frames),
                                               "cpu_s": time.process_time() - c_start},
-                  cuts=shot_cuts([changes.get(i, np.nan) for i in frames], frames))
+                  cuts=shot_cuts([changes[i] for i in frames], frames))
 
 
 def lost_reason_counts(reasons) -> dict[str, int]:
@@ -611,16 +611,10 @@ def _lost_reason(decoded: bool, result) -> str:
 
 
 def _with_changes(frames, changes: dict):
-    """``frames`` as they are; each decoded frame's :func:`~faceanalysis.io.cuts.
-    content_change` from the last decoded one goes into ``changes`` (frame number ->
-    change), in the thread that decodes them."""
-    prev = None
-    for frame in frames:
-        if frame.ok and frame.image is not None:
-            thumb = thumbnail(frame.image)
-            if prev is not None:
-                changes[frame.index] = content_change(prev, thumb)
-            prev = thumb
+    """``frames`` as they are; each one's :func:`~faceanalysis.io.cuts.frame_changes`
+    change goes into ``changes`` (frame number -> change), in the thread that decodes them."""
+    for frame, change in frame_changes(frames):
+        changes[frame.index] = change
         yield frame
 
 

@@ -115,8 +115,9 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
     n = X.shape[0]
     K = starts.shape[0] - 1
     R = np.empty((n, 2))
-    done = np.zeros(K, np.bool_)
-    # a frozen contour keeps its nodes and rest lengths: no field, no solve, no move
+    # a contour done moves no more: the frozen ones from the start (they keep their nodes
+    # and rest lengths, read no field and are not solved), with 'each' those that settle
+    done = frozen.copy()
     cmove = np.zeros(K)
     it = 0
     move = np.inf
@@ -220,7 +221,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
         if each:
             cmove[:] = 0.0
         for i in range(n):
-            if each and done[node_contour[i]] or frozen[node_contour[i]]:
+            if done[node_contour[i]]:
                 continue
             dx = R[i, 0] - X[i, 0]
             dy = R[i, 1] - X[i, 1]
@@ -246,7 +247,7 @@ def _relax_kernel(X, rest, nxt, a_s, nu_s, p_n, fidx, user, kappa, anchor, node_
             if it >= min_iter:
                 left = 0
                 for k in range(K):
-                    if not done[k] and not frozen[k]:
+                    if not done[k]:
                         if cmove[k] < tol * tol:
                             done[k] = True
                         else:

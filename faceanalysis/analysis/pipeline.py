@@ -282,11 +282,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                      "layout": layout, "tracker": tracker, "tracker_options": tracker_options,
                      "backend": backend, "device": device, "progress": progress}
     tracks = track(video, overlay=overlay, **track_options)
-    n_track = max(tracks.timings.get("frames", len(tracks)), 1)
+    t_track = tracks.timings["track_s"]
     log.debug("%s: tracked %d frames (%d lost) with the %s tracker in %.2f s (%.1f ms a frame)",
-              video, len(tracks), int((~tracks.success).sum()), tracks.tracker,
-              tracks.timings.get("track_s", float("nan")),
-              1e3 * tracks.timings.get("track_s", float("nan")) / n_track)
+              video, len(tracks), int((~tracks.success).sum()), tracks.tracker, t_track,
+              1e3 * t_track / len(tracks))
     if not tracks.success.any():
         raise FaceAnalysisError(f"{video}: the face was lost in every frame; nothing to analyse")
     if len(tracks) == 1:
@@ -302,7 +301,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     t_estimate = time.perf_counter() - t0
     c_estimate = time.process_time() - c0
     log.debug("%s: neutral frame %d; the %s estimator took %.2f s (%.1f ms a frame)", video,
-              int(tracks.frames[k]), estimator, t_estimate, 1e3 * t_estimate / n_track)
+              int(tracks.frames[k]), estimator, t_estimate, 1e3 * t_estimate / len(tracks))
     if mirror_check:
         t1 = time.perf_counter()
         try:

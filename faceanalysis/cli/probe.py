@@ -27,7 +27,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from faceanalysis.io.cuts import content_change, shot_cuts, thumbnail
+    from faceanalysis.io.cuts import frame_changes, shot_cuts
     from faceanalysis.io.report import input_metadata
 
     with open_input(args, min_size=None) as source:
@@ -35,15 +35,12 @@ def run(args: argparse.Namespace) -> int:
         info["n_frames"] = source.n_frames
         if args.decode:
             decoded = lost = 0
-            numbers, changes, last = [], [], None
-            for frame in source:
+            numbers, changes = [], []
+            for frame, change in frame_changes(source):
                 decoded += frame.ok
                 lost += not frame.ok
                 numbers.append(frame.index)
-                thumb = thumbnail(frame.image) if frame.ok else None
-                changes.append(float("nan") if thumb is None or last is None
-                               else content_change(last, thumb))
-                last = thumb if thumb is not None else last
+                changes.append(change)
             cuts = shot_cuts(changes, numbers)
             starts = numbers[:1] + cuts
             ends = [c - 1 for c in cuts] + numbers[-1:]

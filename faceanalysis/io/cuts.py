@@ -21,8 +21,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["CUT_THRESHOLD", "MIN_SHOT", "THUMB_WIDTH", "content_change", "shot_cuts",
-           "thumbnail"]
+__all__ = ["CUT_THRESHOLD", "MIN_SHOT", "THUMB_WIDTH", "content_change", "frame_changes",
+           "shot_cuts", "thumbnail"]
 
 #: Change between consecutive frames (mean of |dH|, |dS|, |dV|) at which a cut is found.
 CUT_THRESHOLD = 27.0
@@ -89,6 +89,31 @@ def content_change(a: np.ndarray, b: np.ndarray) -> float:
         return float(d.mean())
     d[..., 0] = np.minimum(d[..., 0], 180.0 - d[..., 0])
     return float(d.reshape(-1, 3).mean(axis=0).mean())
+
+
+def frame_changes(frames):
+    """Each frame of ``frames`` with its :func:`content_change` from the last decoded one.
+
+    ``frames`` yields objects with ``ok`` and ``image`` (:class:`faceanalysis.io.video.Frame`);
+    the change is NaN for the first decoded frame and for frames that did not decode.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as F
+    >>> dark, light = np.zeros((36, 64), np.uint8), np.full((36, 64), 90, np.uint8)
+    >>> frames = [F(ok=True, image=dark), F(ok=False, image=None), F(ok=True, image=light)]
+    >>> [round(c, 1) for _, c in frame_changes(frames)]
+    [nan, nan, 90.0]
+    """
+    last = None
+    for frame in frames:
+        change = float("nan")
+        if frame.ok and frame.image is not None:
+            thumb = thumbnail(frame.image)
+            if last is not None:
+                change = content_change(last, thumb)
+            last = thumb
+        yield frame, change
 
 
 def shot_cuts(changes, frames=None, *, threshold: float = CUT_THRESHOLD,
