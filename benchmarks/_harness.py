@@ -95,14 +95,18 @@ def emit(name: str, figures: list[Figure]) -> None:
 
 
 #: Copies of a clip as other cameras would give it (``altered_copies``).
-ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey")
+ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey",
+               "in a 1920x1080 frame")
+#: A face far from the camera in a wide shot: the clip halved, in a 1920x1080 frame.
+FAR = "halved, in a 1920x1080 frame"
 
 
 def altered_copies(path, folder, labels=ALTERATIONS):
     """Yield ``(label, copy)``: the video ``path`` enlarged 3 times (bicubic), halved (area
-    mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right
-    or in grey, each written in turn to ``folder/altered.avi`` (MJPEG: one copy on disk at a
-    time, overwritten by the next)."""
+    mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right,
+    in grey, as it is or halved inside a 1920x1080 frame (right of and below its centre, its
+    edges drawn out: a wide shot), each written in turn to ``folder/altered.avi`` (MJPEG:
+    one copy on disk at a time, overwritten by the next)."""
     from pathlib import Path
 
     import cv2
@@ -112,7 +116,18 @@ def altered_copies(path, folder, labels=ALTERATIONS):
         m = cv2.getRotationMatrix2D((w / 2, h / 2), 20, 1.0)
         return cv2.warpAffine(f, m, (w, h), borderMode=cv2.BORDER_REFLECT)
 
-    alter = {"enlarged 3x": lambda f: cv2.resize(f, None, fx=3, fy=3,
+    def framed(f):
+        # its edge rows and columns drawn out to the wider frame: no hard border for a
+        # contour to take (a pasted frame's edge held a laughing chin)
+        h, w = f.shape[:2]
+        y0, x0 = min(540, 1080 - h), min(1100, 1920 - w)
+        return cv2.copyMakeBorder(f, y0, 1080 - h - y0, x0, 1920 - w - x0,
+                                  cv2.BORDER_REPLICATE)
+
+    alter = {"in a 1920x1080 frame": framed,
+             FAR: lambda f: framed(cv2.resize(f, None, fx=0.5, fy=0.5,
+                                              interpolation=cv2.INTER_AREA)),
+             "enlarged 3x": lambda f: cv2.resize(f, None, fx=3, fy=3,
                                                   interpolation=cv2.INTER_CUBIC),
              "halved": lambda f: cv2.resize(f, None, fx=0.5, fy=0.5,
                                             interpolation=cv2.INTER_AREA),

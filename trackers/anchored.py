@@ -167,6 +167,12 @@ HAND_EVERY_COVERED = 6
 #: enlarged and turned stayed the same.
 HAND_RETRY = 3
 
+#: The palm detector looks for a new hand within a square this many times the face's size
+#: (its landmarks' extent) round the face, not in the whole frame: it sees the frame at 192
+#: pixels, so a hand in a wide shot, a few tens of pixels across, is lost to it, while a
+#: hand over the face fills a fifth of this square at any frame size.
+HAND_SEARCH = 3.0
+
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
 #: in inter-ocular distances, is lost.
 MAX_DISAGREEMENT = 0.12
@@ -593,7 +599,8 @@ class AnchoredTracker:
         # an edge much stronger than the features' own across the lower face: a hand,
         # fingers, a microphone; the mesh goes on drawing a mouth under it
         chin = quality["chin_boss"].depth
-        hands, under_hand, deepened = self._hands(frame, quality, iod, first, following)
+        hands, under_hand, deepened = self._hands(frame, quality, iod, first, following,
+                                                  lm.box)
         self._since_hand = 0 if hands else self._since_hand + 1
         # the chin alone stands for a hand only where one was seen lately (or none can
         # be: no hand detector): a chin whose first frame's edges were faint reaches 15
@@ -626,11 +633,12 @@ class AnchoredTracker:
                                                  res.iterations, res.converged, res.head,
                                                  res.fiducials, extra))
 
-    def _hands(self, frame, quality, iod: float, first: bool, following=None):
+    def _hands(self, frame, quality, iod: float, first: bool, following=None, face=None):
         """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
         the lower face's edges deepened (:data:`HAND_GATE`). ``following``: the followed
         hands' points on this frame (a list: the last frame's, kept; a future: being read
-        in a thread), or None (nothing followed, or to be read here)."""
+        in a thread), or None (nothing followed, or to be read here); ``face``: the face's
+        box (x0, y0, x1, y1), round which a new hand is looked for (:data:`HAND_SEARCH`)."""
         if self.hand_tracker is None:
             return [], set(), False
         ref = self.tracker.ref_depth
@@ -643,7 +651,13 @@ class AnchoredTracker:
         if hands is None or not hands and look:
             # nothing was followed, or the followed hands were lost: the palm detector
             # looks for one where the edges call for it
-            hands = self.hand_tracker.track(frame, detect=look)
+            region = None
+            if face is not None:
+                x0, y0, x1, y1 = face
+                half = 0.5 * HAND_SEARCH * max(x1 - x0, y1 - y0)
+                cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+                region = (cx - half, cy - half, cx + half, cy + half)
+            hands = self.hand_tracker.track(frame, detect=look, region=region)
             if look and not hands:
                 self._since_palm = 0
         if not isinstance(following, list):     # read on this frame

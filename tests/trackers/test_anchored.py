@@ -5,6 +5,7 @@ import pytest
 
 from tests.trackers.landmarks.conftest import face, models  # noqa: F401 (fixtures)
 from trackers.anchored import (
+    HAND_SEARCH,
     LOWER_FACE,
     AnchoredTracker,
     near_convex_polygon,
@@ -313,15 +314,17 @@ def _fingers(img, truth, y0, *, width=6, colours=((70, 45, 35), (235, 200, 180))
 
 class _Hands:
     """Stands in for the hand tracker: reports the given hands, one list per frame, and
-    records whether each frame asked for the palm detector."""
+    records whether each frame asked for the palm detector, and where."""
 
     def __init__(self, *per_frame):
         self.per_frame = list(per_frame)
         self.asked = []
+        self.regions = []
         self.hands = []     # nothing followed: every frame asks track()
 
-    def track(self, frame, *, detect=True):
+    def track(self, frame, *, detect=True, region=None):
         self.asked.append(detect)
+        self.regions.append(region)
         return self.per_frame.pop(0) if self.per_frame else []
 
 
@@ -419,6 +422,12 @@ def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(
     # the palm detector runs on the first frame, then only where the lower face's edges
     # deepen (on this still face: never)
     assert hands.asked == [True, False, False, False]
+    # and looks round the face: a square HAND_SEARCH times the landmarks' extent
+    lm = first.extra["landmarks"]
+    lo, hi = lm.min(0), lm.max(0)
+    x0, y0, x1, y1 = hands.regions[0]
+    np.testing.assert_allclose([x1 - x0, y1 - y0], HAND_SEARCH * (hi - lo).max(), rtol=1e-6)
+    np.testing.assert_allclose([(x0 + x1) / 2, (y0 + y1) / 2], (lo + hi) / 2, atol=1e-6)
 
 
 def test_hands_are_reported_in_the_input_s_pixels(face_truth):

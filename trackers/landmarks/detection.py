@@ -1,4 +1,6 @@
-"""Face detection with MediaPipe's BlazeFace short-range model (faces within ~2 m)."""
+"""Face detection with MediaPipe's BlazeFace models: short range (faces within ~2 m, a 128x128
+view of the frame) and full range (up to ~5 m, 192x192: faces down to about 2 % of the
+frame's width)."""
 
 from __future__ import annotations
 
@@ -11,10 +13,15 @@ from trackers.landmarks._image import check_image, sample
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["FaceDetection", "detect_faces", "ssd_anchors", "decode_ssd", "letterbox"]
+__all__ = ["FaceDetection", "detect_faces", "ssd_anchors", "decode_ssd", "letterbox",
+           "DETECTORS"]
 
 _SIZE = 128
+_FULL_SIZE = 192
 _IOU = 0.3
+#: The detectors of :func:`detect_faces`: the model file (a key of
+#: :data:`~trackers.landmarks.models.MODEL_FILES`) of each.
+DETECTORS = {"short": "face_detection", "full": "face_detection_full_range"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +57,9 @@ def ssd_anchors(cells: int) -> np.ndarray:
 
 
 _ANCHORS = ssd_anchors(16)
+# the full-range model: one anchor per cell of a 48x48 grid (stride 4 of its 192 pixels)
+_FULL_ANCHORS = np.stack(np.meshgrid((np.arange(48) + 0.5) / 48, (np.arange(48) + 0.5) / 48),
+                         axis=-1).reshape(-1, 2).astype(np.float32)
 
 
 def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -132,7 +142,7 @@ def decode_ssd(regressors, logits, anchors, size: int, min_score: float):
 
 
 def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
-                 runtime: str = "auto") -> list[FaceDetection]:
+                 runtime: str = "auto", model: str = "short") -> list[FaceDetection]:
     """Detect faces in a frame.
 
     Parameters
@@ -145,6 +155,13 @@ def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
         Lowest face probability kept, in (0, 1).
     runtime : {'auto', 'litert', 'opencv'}
         See :func:`trackers.landmarks.runtime.load_network`.
+    model : {'short', 'full'}
+        'short' (default): BlazeFace's short-range model, the face mesh's own detector
+        for faces near the camera (it misses faces narrower than about a tenth of the
+        frame's longer side). 'full': the full-range model, for faces farther away or
+        small in a wide frame (down to about 2 % of the frame's longer side; 2-3 times
+        the short model's time); it needs ``runtime='litert'`` (OpenCV's TFLite reader
+        lacks its DENSIFY operator).
 
     Returns
     -------
@@ -154,17 +171,28 @@ def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
     image = check_image(image, channel_order)
     if not 0 < min_score < 1:
         raise ValueError(f"min_score={min_score!r} must lie in (0, 1)")
-    net = load_network(ensure_models()["face_detection"], runtime=check_runtime(runtime))
-    return _run(net, image, channel_order, min_score)
+    if model not in DETECTORS:
+        raise ValueError(f"model={model!r} is not one of {', '.join(map(repr, DETECTORS))}")
+    runtime = check_runtime(runtime)
+    if model == "full" and runtime != "litert":
+        raise ValueError("the full-range face detector needs runtime='litert' (OpenCV's "
+                         "TFLite reader lacks its DENSIFY operator)")
+    net = load_network(ensure_models()[DETECTORS[model]], runtime=runtime)
+    return _run(net, image, channel_order, min_score, full=model == "full")
 
 
-def _run(net, image: np.ndarray, channel_order: str, min_score: float) -> list[FaceDetection]:
+def _run(net, image: np.ndarray, channel_order: str, min_score: float, *,
+         full: bool = False) -> list[FaceDetection]:
     """:func:`detect_faces` with the network given and the arguments checked."""
-    square, to_image = letterbox(image, _SIZE, channel_order)
+    size, anchors = (_FULL_SIZE, _FULL_ANCHORS) if full else (_SIZE, _ANCHORS)
+    square, to_image = letterbox(image, size, channel_order)
     x = square[None].astype(np.float32) / 127.5 - 1
-    scores_logit, regressors = net.run(x)   # 'classificators', 'regressors' (name order)
+    if full:
+        regressors, scores_logit = net.run(x)   # 'Identity', 'Identity_1' (name order)
+    else:
+        scores_logit, regressors = net.run(x)   # 'classificators', 'regressors'
     faces = []
-    for box, kp, score in decode_ssd(regressors, scores_logit, _ANCHORS, _SIZE, min_score):
+    for box, kp, score in decode_ssd(regressors, scores_logit, anchors, size, min_score):
         box = to_image(box.reshape(2, 2)).ravel()
         faces.append(FaceDetection(tuple(float(v) for v in box), to_image(kp),
                                    float(score)))

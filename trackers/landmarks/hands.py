@@ -96,17 +96,37 @@ def hand_roi_transform(points) -> np.ndarray:
     return _turned_square(centre, _HAND_SCALE * float((hi - lo).max()), theta, _HAND_SIZE)
 
 
-def _detect(net, image: np.ndarray, channel_order: str, min_score: float):
+def _detect(net, image: np.ndarray, channel_order: str, min_score: float, region=None):
+    x0 = y0 = 0
+    if region is not None:
+        x0, y0, x1, y1 = _region(region, image.shape)
+        image = image[y0:y1, x0:x1]
     square, to_image = letterbox(image, _PALM_SIZE, channel_order)
     x = net.input_buffer((1, _PALM_SIZE, _PALM_SIZE, 3))
     np.divide(square, np.float32(255), out=x[0])
     regressors, logits = net.run(x)   # 'Identity', 'Identity_1'
     palms = []
+    offset = np.array([x0, y0], float)
     for box, kp, score in decode_ssd(regressors, logits, _PALM_ANCHORS, _PALM_SIZE,
                                      min_score):
-        box = to_image(box.reshape(2, 2)).ravel()
-        palms.append(PalmDetection(tuple(float(v) for v in box), to_image(kp), float(score)))
+        box = (to_image(box.reshape(2, 2)) + offset).ravel()
+        palms.append(PalmDetection(tuple(float(v) for v in box), to_image(kp) + offset,
+                                   float(score)))
     return palms
+
+
+def _region(region, shape) -> tuple[int, int, int, int]:
+    """``region`` (x0, y0, x1, y1) as whole pixels within an image of ``shape``; ValueError
+    where nothing of it is in the image."""
+    h, w = shape[:2]
+    x0, y0, x1, y1 = (float(v) for v in region)
+    if not all(np.isfinite([x0, y0, x1, y1])):
+        raise ValueError(f"region must be four finite numbers, got {region!r}")
+    x0, y0 = max(0, int(np.floor(x0))), max(0, int(np.floor(y0)))
+    x1, y1 = min(w, int(np.ceil(x1))), min(h, int(np.ceil(y1)))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ValueError(f"region {region!r} lies outside the {w}x{h} image")
+    return x0, y0, x1, y1
 
 
 def _landmarks(net, image: np.ndarray, crop_to_image: np.ndarray, channel_order: str):
@@ -120,7 +140,7 @@ def _landmarks(net, image: np.ndarray, crop_to_image: np.ndarray, channel_order:
 
 
 def detect_palms(image, *, channel_order: str = "rgb", min_score: float = 0.5,
-                 runtime: str = "auto") -> list[PalmDetection]:
+                 runtime: str = "auto", region=None) -> list[PalmDetection]:
     """Detect palms in a frame (MediaPipe's lite palm detector).
 
     Parameters
@@ -131,17 +151,21 @@ def detect_palms(image, *, channel_order: str = "rgb", min_score: float = 0.5,
     min_score : float
         Lowest palm probability kept, in (0, 1).
     runtime : {'auto', 'litert', 'opencv'}
+    region : tuple of float, optional
+        (x0, y0, x1, y1): look only in this part of the frame (clipped to it), which the
+        detector then sees at a larger scale: its 192-pixel view of a whole wide frame
+        misses a hand a few tens of pixels across. Default: the whole frame.
 
     Returns
     -------
     list of PalmDetection
-        Highest score first.
+        Highest score first, in the whole frame's pixels.
     """
     image = check_image(image, channel_order)
     if not 0 < min_score < 1:
         raise ValueError(f"min_score={min_score!r} must lie in (0, 1)")
     net = load_network(ensure_models()["palm_detection"], runtime=check_runtime(runtime))
-    return _detect(net, image, channel_order, min_score)
+    return _detect(net, image, channel_order, min_score, region)
 
 
 def hand_landmarks(image, roi, *, channel_order: str = "rgb",
@@ -216,8 +240,10 @@ class HandTracker:
         """Forget the followed hands."""
         self.hands = []
 
-    def track(self, frame, *, detect: bool = True) -> list[np.ndarray]:
-        """The (21, 2) points of each hand on ``frame`` (an empty list: none)."""
+    def track(self, frame, *, detect: bool = True, region=None) -> list[np.ndarray]:
+        """The (21, 2) points of each hand on ``frame`` (an empty list: none); a new hand
+        is looked for within ``region`` (x0, y0, x1, y1; default the whole frame, see
+        :func:`detect_palms`)."""
         if not self.hands and not detect:
             return []                   # nothing followed, nothing to look for
         image = check_image(frame, self.channel_order)
@@ -225,7 +251,8 @@ class HandTracker:
         hands = self._read(image, hand_net, [hand_roi_transform(p) for p in self.hands])
         if not hands and detect:
             # nothing followed, or every followed hand lost on this frame
-            palms = _detect(self._net("palm_detection"), image, self.channel_order, 0.5)
+            palms = _detect(self._net("palm_detection"), image, self.channel_order, 0.5,
+                            region)
             hands = self._read(image, hand_net,
                                [palm_roi_transform(p) for p in palms[:self.max_hands]])
         self.hands = hands

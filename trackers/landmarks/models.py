@@ -1,11 +1,11 @@
 """The MediaPipe model files: pinned, checked by sha256, cached per user.
 
-The ``.tflite`` files (face detection, face mesh, palm detection, hand landmarks and the iris
-model's eye contours; and the
-wheel's licence, Apache-2.0) are taken from the
-``mediapipe`` wheel on PyPI, which is the publisher's own package; the project never ships
-them. The first call of :func:`ensure_models` downloads that wheel with pip (which honours the
-user's index and proxy settings) or, offline, extracts the files from a local copy of it.
+The ``.tflite`` files (face detection at short and full range, face mesh, palm detection,
+hand landmarks and the iris model's eye contours; and the wheel's licence, Apache-2.0) are
+taken from the ``mediapipe`` wheel on PyPI, which is the publisher's own package; the project
+never ships them. The first call of :func:`ensure_models` downloads that wheel with pip
+(which honours the user's index and proxy settings) or, offline, extracts the files from a
+local copy of it.
 """
 
 from __future__ import annotations
@@ -35,6 +35,11 @@ MODEL_FILES = {
     "face_detection": (
         "mediapipe/modules/face_detection/face_detection_short_range.tflite",
         "bbff11cebd1eb27a1e004cae0b0e63ec8c551cbf34a4451148b4908b8db3eca8"),
+    # faces the short-range detector misses: farther than ~2 m, or under a tenth of a wide
+    # frame (:func:`trackers.landmarks.detection.detect_faces`, ``model='full'``)
+    "face_detection_full_range": (
+        "mediapipe/modules/face_detection/face_detection_full_range_sparse.tflite",
+        "2c3728e6da56f21e21a320433396fb06d40d9088f2247c05e5635a688d45dfe1"),
     "face_landmark": (
         "mediapipe/modules/face_landmark/face_landmark.tflite",
         "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814"),
@@ -188,8 +193,8 @@ def ensure_models(*, wheel: str | os.PathLike | None = None,
     Returns
     -------
     dict
-        ``{"face_detection": Path, "face_landmark": Path, "palm_detection": Path,
-        "hand_landmark": Path, "iris_landmark": Path}``.
+        ``{"face_detection": Path, "face_detection_full_range": Path, "face_landmark": Path,
+        "palm_detection": Path, "hand_landmark": Path, "iris_landmark": Path}``.
 
     Raises
     ------

@@ -85,6 +85,12 @@ class LandmarkTracker:
         this many crop pixels (of 192) from the last frame's, run the model again on
         that crop: a face that moved or changed much between frames is read from a crop
         that fits it (``inf``: never).
+    full_range : bool, optional
+        Where the short-range detector (the face mesh's own) finds no face, look again with
+        the full-range one (:func:`~trackers.landmarks.detection.detect_faces`,
+        ``model='full'``), which finds faces down to about 2 % of the frame's width (a
+        person across a room in a wide shot) where the short one stops at about a tenth.
+        Default: where the runtime can run it (LiteRT).
 
     Notes
     -----
@@ -102,7 +108,7 @@ class LandmarkTracker:
 
     def __init__(self, *, channel_order: str = "rgb", runtime: str = "auto",
                  min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True,
-                 recrop: float = RECROP):
+                 recrop: float = RECROP, full_range: bool | None = None):
         check_image(np.zeros((2, 2), np.uint8), channel_order)
         # resolved once: 'auto' looks for LiteRT on the import path, which costs
         # file-system calls (and, with decoding in another thread, the GIL) every frame
@@ -117,6 +123,10 @@ class LandmarkTracker:
         if not recrop > 0:
             raise ValueError(f"recrop={recrop!r} must be positive (inf: never)")
         self.recrop = float(recrop)
+        if full_range and self._runtime != "litert":
+            raise ValueError("full_range=True needs the LiteRT runtime (OpenCV's TFLite "
+                             "reader lacks the full-range detector's DENSIFY operator)")
+        self.full_range = self._runtime == "litert" if full_range is None else bool(full_range)
         self._executor: ThreadPoolExecutor | None = None
         self._pending = None       # (frame, future, state before it) of a prefetch
         self.reset()
@@ -179,7 +189,10 @@ class LandmarkTracker:
 
     def _detect(self, image):
         faces = _detect(self._net("face_detection"), image, self.channel_order,
-                               self.min_score)
+                        self.min_score)
+        if not faces and self.full_range:
+            faces = _detect(self._net("face_detection_full_range"), image, self.channel_order,
+                            self.min_score, full=True)
         if not faces:
             return None, 0.0
         boxes = np.array([f.box for f in faces])

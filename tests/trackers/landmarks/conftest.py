@@ -42,3 +42,17 @@ def scene(face_img, *, big=True, small=True):
     if small:
         canvas[100:220, 420:540] = cv2.resize(face_img, (120, 120), interpolation=cv2.INTER_AREA)
     return canvas
+
+
+def far_scene(face_img, *, size=(1280, 720), side=128):
+    """A wide frame on the render's background with the face shrunk to ``side`` pixels
+    (its face about 6 % of the frame's width: beyond the short-range detector), and the
+    factor and offset that map the render's pixels into it."""
+    import cv2
+
+    w, h = size
+    canvas = np.full((h, w, 3), face_img[0, 0], np.uint8)
+    x0, y0 = w // 2, h // 3
+    canvas[y0:y0 + side, x0:x0 + side] = cv2.resize(face_img, (side, side),
+                                                    interpolation=cv2.INTER_AREA)
+    return canvas, side / face_img.shape[1], np.array([x0, y0], float)

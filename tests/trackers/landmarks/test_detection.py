@@ -1,7 +1,9 @@
 import numpy as np
 import pytest
 
+from tests.trackers.landmarks.conftest import far_scene
 from trackers.landmarks import FaceDetection, detect_faces
+from trackers.landmarks.runtime import litert_available
 
 
 def test_one_face_on_a_rendered_face(face):
@@ -42,3 +44,27 @@ def test_bad_inputs_are_refused(models):
         detect_faces(np.full((10, 10), 2.0))
     with pytest.raises(ValueError, match="min_score"):
         detect_faces(np.zeros((10, 10), np.uint8), min_score=1.5)
+
+
+@pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
+def test_the_full_range_detector_finds_a_face_the_short_range_one_misses(face):
+    img, corners = face
+    far, k, offset = far_scene(img)
+    assert detect_faces(far) == []
+    (det,) = detect_faces(far, model="full")
+    x0, y0, x1, y1 = det.box
+    mouth = (corners * k + offset).mean(0)    # the mouth's centre in the wide frame
+    assert x0 < mouth[0] < x1 and y0 < mouth[1] < y1
+    assert 0.5 * 123 * k < x1 - x0 < 1.5 * 123 * k   # the render's face box: 123 of 192 px
+    right_eye, left_eye, nose, mouth_kp = det.keypoints[:4]
+    assert right_eye[0] < nose[0] < left_eye[0] and nose[1] < mouth_kp[1]
+    # (a face of 80 px: the keypoints are coarser than the short-range model's on a near one)
+    assert np.linalg.norm(mouth_kp - mouth) < 0.3 * (x1 - x0)
+    assert detect_faces(np.full((720, 1280, 3), 128, np.uint8), model="full") == []
+
+
+def test_the_detector_models_are_checked(models):
+    with pytest.raises(ValueError, match="'short', 'full'"):
+        detect_faces(np.zeros((10, 10), np.uint8), model="far")
+    with pytest.raises(ValueError, match="litert"):
+        detect_faces(np.zeros((10, 10), np.uint8), model="full", runtime="opencv")

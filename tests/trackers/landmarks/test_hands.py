@@ -118,3 +118,40 @@ def test_a_hand_over_a_real_mouth_is_found_and_followed(real_video_dir, models):
     # the hand lies over the mouth (its centre at about (428, 298) on frame 105)
     hull = cv2.convexHull(hand.astype(np.float32))
     assert cv2.pointPolygonTest(hull, (428.0, 298.0), True) > -10
+
+
+@pytest.mark.real_data
+def test_a_hand_in_a_wide_frame_is_found_round_the_face(real_video_dir, models):  # noqa: F811
+    import cv2
+
+    from trackers.landmarks.hands import detect_palms
+
+    path = real_video_dir / "WolfgangLanger_Pexels.mp4"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    cap = cv2.VideoCapture(str(path))
+    for _ in range(101):
+        ok, frame = cap.read()
+    # the frame halved inside a 1920x1080 one: the hand is 60 px across
+    small = cv2.resize(frame, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    wide = cv2.copyMakeBorder(small, 540, 360, 1100, 500, cv2.BORDER_REPLICATE)
+    assert detect_palms(wide, channel_order="bgr") == []
+    box = (1100 + 100, 540, 1100 + 320, 540 + 180)      # round the face
+    (palm,) = detect_palms(wide, channel_order="bgr", region=box)
+    (whole,) = detect_palms(frame, channel_order="bgr")
+    # where the whole frame's detector puts it, halved and moved into the wide frame
+    np.testing.assert_allclose(palm.box, np.add(np.multiply(whole.box, 0.5), [1100, 540] * 2),
+                               atol=0.1 * (whole.box[2] - whole.box[0]))
+    tracker = HandTracker(channel_order="bgr")
+    assert tracker.track(wide) == []
+    assert len(tracker.track(wide, region=box)) == 1
+
+
+def test_the_palm_region_is_checked(models):  # noqa: F811
+    from trackers.landmarks.hands import _region, detect_palms
+
+    assert _region((-5.5, 10.2, 50.1, 900), (100, 200, 3)) == (0, 10, 51, 100)
+    with pytest.raises(ValueError, match="outside"):
+        detect_palms(np.zeros((100, 200, 3), np.uint8), region=(300, 0, 400, 50))
+    with pytest.raises(ValueError, match="finite"):
+        detect_palms(np.zeros((100, 200, 3), np.uint8), region=(0, 0, np.nan, 50))

@@ -76,8 +76,9 @@ def test_a_wheel_with_other_files_is_refused(tmp_models, tmp_path):
 def test_offline_install_from_a_local_wheel(tmp_models, local_wheel, monkeypatch):
     monkeypatch.setenv("FACEANALYSIS_MODEL_WHEEL", str(local_wheel))
     paths = M.ensure_models(download=False)
-    assert set(paths) == {"face_detection", "face_landmark", "palm_detection",
-                          "hand_landmark", "iris_landmark"} and M.models_available()
+    assert set(paths) == {"face_detection", "face_detection_full_range", "face_landmark",
+                          "palm_detection", "hand_landmark", "iris_landmark"} \
+        and M.models_available()
     assert (tmp_models / "LICENSE_mediapipe.txt").is_file()
     umask = os.umask(0)
     os.umask(umask)

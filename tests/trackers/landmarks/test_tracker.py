@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from tests.trackers.landmarks.conftest import scene
+from tests.trackers.landmarks.conftest import far_scene, scene
 from trackers.landmarks import LandmarkTracker
+from trackers.landmarks.runtime import litert_available
 
 
 def _centre(lm):
@@ -120,6 +121,23 @@ def test_crop_change_is_in_crop_pixels(face):
     assert _crop_change(lm.points, lm.points + [side / 192 * 5, 0]) == pytest.approx(5.0)
 
 
+@pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
+def test_a_face_far_from_the_camera_is_found_by_the_full_range_detector(face):
+    img, corners = face
+    far, k, offset = far_scene(img)
+    assert LandmarkTracker(full_range=False).track(far) is None
+    tracker = LandmarkTracker()
+    assert tracker.full_range
+    lm = tracker.track(far)
+    assert lm is not None and lm.detected
+    # the mesh's mouth corners (61: subject's right, 291: left) on the render's
+    true = corners * k + offset
+    assert np.abs(lm.points[[61, 291]] - true).max() < 0.3 * np.ptp(true[:, 0])   # mouth width
+    # and tracked on the next frame without another detection
+    nxt = tracker.track(far)
+    assert nxt is not None and not nxt.detected
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="'auto', 'litert', 'opencv'"):
         LandmarkTracker(runtime="onnx")
@@ -129,3 +147,5 @@ def test_bad_settings_are_refused():
         LandmarkTracker(recrop=0)
     with pytest.raises(ValueError, match="min_presence"):
         LandmarkTracker(min_presence=0)
+    with pytest.raises(ValueError, match="LiteRT"):
+        LandmarkTracker(runtime="opencv", full_range=True)
