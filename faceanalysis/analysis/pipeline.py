@@ -63,6 +63,7 @@ from faceanalysis.tracking import (
     track,
 )
 from trackers.fiducials import HeadFrame
+from trackers.landmark_contours import eye_centres
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +91,14 @@ NEUTRAL_EYES = 0.75
 #: closures may be missed. On cap13 shrunk to 51 px both blinks are found, to 41 px the one
 #: caught half-shut on a single frame is not, to 21 px neither.
 SMALL_EYES_PX = 45.0
+
+#: Eye centres closer than this (pixels, the median over the tracked frames of the landmark
+#: tracker): a warning that the contractions are noisy. Measured on WolfgangLanger and cap13
+#: shrunk into a 1920x1080 frame, against each clip as given (median |difference| of
+#: zygomaticus major / frontalis major): 42 px between the eyes 0.05 / 0.04, as cap13 is
+#: given (42 px); 32 px 0.09 / 0.11; 26 px 0.40 / 0.08, frontalis reading 1.0 all through
+#: WolfgangLanger and two thirds of cap13's frames lost.
+SMALL_FACE_IOD = 36.0
 
 __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "MAX_HEAD_TURN", "analyze",
            "analyze_to_folder", "default_estimator", "reestimate"]
@@ -364,6 +373,11 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
     _warn_identifiability(video, ident)
     _warn_cuts(video, tracks, k)
+    iod = _interocular_px(tracks)
+    if iod is not None and iod < SMALL_FACE_IOD:
+        log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
+                    "contours hold the features only loosely and the contractions are noisy; "
+                    "film closer or at a higher resolution", video, iod, SMALL_FACE_IOD)
     elapsed = time.perf_counter() - t_start
     metadata = analysis_metadata(tracks.input, table, parameters=parameters, elapsed_s=elapsed,
                                  extra={"calibration": calib, "model_fit": fit,
@@ -371,6 +385,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     if metadata.get("quality") is not None:
         metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
         metadata["quality"]["shot_cuts"] = list(tracks.cuts)
+        metadata["quality"]["interocular_px"] = None if iod is None else round(iod, 1)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,
                "total_s": elapsed, "frames": len(tracks),
                "track_cpu_s": tracks.timings["cpu_s"], "estimate_cpu_s": c_estimate}
@@ -684,6 +699,14 @@ def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: Fiducial
     # the model's x-y, which the calibration was fitted to, with the generic face's depth
     rest[:, :2] = response.rest
     return correct_pose(disp, pose, k, rest, reference=head_frame_points()), True
+
+
+def _interocular_px(tracks: Tracks) -> float | None:
+    """The median distance between the eye centres (pixels) over the tracked frames with
+    the landmark tracker's face mesh; None without one."""
+    gaps = [float(np.hypot(*np.subtract(*eye_centres(np.asarray(m, float)[:, :2]))))
+            for m, ok in zip(tracks.landmarks or (), tracks.success) if ok and m is not None]
+    return float(np.median(gaps)) if gaps else None
 
 
 def _warn_cuts(video, tracks: Tracks, k: int) -> None:

@@ -865,3 +865,29 @@ def test_a_shot_cut_between_two_faces_is_reported(tmp_path, caplog, surprise):
     with caplog.at_level("WARNING"):
         assert analyze(pair, fps=1.0).metadata["quality"]["shot_cuts"] == []
     assert "shot cut" not in caplog.text
+
+
+def test_a_small_face_is_measured_and_warned_about(tmp_path, caplog, surprise):
+    from faceanalysis.analysis.pipeline import SMALL_FACE_IOD
+    from synth.render.sequence import synthesize
+    from tests.faceanalysis._photos import models_or_skip
+
+    models_or_skip()
+    images = synthesize(frames=2, size=192, seed=3, flow=False, texture_size=256,
+                        supersample=1).images
+    for i, img in enumerate(images):
+        img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
+        wall = np.empty((240, 320, 3), np.uint8)
+        wall[:] = img[0, 0]
+        wall[80:160, 120:200] = cv2.resize(img, (80, 80), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(tmp_path / f"{i}.png"), wall)
+    with caplog.at_level("WARNING"):
+        small = analyze(tmp_path, fps=10.0)
+    iod = small.metadata["quality"]["interocular_px"]
+    assert small.table["success"].all() and 10 < iod < SMALL_FACE_IOD
+    assert f"the face is small, {iod:.0f} px between the eyes" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        near = analyze(surprise["video"], end=4)
+    assert near.metadata["quality"]["interocular_px"] > SMALL_FACE_IOD
+    assert "the face is small" not in caplog.text
