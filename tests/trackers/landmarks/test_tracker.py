@@ -138,6 +138,58 @@ def test_a_face_far_from_the_camera_is_found_by_the_full_range_detector(face):
     assert nxt is not None and not nxt.detected
 
 
+@pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
+def test_a_far_face_is_looked_at_again_by_the_short_range_detector(face):
+    from trackers.landmarks.detection import FaceDetection, detect_faces
+    from trackers.landmarks.models import ensure_models
+    from trackers.landmarks.runtime import load_network
+    from trackers.landmarks.tracker import _closer_look
+
+    img, _ = face
+    far, k, offset = far_scene(img)
+    near = load_network(ensure_models()["face_detection"])
+    (true,) = detect_faces(img)            # the render at its own size, moved into the frame
+    box = np.add(np.multiply(true.box, k), np.tile(offset, 2))
+    # a coarse detection: its box a third too large and off by a sixth of the face
+    x0, y0, x1, y1 = box
+    d = (x1 - x0) / 6
+    coarse = FaceDetection((x0 - 2 * d, y0 - d, x1 + 2 * d, y1 + 2 * d),
+                           true.keypoints * k + offset + d, 0.6)
+    seen = _closer_look(near, far, coarse, "rgb", 0.5)
+    # (the detector at another scale: within a tenth of the face)
+    np.testing.assert_allclose(seen.box, box, atol=0.1 * (x1 - x0))
+    np.testing.assert_allclose(seen.keypoints[:4], true.keypoints[:4] * k + offset,  # not ears
+                               atol=0.1 * (x1 - x0))
+    # where the short-range detector finds nothing round it, the detection stays as it was
+    blank = np.full_like(far, 128)
+    assert _closer_look(near, blank, coarse, "rgb", 0.5) is coarse
+
+
+@pytest.mark.real_data
+@pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
+def test_a_real_face_24_px_between_the_eyes_is_fitted_at_its_size(real_video_dir, models):
+    import cv2
+
+    from trackers.landmark_contours import eye_centres
+
+    path = real_video_dir / "WolfgangLanger_Pexels.mp4"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    ok, frame = cv2.VideoCapture(str(path)).read()
+
+    def iod(points):
+        return float(np.hypot(*np.subtract(*eye_centres(points))))
+
+    given = iod(LandmarkTracker(channel_order="bgr").track(frame).points)
+    small = cv2.resize(frame, None, fx=0.24, fy=0.24, interpolation=cv2.INTER_AREA)
+    wide = cv2.copyMakeBorder(small, 300, 1080 - 300 - small.shape[0], 900,
+                              1920 - 900 - small.shape[1], cv2.BORDER_CONSTANT, value=(100,) * 3)
+    lm = LandmarkTracker(channel_order="bgr").track(wide)
+    # (from the full-range detector's own box the mesh settles 30 % too large)
+    assert lm is not None and lm.presence > 0.9
+    assert iod(lm.points) == pytest.approx(0.24 * given, rel=0.05)
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="'auto', 'litert', 'opencv'"):
         LandmarkTracker(runtime="onnx")
