@@ -96,7 +96,7 @@ def emit(name: str, figures: list[Figure]) -> None:
 
 #: Copies of a clip as other cameras would give it (``altered_copies``).
 ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey",
-               "in a 1920x1080 frame")
+               "in a 1920x1080 frame", "a quarter of the light")
 #: A face far from the camera in a wide shot: the clip halved, in a 1920x1080 frame.
 FAR = "halved, in a 1920x1080 frame"
 
@@ -105,8 +105,9 @@ def altered_copies(path, folder, labels=ALTERATIONS):
     """Yield ``(label, copy)``: the video ``path`` enlarged 3 times (bicubic), halved (area
     mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right,
     in grey, as it is or halved inside a 1920x1080 frame (right of and below its centre, its
-    edges drawn out: a wide shot), each written in turn to ``folder/altered.avi`` (MJPEG:
-    one copy on disk at a time, overwritten by the next)."""
+    edges drawn out: a wide shot), or with every level a quarter (a dim room), each written
+    in turn to ``folder/altered.avi`` (MJPEG: one copy on disk at a time, overwritten by the
+    next)."""
     from pathlib import Path
 
     import cv2
@@ -125,6 +126,7 @@ def altered_copies(path, folder, labels=ALTERATIONS):
                                   cv2.BORDER_REPLICATE)
 
     alter = {"in a 1920x1080 frame": framed,
+             "a quarter of the light": lambda f: cv2.convertScaleAbs(f, alpha=0.25),
              FAR: lambda f: framed(cv2.resize(f, None, fx=0.5, fy=0.5,
                                               interpolation=cv2.INTER_AREA)),
              "enlarged 3x": lambda f: cv2.resize(f, None, fx=3, fy=3,

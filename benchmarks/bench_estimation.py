@@ -354,7 +354,8 @@ def _agreement(given, table, cols, mirrored: bool):
 def altered(quick: bool = False) -> list[Figure]:
     """cap12 analysed as given and as copies other cameras would give (enlarged 3 times,
     halved, turned by 20 degrees, mirrored, in grey, inside a 1920x1080 frame: its face
-    then 5.7 % of the frame's width, found by the full-range detector): how far each
+    then 5.7 % of the frame's width, found by the full-range detector, and at a quarter of
+    the light): how far each
     muscle's series moves, over the frames tracked in both (the mirrored copy's left
     muscles against the clip's right). Per copy: the median over the muscles of the mean
     |difference|, and the median Pearson r over the muscles that move (standard deviation

@@ -312,7 +312,8 @@ def _hand_clip_altered(path, quick):
     """The hand over the mouth on copies of the clip as other cameras would give it:
     enlarged 3 times (1920x1080, tracked shrunk), halved, turned by 20 degrees, mirrored,
     in grey, inside a 1920x1080 frame as it is and halved (a face 116 px wide, 6 % of the
-    frame's width: found by the full-range detector). How deep the covered contours' edges
+    frame's width: found by the full-range detector), at a quarter of the light (tracked
+    brightened). How deep the covered contours' edges
     are relative to the first frame depends on these; the hand's own detector does not
     (except on grey, where it finds none), since it looks round the face."""
     import tempfile

@@ -492,3 +492,35 @@ def test_the_hairline_is_carried_with_the_head_after_the_first_frame(face_truth)
     back = tracker.track(_shift(img, 2, 1))
     np.testing.assert_allclose(back.contours["hairline"] - first.contours["hairline"],
                                np.broadcast_to([2, 1], shift.shape), atol=1.0)
+
+
+def test_a_dim_face_is_tracked_brightened(face_truth):
+    from trackers.anchored import MAX_GAIN, MIN_FACE_LEVEL
+
+    img, truth = face_truth
+    want = np.array([truth[n] for n in FIDUCIAL_NAMES])
+
+    def track(frame):
+        tracker = AnchoredTracker()
+        tracker.track(frame)
+        res = tracker.track(frame)
+        got = np.array([res.fiducials[n] for n in FIDUCIAL_NAMES])
+        return tracker, float(np.mean(np.hypot(*(got - want).T)))
+
+    bright, err = track(img)
+    assert bright.gain == 1.0 and bright._shrunk(img) is img     # a face as filmed: as is
+    # a seventh of the light: 36 grey levels left (without the gain, 0.96 px against 0.74)
+    dim = np.round(img * 0.15).astype(np.uint8)
+    tracker, dim_err = track(dim)
+    assert tracker.gain == MAX_GAIN
+    assert dim_err < 1.1 * err
+    lifted = tracker._shrunk(dim)
+    np.testing.assert_array_equal(lifted, np.minimum(np.round(dim * MAX_GAIN), 255))
+    # a little dim: lifted to MIN_FACE_LEVEL, the factor fixed on the first face
+    half = np.round(img * 0.5).astype(np.uint8)
+    tracker, _ = track(half)
+    assert 1.0 < tracker.gain < MAX_GAIN
+    box = AnchoredTracker().landmarks.track(half).box
+    x0, y0, x1, y1 = (int(v) for v in box)
+    grey = (half[y0:y1, x0:x1] @ [0.299, 0.587, 0.114])
+    assert tracker.gain == pytest.approx(MIN_FACE_LEVEL / np.percentile(grey, 95), rel=0.05)
