@@ -16,7 +16,7 @@ from trackers.landmarks.mesh import _run as _mesh
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["RECROP", "Landmarks", "LandmarkTracker"]
+__all__ = ["RECROP", "FAR_SIZE", "Landmarks", "LandmarkTracker"]
 
 #: Crop change (pixels of the 192-pixel crop) beyond which a tracking frame is read again
 #: from the crop its own landmarks call for (:class:`LandmarkTracker`, ``recrop``). On
@@ -26,6 +26,11 @@ RECROP = 4.0
 # frames a lost face's position is remembered, so that a face returning after a short
 # occlusion is preferred over a bystander
 _MEMORY = 30
+
+#: While a lost face is remembered, a face that only the full-range detector finds and that
+#: is smaller than this share of it (its box's longer side against the lost face's
+#: landmarks' extent) is taken for someone else, far behind, not the face come back.
+FAR_SIZE = 0.5
 
 # the crop's corners, homogeneous crop pixels
 _CROP_CORNERS = np.array([[0, _SIZE - 1, 0, _SIZE - 1], [0, 0, _SIZE - 1, _SIZE - 1],
@@ -164,6 +169,7 @@ class LandmarkTracker:
         self._discard()
         self._previous = None      # (468, 3) landmarks of the last frame, while tracking
         self._last_centre = None   # where the face was last seen
+        self._last_size = None     # and its landmarks' extent (pixels)
         self._lost = 0             # frames since then
 
     def prefetch(self, frame) -> None:
@@ -179,7 +185,8 @@ class LandmarkTracker:
         if self._executor is None:
             self._executor = ThreadPoolExecutor(max_workers=1,
                                                 thread_name_prefix="landmarks")
-        state = self._previous, self._last_centre, self._lost   # before the thread moves it
+        # before the thread moves it
+        state = self._previous, self._last_centre, self._last_size, self._lost
         self._pending = (frame, self._executor.submit(self._track, frame), state)
 
     def close(self) -> None:
@@ -203,7 +210,7 @@ class LandmarkTracker:
             # its frame is not tracked: an error there is not this caller's
             with contextlib.suppress(Exception):
                 future.result()
-            self._previous, self._last_centre, self._lost = state
+            self._previous, self._last_centre, self._last_size, self._lost = state
 
     def _net(self, name):
         # the networks are cached per thread by load_network; the files are checked (and
@@ -222,6 +229,10 @@ class LandmarkTracker:
         if far:
             faces = _detect(self._net("face_detection_full_range"), image, self.channel_order,
                             self.min_score, full=True)
+            if self._last_size is not None:
+                # a face far smaller than the one just lost is someone else's
+                faces = [f for f in faces if max(f.box[2] - f.box[0], f.box[3] - f.box[1])
+                         >= FAR_SIZE * self._last_size]
         if not faces:
             return None, 0.0
         boxes = np.array([f.box for f in faces])
@@ -302,7 +313,7 @@ class LandmarkTracker:
             self._previous = None
             self._lost += 1
             if self._lost > _MEMORY:
-                self._last_centre = None
+                self._last_centre = self._last_size = None
             return None
         return self._accept(points, presence, detected)
 
@@ -311,5 +322,6 @@ class LandmarkTracker:
         self._previous, self._lost = points, 0
         lo, hi = points[:, :2].min(0), points[:, :2].max(0)
         self._last_centre = (lo + hi) / 2
+        self._last_size = float((hi - lo).max())
         return Landmarks(points[:, :2].copy(), points[:, 2].copy(), float(presence),
                          (*map(float, lo), *map(float, hi)), detected)

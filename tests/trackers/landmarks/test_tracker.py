@@ -139,6 +139,28 @@ def test_a_face_far_from_the_camera_is_found_by_the_full_range_detector(face):
 
 
 @pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
+def test_a_far_bystander_is_not_taken_for_the_face_just_lost(face):
+    import cv2
+
+    from trackers.landmarks.tracker import _MEMORY
+
+    img, _ = face
+    far, _, _ = far_scene(img)                        # a face of 80 px at the right
+    both = far.copy()
+    both[200:584, 100:484] = cv2.resize(img, (384, 384))   # and one of 250 px at the left
+    tracker = LandmarkTracker()
+    assert _centre(tracker.track(both)) < 640
+    for _ in range(_MEMORY + 1):                      # the near face leaves
+        assert tracker.track(far) is None
+    picked = tracker.track(far)                       # forgotten: the one face there is
+    assert picked is not None and _centre(picked) > 640
+    # a far face lost and back is the same face: found again at once
+    assert tracker.track(np.full_like(far, 128)) is None
+    back = tracker.track(far)
+    assert back is not None and back.detected and _centre(back) > 640
+
+
+@pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
 def test_a_far_face_is_looked_at_again_by_the_short_range_detector(face):
     from trackers.landmarks.detection import FaceDetection, detect_faces
     from trackers.landmarks.models import ensure_models
