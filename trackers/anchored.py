@@ -402,7 +402,7 @@ class AnchoredTracker:
         #: (:data:`MIN_FACE_LEVEL`; None until a face has been seen, then fixed).
         self.gain: float | None = None
         self._lut: np.ndarray | None = None
-        self._ahead = None     # (next frame as given, shrunk) for the prefetch
+        self._ahead = None     # (next frame as given, as worked on) for the prefetch
         self.occlusion = bool(occlusion)
         self.hand_tracker = None
         self._hand_pool: ThreadPoolExecutor | None = None
@@ -472,7 +472,7 @@ class AnchoredTracker:
         """
         index = self.index
         self.index += 1
-        given, frame = frame, self._shrunk(frame)
+        given, frame = frame, self._working(frame)
         lm = placed = self.landmarks.track(frame)
         if lm is not None and self.downscale is None:
             # the first face sets the working size and brightness for the whole video
@@ -484,7 +484,7 @@ class AnchoredTracker:
                 reset = getattr(self.landmarks, "reset", None)
                 if reset is not None:
                     reset()
-                frame = self._shrunk(given)
+                frame = self._working(given)
                 lm = placed = self.landmarks.track(frame)
         if lm is not None and (self.tracker is None or lm.detected):
             # the later frames are compared with this one (the head's similarity, pitch
@@ -501,7 +501,7 @@ class AnchoredTracker:
         if next_frame is not None and self.prefetch and hasattr(self.landmarks, "prefetch"):
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
-            ahead = self._shrunk(next_frame)
+            ahead = self._working(next_frame)
             self._ahead = (next_frame, ahead)
             self.landmarks.prefetch(ahead)
         following = None   # this frame's followed hands: a list, or a future of one
@@ -719,7 +719,7 @@ class AnchoredTracker:
             self.gain = min(MAX_GAIN, MIN_FACE_LEVEL / max(level, 1.0))
             self._lut = np.clip(np.round(np.arange(256) * self.gain), 0, 255).astype(np.uint8)
 
-    def _shrunk(self, frame):
+    def _working(self, frame):
         """``frame`` at the working size and brightness (the same array where neither
         changes it)."""
         k = self.downscale

@@ -508,13 +508,13 @@ def test_a_dim_face_is_tracked_brightened(face_truth):
         return tracker, float(np.mean(np.hypot(*(got - want).T)))
 
     bright, err = track(img)
-    assert bright.gain == 1.0 and bright._shrunk(img) is img     # a face as filmed: as is
+    assert bright.gain == 1.0 and bright._working(img) is img     # a face as filmed: as is
     # a seventh of the light: 36 grey levels left (without the gain, 0.96 px against 0.74)
     dim = np.round(img * 0.15).astype(np.uint8)
     tracker, dim_err = track(dim)
     assert tracker.gain == MAX_GAIN
     assert dim_err < 1.1 * err
-    lifted = tracker._shrunk(dim)
+    lifted = tracker._working(dim)
     np.testing.assert_array_equal(lifted, np.minimum(np.round(dim * MAX_GAIN), 255))
     # a little dim: lifted to MIN_FACE_LEVEL, the factor fixed on the first face
     half = np.round(img * 0.5).astype(np.uint8)
