@@ -42,6 +42,7 @@ __all__ = [
     "TRACKERS",
     "Tracks",
     "faded_furrow_ends",
+    "find_face",
     "lost_reason_counts",
     "measure_frame",
     "progress_bar",
@@ -585,6 +586,68 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                   contours=contours, timings={"track_s": t_track, "frames": len(frames),
                                               "cpu_s": time.process_time() - c_start},
                   cuts=shot_cuts([changes[i] for i in frames], frames))
+
+
+def find_face(video: str | os.PathLike, *, fps: float | None = None, start: int = 0,
+              end: int | None = None, max_frames: int | None = 250) -> dict | None:
+    """The first frame of ``video`` with a face, as the landmark tracker finds it.
+
+    A quick look before an analysis: whether the face will be found, where it starts,
+    and how large it is (under :data:`faceanalysis.analysis.pipeline.SMALL_FACE_IOD`
+    pixels between the eyes the contractions are noisy).
+
+    Parameters
+    ----------
+    video : path-like
+        Video file, folder of images, or a single image.
+    fps, start, end
+        As for :func:`track`.
+    max_frames : int or None, keyword-only
+        Look at most at this many frames from ``start`` (None: to ``end``).
+
+    Returns
+    -------
+    dict or None
+        ``frame`` (its number), ``interocular_px`` (the distance between the eye centres),
+        ``box`` (x0, y0, x1, y1 of the face mesh, pixels) and ``detector``: ``'short'``
+        where MediaPipe's short-range detector finds the face on the whole frame,
+        ``'full'`` where only the full-range one does (a face far from the camera).
+        None where no face is found in the frames looked at.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As :func:`track`; FaceAnalysisError where the face models cannot be obtained.
+    """
+    from trackers.landmark_contours import eye_centres
+    from trackers.landmarks import LandmarkTracker, detect_faces, ensure_models
+
+    if max_frames is not None and (isinstance(max_frames, bool) or int(max_frames) != max_frames
+                                   or max_frames < 1):
+        raise ValueError(f"max_frames must be a positive integer or None, got {max_frames!r}")
+    try:
+        ensure_models()
+    except RuntimeError as exc:
+        raise FaceAnalysisError(str(exc)) from None
+    source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE,
+                        eight_bit=True)
+    tracker = LandmarkTracker(channel_order="bgr")
+    with source, closing(read_ahead(source)) as frames:
+        for n, frame in enumerate(frames):
+            if max_frames is not None and n >= max_frames:
+                break
+            if not frame.ok:
+                continue
+            lm = tracker.track(frame.image)
+            if lm is None:
+                continue
+            near = detect_faces(frame.image, channel_order="bgr")
+            return {"frame": int(frame.index),
+                    "interocular_px": round(float(np.hypot(*np.subtract(
+                        *eye_centres(lm.points)))), 1),
+                    "box": [round(v, 1) for v in lm.box],
+                    "detector": "short" if near else "full"}
+    return None
 
 
 def lost_reason_counts(reasons) -> dict[str, int]:

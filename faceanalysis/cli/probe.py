@@ -16,13 +16,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "and its origin, frames announced by the container. With --decode, every frame of "
         "the range is decoded, the undecodable ones are counted and the shots are found "
         "(a cut: the whole picture changes at once, an edit; analyse each shot on its own "
-        "with --start/--end). Memory stays flat.")
+        "with --start/--end). With --face, the first frame with a face is looked for "
+        "(within 250 frames) as the landmark tracker finds it, with its size between the "
+        "eyes and the detector that found it. Memory stays flat.")
     parser.epilog = ("examples:\n  faceanalysis probe clip.mp4\n"
+                     "  faceanalysis probe wide_shot.mp4 --face\n"
                      "  faceanalysis probe frames/ --fps 25 --decode --json")
     add_input_options(parser)
     parser.add_argument("--decode", action="store_true",
                         help="decode every frame of the range, count the lost ones and list "
                              "the shots")
+    parser.add_argument("--face", action="store_true",
+                        help="find the first frame with a face: where, how large (pixels "
+                             "between the eyes), which detector (needs the face models)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -50,6 +56,15 @@ def run(args: argparse.Namespace) -> int:
         else:
             for key in ("frames_undecodable", "missing_tail"):
                 info.pop(key, None)
+    if args.face:
+        from faceanalysis.analysis.pipeline import SMALL_FACE_IOD
+        from faceanalysis.tracking import find_face
+
+        face = find_face(args.video, fps=args.fps, start=args.start, end=args.end) or {}
+        info.update(first_face=face.get("frame"), interocular_px=face.get("interocular_px"),
+                    face_box=face.get("box"), face_detector=face.get("detector"),
+                    face_small=(None if not face
+                                else face["interocular_px"] < SMALL_FACE_IOD))
     if args.json:
         print(json.dumps(info))
     else:

@@ -237,3 +237,11 @@ def test_a_lost_frame_says_why():
                 heads=np.zeros((2, 4)), fiducials=np.zeros((2, 11, 2)), point_names=(),
                 points=np.zeros((2, 0, 2)), stretch=np.zeros((2, 0)), contours=[None, None])
     assert tr.lost_reasons == [None, None] and lost_reason_counts(tr.lost_reasons) == {}
+
+
+def test_find_face_refuses_a_bad_frame_budget(tmp_path):
+    from faceanalysis.tracking import find_face
+
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(ValueError, match="max_frames"):
+            find_face(tmp_path / "missing.mp4", max_frames=bad)

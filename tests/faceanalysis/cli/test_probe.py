@@ -88,3 +88,38 @@ def test_probe_decode_lists_the_shots(run_cli, tmp_path):
     assert info["shot_cuts"] == [25] and info["shots"] == [[0, 24], [25, 39]]
     code, out, _ = run_cli("probe", clip, "--json", "--decode", "--start", "30")
     assert json.loads(out)["shots"] == [[30, 39]]
+
+
+def test_probe_finds_the_first_face_and_its_size(run_cli, tmp_path):
+    from synth.render.sequence import synthesize
+    from tests.faceanalysis._photos import models_or_skip
+
+    models_or_skip()
+    img = synthesize(frames=1, size=192, seed=3, flow=False, texture_size=256,
+                     supersample=1).images[0]
+    img = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR)
+    blank = np.full_like(img, 120)
+    for i, frame in enumerate((blank, blank, img, img)):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), frame)
+    code, out, err = run_cli("probe", tmp_path, "--face", "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["first_face"] == 2 and info["face_detector"] == "short"
+    assert 30 < info["interocular_px"] < 100 and info["face_small"] is False
+    x0, y0, x1, y1 = info["face_box"]
+    assert 0 <= x0 < x1 <= 192 and 0 <= y0 < y1 <= 192
+    # the same face shrunk to 96 px: small, and found only at full range (with LiteRT)
+    from trackers.landmarks.runtime import litert_available
+
+    if litert_available():
+        wide = np.full((720, 1280, 3), img[0, 0], np.uint8)
+        wide[240:336, 640:736] = cv2.resize(img, (96, 96), interpolation=cv2.INTER_AREA)
+        far = tmp_path / "far.png"
+        cv2.imwrite(str(far), wide)
+        code, out, err = run_cli("probe", far, "--face")
+        assert code == 0, err
+        assert "face_detector   full" in out and "face_small      True" in out
+    # no face in the frames looked at
+    code, out, err = run_cli("probe", tmp_path, "--face", "--end", "2", "--json")
+    assert code == 0, err
+    assert json.loads(out)["first_face"] is None
