@@ -188,6 +188,8 @@ def _summarise(folder: Path) -> dict:
     cuts = quality.get("shot_cuts")
     # an edited video: the face after a cut may be someone else (analyses that say so)
     record["shot_cuts"] = len(cuts) if isinstance(cuts, list) else math.nan
+    # a small face reads noisily (landmark tracker)
+    record["interocular_px"] = _finite_or_nan(quality.get("interocular_px"))
     eyes = metadata.get("eyes") if isinstance(metadata, dict) else None
     if isinstance(eyes, dict):
         # with --eyes: how often the eyes shut

@@ -486,6 +486,8 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
                 else row["frames_turned"] == turned)
         assert row["shot_cuts"] == len(reference.metadata["quality"]["shot_cuts"]) == 0
         assert row["neutral_frame"] == reference.metadata["parameters"]["neutral_frame"]
+        iod = reference.metadata["quality"]["interocular_px"]
+        assert pd.isna(row["interocular_px"]) if iod is None else row["interocular_px"] == iod
     # the smiling clip smiles more than the frowning one, in the summary as in the truth
     smile, brows = (by_video.loc[str(v)] for v in face_corpus["good"])
     assert smile["mean_zygomaticus_major_l"] > brows["mean_zygomaticus_major_l"]
