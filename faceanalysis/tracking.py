@@ -562,7 +562,14 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     bar.update(1)
         if frames and not any(ok) and layout is None:
             # before the overlay is finished: a failed run leaves no file behind
-            raise ValueError(f"{video}: no face found in any of the {len(frames)} frames")
+            hint = ""
+            if kind == "landmarks" and getattr(getattr(tracker, "landmarks", None),
+                                               "full_range", True) is False:
+                hint = (" (a face narrower than about a tenth of the frame needs the "
+                        "full-range detector, which runs with LiteRT: pip install "
+                        "ai-edge-litert)")
+            raise ValueError(f"{video}: no face found in any of the {len(frames)} "
+                             f"frames{hint}")
         if writer is not None:
             writer.close()
             writer = None

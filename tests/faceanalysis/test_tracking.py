@@ -245,3 +245,22 @@ def test_find_face_refuses_a_bad_frame_budget(tmp_path):
     for bad in (0, -1, 2.5, True):
         with pytest.raises(ValueError, match="max_frames"):
             find_face(tmp_path / "missing.mp4", max_frames=bad)
+
+
+def test_no_face_with_opencv_s_reader_names_the_full_range_detector(tmp_path):
+    import cv2
+
+    from faceanalysis.tracking import track
+    from tests.faceanalysis._photos import models_or_skip
+    from trackers.landmarks.runtime import litert_available
+
+    models_or_skip()
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), np.full((120, 160, 3), 90, np.uint8))
+    with pytest.raises(ValueError, match="no face found in any of the 2 frames") as exc:
+        track(tmp_path, tracker_options={"runtime": "opencv"})
+    assert "full-range detector" in str(exc.value)
+    if litert_available():          # which looked, and found none
+        with pytest.raises(ValueError, match="no face found") as exc:
+            track(tmp_path)
+        assert "full-range" not in str(exc.value)
