@@ -123,8 +123,14 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     """
     canvas = to_bgr_uint8(image)
     height, width = canvas.shape[:2]
-    thick = max(1, round(min(height, width) / 320))
+    # lines and marks as wide as the frame calls for, but no wider than the face does: in a
+    # wide shot, marks sized by the frame would hide a small face's features
+    frame_thick = thick = max(1, round(min(height, width) / 320))
     radius = max(2, round(min(height, width) / 120))
+    face = float(head[2]) if head is not None and len(head) == 4 else math.nan
+    if math.isfinite(face) and face > 0:
+        thick = min(thick, max(1, round(face / 60)))
+        radius = min(radius, max(2, round(face / 25)))
 
     if contours is not None:
         items = contours.values() if isinstance(contours, Mapping) else contours
@@ -177,6 +183,7 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
             cv2.circle(canvas, tuple(_fixed(origin)), (radius + 1) * _ONE, _HEAD, thick,
                        cv2.LINE_AA, _SHIFT)
 
+    thick = frame_thick
     font_scale = max(0.35, min(height, width) / 600)
     if lost:
         cv2.rectangle(canvas, (0, 0), (width - 1, height - 1), _LOST, 2 * thick)

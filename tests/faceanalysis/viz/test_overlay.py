@@ -88,3 +88,18 @@ def test_the_lids_are_drawn_round_the_eye():
     assert not out[52:68, 60:100].any()
     with pytest.raises(ValueError, match="eyelids"):
         draw_overlay(np.zeros((20, 20), np.uint8), eyelids=[np.zeros((15, 2))])
+
+
+def test_marks_are_no_wider_than_a_small_face_calls_for():
+    frame = np.zeros((1080, 1920), np.uint8)
+    line = {"brow": np.array([[900.0, 500.0], [1000.0, 500.0]])}
+    dot = {"chin": (1200.0, 700.0)}
+
+    def widths(head):
+        out = draw_overlay(frame, contours=line, fiducials=dot, head=head).any(axis=2)
+        return int(out[:, 950].sum()), int(out[700, 1150:1250].sum())
+
+    wide_line, wide_dot = widths(None)              # sized by the 1080-px frame
+    small_line, small_dot = widths((1500.0, 200.0, 60.0, 0.0))   # a face 60 px across
+    assert small_line < wide_line and small_dot < wide_dot
+    assert widths((1500.0, 200.0, 600.0, 0.0)) == (wide_line, wide_dot)   # a large face
