@@ -95,8 +95,9 @@ def test_bad_options_are_refused():
         HandTracker(min_presence=1.0)
 
 
-@pytest.mark.real_data
-def test_a_hand_over_a_real_mouth_is_found_and_followed(real_video_dir, models):  # noqa: F811
+def _hand_clip_frames(real_video_dir, numbers) -> dict:
+    """Frames of WolfgangLanger_Pexels.mp4 (a hand over the mouth on 59-227) by number;
+    the test skips where the clip is absent."""
     import cv2
 
     path = real_video_dir / "WolfgangLanger_Pexels.mp4"
@@ -104,10 +105,19 @@ def test_a_hand_over_a_real_mouth_is_found_and_followed(real_video_dir, models):
         pytest.skip(f"{path} is absent")
     cap = cv2.VideoCapture(str(path))
     frames = {}
-    for i in range(106):
+    for i in range(max(numbers) + 1):
         ok, frame = cap.read()
-        if i in (0, 100, 101, 102, 103, 104, 105):
+        if i in numbers:
             frames[i] = frame
+    cap.release()
+    return frames
+
+
+@pytest.mark.real_data
+def test_a_hand_over_a_real_mouth_is_found_and_followed(real_video_dir, models):  # noqa: F811
+    import cv2
+
+    frames = _hand_clip_frames(real_video_dir, (0, 100, 101, 102, 103, 104, 105))
     tracker = HandTracker(channel_order="bgr")
     assert tracker.track(frames[0]) == []               # crying, hands down
     (hand,) = tracker.track(frames[100])                # a hand over the mouth and nose
@@ -126,12 +136,7 @@ def test_a_hand_in_a_wide_frame_is_found_round_the_face(real_video_dir, models):
 
     from trackers.landmarks.hands import detect_palms
 
-    path = real_video_dir / "WolfgangLanger_Pexels.mp4"
-    if not path.is_file():
-        pytest.skip(f"{path} is absent")
-    cap = cv2.VideoCapture(str(path))
-    for _ in range(101):
-        ok, frame = cap.read()
+    frame = _hand_clip_frames(real_video_dir, (100,))[100]
     # the frame halved inside a 1920x1080 one: the hand is 60 px across
     small = cv2.resize(frame, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     wide = cv2.copyMakeBorder(small, 540, 360, 1100, 500, cv2.BORDER_REPLICATE)
