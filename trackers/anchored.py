@@ -673,7 +673,9 @@ class AnchoredTracker:
                 x0, y0, x1, y1 = face
                 half = 0.5 * HAND_SEARCH * max(x1 - x0, y1 - y0)
                 cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-                region = (cx - half, cy - half, cx + half, cy + half)
+                h, w = np.shape(frame)[:2]
+                if cx + half > 1 and cy + half > 1 and cx - half < w - 2 and cy - half < h - 2:
+                    region = (cx - half, cy - half, cx + half, cy + half)
             hands = self.hand_tracker.track(frame, detect=look, region=region)
             if look and not hands:
                 self._since_palm = 0
