@@ -101,6 +101,21 @@ SMALL_EYES_PX = 45.0
 #: zygomaticus major than its crying (0.22 as given).
 SMALL_FACE_IOD = 36.0
 
+#: A neutral frame more than this many times as blocky as the frames of the two seconds after
+#: it (:func:`faceanalysis.io.picture.blockiness`, relative to their median): a warning. Where
+#: the neutral frame was the default, it names the first tracked frame of the next second
+#: that is coded like the rest: its blockiness at most :data:`CLEAN_BLOCKS` times the median
+#: and its sharpness (:func:`faceanalysis.io.picture.sharpness`) at least
+#: :data:`SHARP_ENOUGH` of theirs. cap12 and cap13 of the real clips start at 1.47 and 1.50
+#: (the frames named: 11 and 12, against which their muscles' medians over the clip sum to
+#: 0.00 and 0.03 instead of 0.23 and 0.36; the least blocky frame of cap13's first half
+#: second, 11, still gave 0.32: the encoder's next key picture, 12, is the first sharp one);
+#: the other three real clips start at 1.05-1.11 and the rendered suite's MPEG-4 videos at
+#: 1.04-1.16.
+BLOCKY_NEUTRAL = 1.3
+CLEAN_BLOCKS = 1.1
+SHARP_ENOUGH = 0.8
+
 __all__ = ["Analysis", "ESTIMATORS", "MAX_FIT_RESIDUAL", "MAX_HEAD_TURN", "analyze",
            "analyze_to_folder", "default_estimator", "reestimate"]
 
@@ -374,6 +389,17 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
     _warn_identifiability(video, ident)
     _warn_cuts(video, tracks, k)
+    blocky = _blocky_neutral(video, tracks, k, fps)
+    calib["neutral_blockiness"] = None if blocky is None else round(blocky[0], 3)
+    if neutral is None and blocky is not None and blocky[0] > BLOCKY_NEUTRAL:
+        log.warning("%s: the neutral frame %d is a coarsely coded picture (its 8-px code "
+                    "blocks show %.2f times as much as in the next two seconds, as in an "
+                    "encoder's first pictures): every value is measured from it and biased "
+                    "by it; %s", video, int(tracks.frames[k]), blocky[0],
+                    "give a later frame where the face is at rest (--neutral N)"
+                    if blocky[1] is None else
+                    f"if the face is at rest there, frame {blocky[1]}, the first coded like "
+                    f"the rest, is a better neutral frame (--neutral {blocky[1]})")
     iod = _interocular_px(tracks)
     if iod is not None and iod < SMALL_FACE_IOD:
         log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
@@ -700,6 +726,44 @@ def _correct_pose(disp: np.ndarray, pose: np.ndarray, k: int, response: Fiducial
     # the model's x-y, which the calibration was fitted to, with the generic face's depth
     rest[:, :2] = response.rest
     return correct_pose(disp, pose, k, rest, reference=head_frame_points()), True
+
+
+def _blocky_neutral(video, tracks: Tracks, k: int, fps) -> tuple[float, int | None] | None:
+    """The neutral frame's (row ``k``) blockiness over the median of the frames of the two
+    seconds after it (at least :data:`~faceanalysis.io.cuts.MIN_SHOT` frames), and the first
+    tracked frame of the next second coded like them (:data:`CLEAN_BLOCKS`,
+    :data:`SHARP_ENOUGH`; None where none is); None where fewer frames follow or they cannot
+    be read again."""
+    from faceanalysis.io.cuts import MIN_SHOT
+    from faceanalysis.io.picture import blockiness, sharpness
+    from faceanalysis.io.video import open_video
+
+    rate = float(tracks.input.get("fps") or 0) if isinstance(tracks.input, dict) else 0.0
+    if not rate > 0:
+        return None
+    first = int(tracks.frames[k])
+    stop = min(first + max(MIN_SHOT, round(2 * rate)), int(tracks.frames[-1]) + 1)
+    if np.count_nonzero((tracks.frames >= first) & (tracks.frames < stop)) < MIN_SHOT:
+        return None
+    blocks, sharp = {}, {}
+    try:
+        with open_video(video, fps=fps, start=first, end=stop, eight_bit=True) as source:
+            for frame in source:
+                if frame.ok:
+                    blocks[frame.index] = blockiness(frame.image)
+                    sharp[frame.index] = sharpness(frame.image)
+    except (OSError, ValueError):
+        return None
+    typical = np.nanmedian(list(blocks.values())) if blocks else np.nan
+    own = blocks.get(first, np.nan)
+    if not (np.isfinite(own) and np.isfinite(typical) and typical > 0):
+        return None
+    crisp = SHARP_ENOUGH * float(np.median(list(sharp.values())))
+    clean = [int(f) for f, ok in zip(tracks.frames, tracks.success)
+             if ok and first < f <= first + round(rate)
+             and blocks.get(int(f), np.inf) <= CLEAN_BLOCKS * typical
+             and sharp.get(int(f), -1.0) >= crisp]
+    return own / typical, clean[0] if clean else None
 
 
 def _interocular_px(tracks: Tracks) -> float | None:

@@ -891,3 +891,34 @@ def test_a_small_face_is_measured_and_warned_about(tmp_path, caplog, surprise):
         near = analyze(surprise["video"], end=4)
     assert near.metadata["quality"]["interocular_px"] > SMALL_FACE_IOD
     assert "the face is small" not in caplog.text
+
+
+def test_a_coarsely_coded_neutral_frame_is_warned_about(tmp_path, caplog, surprise):
+    from faceanalysis.analysis.pipeline import BLOCKY_NEUTRAL
+
+    cap = cv2.VideoCapture(str(surprise["video"]))
+    for i in range(24):
+        ok, img = cap.read()
+        assert ok
+        if i < 6:       # an encoder's first pictures: coarse blocks, less detail
+            ok, data = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 8])
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), img)
+    cap.release()
+    with caplog.at_level("WARNING"):
+        coarse = analyze(tmp_path, fps=12.0)
+    assert coarse.metadata["calibration"]["neutral_blockiness"] > BLOCKY_NEUTRAL
+    assert "the neutral frame 0 is a coarsely coded picture" in caplog.text
+    assert "frame 6, the first coded like the rest" in caplog.text
+    # a neutral frame given is the user's choice: measured, not warned about
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        given = analyze(tmp_path, fps=12.0, neutral=2)
+    assert given.metadata["calibration"]["neutral_blockiness"] > BLOCKY_NEUTRAL
+    assert "coarsely coded" not in caplog.text
+    # the rendered video as written: no warning
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        plain = analyze(surprise["video"])
+    assert plain.metadata["calibration"]["neutral_blockiness"] < BLOCKY_NEUTRAL
+    assert "coarsely coded" not in caplog.text
