@@ -106,12 +106,12 @@ SMALL_FACE_IOD = 36.0
 #: the neutral frame was the default, it names the first tracked frame of the next second
 #: that is coded like the rest: its blockiness at most :data:`CLEAN_BLOCKS` times the median
 #: and its sharpness (:func:`faceanalysis.io.picture.sharpness`) at least
-#: :data:`SHARP_ENOUGH` of theirs. cap12 and cap13 of the real clips start at 1.47 and 1.50
+#: :data:`SHARP_ENOUGH` of theirs. cap12 and cap13 of the real clips start at 1.45 and 1.47
 #: (the frames named: 11 and 12, against which their muscles' medians over the clip sum to
 #: 0.00 and 0.03 instead of 0.23 and 0.36; the least blocky frame of cap13's first half
 #: second, 11, still gave 0.32: the encoder's next key picture, 12, is the first sharp one);
-#: the other three real clips start at 1.05-1.11 and the rendered suite's MPEG-4 videos at
-#: 1.04-1.16.
+#: the other three real clips start at 1.02-1.05 and the rendered suite's MPEG-4 videos at
+#: 1.04-1.16. Measured round the face (a square three times its size, at most 512 px).
 BLOCKY_NEUTRAL = 1.3
 CLEAN_BLOCKS = 1.1
 SHARP_ENOUGH = 0.8
@@ -745,13 +745,25 @@ def _blocky_neutral(video, tracks: Tracks, k: int, fps) -> tuple[float, int | No
     stop = min(first + max(MIN_SHOT, round(2 * rate)), int(tracks.frames[-1]) + 1)
     if np.count_nonzero((tracks.frames >= first) & (tracks.frames < stop)) < MIN_SHOT:
         return None
+    # measured round the face, on the frame's own block grid (the crop starts on it): a
+    # large frame's measures would cost more than the rest of the analysis's start
+    mesh = tracks.landmarks[k] if tracks.landmarks is not None else None
+    if mesh is not None:
+        lo, hi = np.asarray(mesh, float)[:, :2].min(0), np.asarray(mesh, float)[:, :2].max(0)
+    else:
+        x, y, scale = (float(v) for v in tracks.heads[k][:3])
+        lo, hi = np.array([x - scale, y - scale]), np.array([x + scale, y + 2 * scale])
+    half = min(256.0, max(32.0, 1.5 * float((hi - lo).max())))
+    x0, y0 = (int(max(0.0, c - half)) // 8 * 8 for c in (lo + hi) / 2)
+    side = int(2 * half)
     blocks, sharp = {}, {}
     try:
         with open_video(video, fps=fps, start=first, end=stop, eight_bit=True) as source:
             for frame in source:
                 if frame.ok:
-                    blocks[frame.index] = blockiness(frame.image)
-                    sharp[frame.index] = sharpness(frame.image)
+                    crop = frame.image[y0:y0 + side, x0:x0 + side]
+                    blocks[frame.index] = blockiness(crop)
+                    sharp[frame.index] = sharpness(crop)
     except (OSError, ValueError):
         return None
     typical = np.nanmedian(list(blocks.values())) if blocks else np.nan
