@@ -185,6 +185,9 @@ def _summarise(folder: Path) -> dict:
     # every value of the video is measured from its neutral frame
     params = metadata.get("parameters") if isinstance(metadata, dict) else None
     record["neutral_frame"] = _finite_or_nan((params or {}).get("neutral_frame"))
+    calibration = metadata.get("calibration") if isinstance(metadata, dict) else None
+    # a coarsely coded neutral frame (an encoder's first pictures) biases every value
+    record["neutral_blockiness"] = _finite_or_nan((calibration or {}).get("neutral_blockiness"))
     cuts = quality.get("shot_cuts")
     # an edited video: the face after a cut may be someone else (analyses that say so)
     record["shot_cuts"] = len(cuts) if isinstance(cuts, list) else math.nan

@@ -486,6 +486,9 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
                 else row["frames_turned"] == turned)
         assert row["shot_cuts"] == len(reference.metadata["quality"]["shot_cuts"]) == 0
         assert row["neutral_frame"] == reference.metadata["parameters"]["neutral_frame"]
+        blocks = reference.metadata["calibration"]["neutral_blockiness"]
+        assert (pd.isna(row["neutral_blockiness"]) if blocks is None
+                else row["neutral_blockiness"] == blocks)
         iod = reference.metadata["quality"]["interocular_px"]
         assert pd.isna(row["interocular_px"]) if iod is None else row["interocular_px"] == iod
     # the smiling clip smiles more than the frowning one, in the summary as in the truth
