@@ -766,7 +766,8 @@ def _blocky_neutral(video, tracks: Tracks, k: int, fps) -> tuple[float, int | No
                     sharp[frame.index] = sharpness(crop)
     except (OSError, ValueError):
         return None
-    typical = np.nanmedian(list(blocks.values())) if blocks else np.nan
+    measured = [b for b in blocks.values() if np.isfinite(b)]    # (a flat crop has none)
+    typical = float(np.median(measured)) if measured else np.nan
     own = blocks.get(first, np.nan)
     if not (np.isfinite(own) and np.isfinite(typical) and typical > 0):
         return None
