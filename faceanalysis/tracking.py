@@ -565,9 +565,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             hint = ""
             if kind == "landmarks" and getattr(getattr(tracker, "landmarks", None),
                                                "full_range", True) is False:
-                hint = (" (a face narrower than about a tenth of the frame needs the "
-                        "full-range detector, which runs with LiteRT: pip install "
-                        "ai-edge-litert)")
+                hint = (" (with OpenCV's TFLite reader a face narrower than about a "
+                        "twentieth of the frame is not found; the full-range detector, which "
+                        "finds it, runs with LiteRT: pip install ai-edge-litert)")
             raise ValueError(f"{video}: no face found in any of the {len(frames)} "
                              f"frames{hint}")
         if writer is not None:

@@ -16,7 +16,7 @@ from trackers.landmarks.mesh import _run as _mesh
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["RECROP", "FAR_SIZE", "Landmarks", "LandmarkTracker"]
+__all__ = ["RECROP", "FAR_SIZE", "TILE_EVERY", "Landmarks", "LandmarkTracker"]
 
 #: Crop change (pixels of the 192-pixel crop) beyond which a tracking frame is read again
 #: from the crop its own landmarks call for (:class:`LandmarkTracker`, ``recrop``). On
@@ -43,6 +43,35 @@ _CROP_CORNERS = np.array([[0, _SIZE - 1, 0, _SIZE - 1], [0, 0, _SIZE - 1, _SIZE 
 #: started from them can settle on a wrong fit (WolfgangLanger at 26 px between the eyes:
 #: 43 px and presence 0.55 from the full-range box, 25.4 px and 1.0 from the second look).
 CLOSER_LOOK = 4.0
+
+
+#: With ``tiles``, the tiled search runs on every this many frames while no face is found
+#: (18 tiles of a 16:9 frame: some 50 ms with OpenCV's reader), not on every one.
+TILE_EVERY = 5
+
+
+def _tiled(net, image, channel_order: str, min_score: float) -> list:
+    """The faces the short-range detector ``net`` finds on square tiles of half the frame's
+    shorter side, overlapping by half, in the frame's pixels."""
+    h, w = image.shape[:2]
+    side = min(h, w) // 2
+    if side < 64:
+        return []
+    step = side // 2
+
+    def starts(length):
+        out = list(range(0, length - side + 1, step))
+        return out if out[-1] + side >= length else [*out, length - side]
+
+    faces = []
+    for y in starts(h):
+        for x in starts(w):
+            offset = np.array([x, y], float)
+            for f in _detect(net, image[y:y + side, x:x + side], channel_order, min_score):
+                faces.append(FaceDetection(tuple(float(v) for v in
+                                                 np.add(f.box, np.tile(offset, 2))),
+                                           f.keypoints + offset, f.score))
+    return faces
 
 
 def _closer_look(net, image, face, channel_order: str, min_score: float):
@@ -124,6 +153,11 @@ class LandmarkTracker:
         ``model='full'``), which finds faces down to about 2 % of the frame's width (a
         person across a room in a wide shot) where the short one stops at about a tenth.
         Default: where the runtime can run it (LiteRT).
+    tiles : bool, optional
+        Where neither detector finds a face, look with the short-range one on half-size
+        square tiles of the frame (overlapping by half; :data:`TILE_EVERY`), which shows it
+        a far face at twice the scale: for OpenCV's reader, which cannot run the full-range
+        detector. Default: where ``full_range`` is off.
 
     Notes
     -----
@@ -141,7 +175,8 @@ class LandmarkTracker:
 
     def __init__(self, *, channel_order: str = "rgb", runtime: str = "auto",
                  min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True,
-                 recrop: float = RECROP, full_range: bool | None = None):
+                 recrop: float = RECROP, full_range: bool | None = None,
+                 tiles: bool | None = None):
         check_image(np.zeros((2, 2), np.uint8), channel_order)
         # resolved once: 'auto' looks for LiteRT on the import path, which costs
         # file-system calls (and, with decoding in another thread, the GIL) every frame
@@ -160,6 +195,7 @@ class LandmarkTracker:
             raise ValueError("full_range=True needs the LiteRT runtime (OpenCV's TFLite "
                              "reader lacks the full-range detector's DENSIFY operator)")
         self.full_range = self._runtime == "litert" if full_range is None else bool(full_range)
+        self.tiles = not self.full_range if tiles is None else bool(tiles)
         self._executor: ThreadPoolExecutor | None = None
         self._pending = None       # (frame, future, state before it) of a prefetch
         self.reset()
@@ -226,13 +262,16 @@ class LandmarkTracker:
         near = self._net("face_detection")
         faces = _detect(near, image, self.channel_order, self.min_score)
         far = not faces and self.full_range
+        tiled = not faces and not far and self.tiles and self._lost % TILE_EVERY == 0
         if far:
             faces = _detect(self._net("face_detection_full_range"), image, self.channel_order,
                             self.min_score, full=True)
-            if self._last_size is not None:
-                # a face far smaller than the one just lost is someone else's
-                faces = [f for f in faces if max(f.box[2] - f.box[0], f.box[3] - f.box[1])
-                         >= FAR_SIZE * self._last_size]
+        elif tiled:
+            faces = _tiled(near, image, self.channel_order, self.min_score)
+        if (far or tiled) and self._last_size is not None:
+            # a face far smaller than the one just lost is someone else's
+            faces = [f for f in faces if max(f.box[2] - f.box[0], f.box[3] - f.box[1])
+                     >= FAR_SIZE * self._last_size]
         if not faces:
             return None, 0.0
         boxes = np.array([f.box for f in faces])

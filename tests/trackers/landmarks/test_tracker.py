@@ -125,7 +125,7 @@ def test_crop_change_is_in_crop_pixels(face):
 def test_a_face_far_from_the_camera_is_found_by_the_full_range_detector(face):
     img, corners = face
     far, k, offset = far_scene(img)
-    assert LandmarkTracker(full_range=False).track(far) is None
+    assert LandmarkTracker(full_range=False, tiles=False).track(far) is None
     tracker = LandmarkTracker()
     assert tracker.full_range
     lm = tracker.track(far)
@@ -210,6 +210,28 @@ def test_a_real_face_24_px_between_the_eyes_is_fitted_at_its_size(real_video_dir
     # (from the full-range detector's own box the mesh settles 30 % too large)
     assert lm is not None and lm.presence > 0.9
     assert iod(lm.points) == pytest.approx(0.24 * given, rel=0.05)
+
+
+def test_without_the_full_range_detector_a_far_face_is_found_on_tiles(face, monkeypatch):
+    import trackers.landmarks.tracker as T
+
+    img, corners = face
+    far, k, offset = far_scene(img)
+    tracker = LandmarkTracker(runtime="opencv")        # cannot run the full-range model
+    assert not tracker.full_range and tracker.tiles
+    lm = tracker.track(far)
+    assert lm is not None and lm.detected
+    true = corners * k + offset
+    assert np.abs(lm.points[[61, 291]] - true).max() < 0.3 * np.ptp(true[:, 0])
+    # while no face is found, the tiles are searched on every TILE_EVERY-th frame
+    calls = []
+    real = T._tiled
+    monkeypatch.setattr(T, "_tiled", lambda *a: calls.append(1) or real(*a))
+    blank = np.full_like(far, 128)
+    searcher = LandmarkTracker(runtime="opencv")
+    for _ in range(2 * T.TILE_EVERY + 1):
+        assert searcher.track(blank) is None
+    assert len(calls) == 3
 
 
 def test_bad_settings_are_refused():
