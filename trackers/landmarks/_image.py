@@ -1,4 +1,5 @@
-"""Frame validation and the affine sampling shared by the detector and the landmark model."""
+"""Frame validation, regions and the affine sampling shared by the detectors and the landmark
+models."""
 
 from __future__ import annotations
 
@@ -38,3 +39,18 @@ def sample(image: np.ndarray, crop_to_image: np.ndarray, size: int, channel_orde
     if crop.ndim == 2:
         return np.repeat(crop[:, :, None], 3, axis=2)
     return crop[:, :, ::-1] if channel_order == "bgr" else crop
+
+
+def region_crop(image: np.ndarray, region) -> tuple[np.ndarray, np.ndarray]:
+    """The part of ``image`` within ``region`` (x0, y0, x1, y1; clipped to the image, out to
+    whole pixels) and its top-left corner (x, y), by which what a detector finds there moves
+    back into the image; ValueError where nothing of it is in the image."""
+    h, w = image.shape[:2]
+    x0, y0, x1, y1 = (float(v) for v in region)
+    if not all(np.isfinite([x0, y0, x1, y1])):
+        raise ValueError(f"region must be four finite numbers, got {region!r}")
+    x0, y0 = max(0, int(np.floor(x0))), max(0, int(np.floor(y0)))
+    x1, y1 = min(w, int(np.ceil(x1))), min(h, int(np.ceil(y1)))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ValueError(f"region {region!r} lies outside the {w}x{h} image")
+    return image[y0:y1, x0:x1], np.array([x0, y0], float)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from trackers.landmarks._image import check_image, sample
+from trackers.landmarks._image import check_image, region_crop, sample
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
@@ -182,9 +182,14 @@ def detect_faces(image, *, channel_order: str = "rgb", min_score: float = 0.5,
 
 
 def _run(net, image: np.ndarray, channel_order: str, min_score: float, *,
-         full: bool = False) -> list[FaceDetection]:
-    """:func:`detect_faces` with the network given and the arguments checked."""
+         full: bool = False, region=None) -> list[FaceDetection]:
+    """:func:`detect_faces` with the network given and the arguments checked; with
+    ``region`` (x0, y0, x1, y1), on that part of the image only (which the detector then
+    sees at a larger scale), the faces in the whole image's pixels."""
     size, anchors = (_FULL_SIZE, _FULL_ANCHORS) if full else (_SIZE, _ANCHORS)
+    offset = np.zeros(2)
+    if region is not None:
+        image, offset = region_crop(image, region)
     square, to_image = letterbox(image, size, channel_order)
     x = square[None].astype(np.float32) / 127.5 - 1
     if full:
@@ -193,7 +198,7 @@ def _run(net, image: np.ndarray, channel_order: str, min_score: float, *,
         scores_logit, regressors = net.run(x)   # 'classificators', 'regressors'
     faces = []
     for box, kp, score in decode_ssd(regressors, scores_logit, anchors, size, min_score):
-        box = to_image(box.reshape(2, 2)).ravel()
-        faces.append(FaceDetection(tuple(float(v) for v in box), to_image(kp),
+        box = (to_image(box.reshape(2, 2)) + offset).ravel()
+        faces.append(FaceDetection(tuple(float(v) for v in box), to_image(kp) + offset,
                                    float(score)))
     return faces

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from trackers.landmarks._image import check_image, sample
+from trackers.landmarks._image import check_image, region_crop, sample
 from trackers.landmarks.detection import decode_ssd, letterbox, ssd_anchors
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
@@ -97,36 +97,20 @@ def hand_roi_transform(points) -> np.ndarray:
 
 
 def _detect(net, image: np.ndarray, channel_order: str, min_score: float, region=None):
-    x0 = y0 = 0
+    offset = np.zeros(2)
     if region is not None:
-        x0, y0, x1, y1 = _region(region, image.shape)
-        image = image[y0:y1, x0:x1]
+        image, offset = region_crop(image, region)
     square, to_image = letterbox(image, _PALM_SIZE, channel_order)
     x = net.input_buffer((1, _PALM_SIZE, _PALM_SIZE, 3))
     np.divide(square, np.float32(255), out=x[0])
     regressors, logits = net.run(x)   # 'Identity', 'Identity_1'
     palms = []
-    offset = np.array([x0, y0], float)
     for box, kp, score in decode_ssd(regressors, logits, _PALM_ANCHORS, _PALM_SIZE,
                                      min_score):
         box = (to_image(box.reshape(2, 2)) + offset).ravel()
         palms.append(PalmDetection(tuple(float(v) for v in box), to_image(kp) + offset,
                                    float(score)))
     return palms
-
-
-def _region(region, shape) -> tuple[int, int, int, int]:
-    """``region`` (x0, y0, x1, y1) as whole pixels within an image of ``shape``; ValueError
-    where nothing of it is in the image."""
-    h, w = shape[:2]
-    x0, y0, x1, y1 = (float(v) for v in region)
-    if not all(np.isfinite([x0, y0, x1, y1])):
-        raise ValueError(f"region must be four finite numbers, got {region!r}")
-    x0, y0 = max(0, int(np.floor(x0))), max(0, int(np.floor(y0)))
-    x1, y1 = min(w, int(np.ceil(x1))), min(h, int(np.ceil(y1)))
-    if x1 - x0 < 2 or y1 - y0 < 2:
-        raise ValueError(f"region {region!r} lies outside the {w}x{h} image")
-    return x0, y0, x1, y1
 
 
 def _landmarks(net, image: np.ndarray, crop_to_image: np.ndarray, channel_order: str):

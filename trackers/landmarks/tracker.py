@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from trackers.landmarks._image import check_image
-from trackers.landmarks.detection import FaceDetection
 from trackers.landmarks.detection import _run as _detect
 from trackers.landmarks.mesh import _SIZE, roi_transform
 from trackers.landmarks.mesh import _run as _mesh
@@ -63,15 +62,9 @@ def _tiled(net, image, channel_order: str, min_score: float) -> list:
         out = list(range(0, length - side + 1, step))
         return out if out[-1] + side >= length else [*out, length - side]
 
-    faces = []
-    for y in starts(h):
-        for x in starts(w):
-            offset = np.array([x, y], float)
-            for f in _detect(net, image[y:y + side, x:x + side], channel_order, min_score):
-                faces.append(FaceDetection(tuple(float(v) for v in
-                                                 np.add(f.box, np.tile(offset, 2))),
-                                           f.keypoints + offset, f.score))
-    return faces
+    return [f for y in starts(h) for x in starts(w)
+            for f in _detect(net, image, channel_order, min_score,
+                             region=(x, y, x + side, y + side))]
 
 
 def _closer_look(net, image, face, channel_order: str, min_score: float):
@@ -80,17 +73,15 @@ def _closer_look(net, image, face, channel_order: str, min_score: float):
     x0, y0, x1, y1 = face.box
     half = 0.5 * CLOSER_LOOK * max(x1 - x0, y1 - y0)
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    h, w = image.shape[:2]
-    left, top = max(0, int(cx - half)), max(0, int(cy - half))
-    right, bottom = min(w, int(np.ceil(cx + half))), min(h, int(np.ceil(cy + half)))
-    seen = _detect(net, image[top:bottom, left:right], channel_order, min_score)
+    try:
+        seen = _detect(net, image, channel_order, min_score,
+                       region=(cx - half, cy - half, cx + half, cy + half))
+    except ValueError:        # the square misses the image
+        return face
     if not seen:
         return face
-    offset = np.array([left, top], float)
     centres = np.array([[(f.box[0] + f.box[2]) / 2, (f.box[1] + f.box[3]) / 2] for f in seen])
-    best = seen[int(np.argmin(np.hypot(*(centres + offset - [cx, cy]).T)))]
-    return FaceDetection(tuple(float(v) for v in np.add(best.box, np.tile(offset, 2))),
-                         best.keypoints + offset, best.score)
+    return seen[int(np.argmin(np.hypot(*(centres - [cx, cy]).T)))]
 
 
 def _crop_change(a, b) -> float:

@@ -153,9 +153,11 @@ def test_a_hand_in_a_wide_frame_is_found_round_the_face(real_video_dir, models):
 
 
 def test_the_palm_region_is_checked(models):  # noqa: F811
-    from trackers.landmarks.hands import _region, detect_palms
+    from trackers.landmarks._image import region_crop
+    from trackers.landmarks.hands import detect_palms
 
-    assert _region((-5.5, 10.2, 50.1, 900), (100, 200, 3)) == (0, 10, 51, 100)
+    part, corner = region_crop(np.zeros((100, 200, 3)), (-5.5, 10.2, 50.1, 900))
+    assert (*corner, corner[0] + part.shape[1], corner[1] + part.shape[0]) == (0, 10, 51, 100)
     with pytest.raises(ValueError, match="outside"):
         detect_palms(np.zeros((100, 200, 3), np.uint8), region=(300, 0, 400, 50))
     with pytest.raises(ValueError, match="finite"):
