@@ -626,7 +626,7 @@ def find_face(video: str | os.PathLike, *, fps: float | None = None, start: int 
     FileNotFoundError, ValueError
         As :func:`track`; FaceAnalysisError where the face models cannot be obtained.
     """
-    from trackers.landmark_contours import eye_centres
+    from trackers.landmark_contours import interocular_distance
     from trackers.landmarks import LandmarkTracker, detect_faces, ensure_models
 
     if max_frames is not None and (isinstance(max_frames, bool) or int(max_frames) != max_frames
@@ -650,8 +650,7 @@ def find_face(video: str | os.PathLike, *, fps: float | None = None, start: int 
                 continue
             near = detect_faces(frame.image, channel_order="bgr")
             return {"frame": int(frame.index),
-                    "interocular_px": round(float(np.hypot(*np.subtract(
-                        *eye_centres(lm.points)))), 1),
+                    "interocular_px": round(interocular_distance(lm.points), 1),
                     "box": [round(v, 1) for v in lm.box],
                     "detector": "short" if near else "full"}
     return None

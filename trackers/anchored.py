@@ -41,11 +41,13 @@ from trackers.head_search import _apply_similarity
 from trackers.landmark_contours import (
     RIGID_POINTS,
     eye_centres,
+    interocular_distance,
     landmark_curves,
     layout_from_landmarks,
 )
 from trackers.layout import CONTOUR_NAMES
 from trackers.polyline import resample_polyline
+from trackers.potentials import to_gray
 from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
@@ -698,7 +700,7 @@ class AnchoredTracker:
         """The whole factor that brings the face of ``points`` to ``max_iod`` or below."""
         if self.max_iod is None:
             return 1
-        iod = float(np.hypot(*np.subtract(*eye_centres(points))))
+        iod = interocular_distance(points)
         return max(1, math.ceil(iod / self.max_iod))
 
     def _set_gain(self, frame, box) -> None:
@@ -710,13 +712,10 @@ class AnchoredTracker:
         h, w = img.shape[:2]
         x0, y0 = max(0, int(box[0])), max(0, int(box[1]))
         x1, y1 = min(w, int(np.ceil(box[2]))), min(h, int(np.ceil(box[3])))
-        face = img[y0:y1, x0:x1]
-        if face.size == 0:
+        if x1 - x0 < 3 or y1 - y0 < 3:
             return
-        if face.ndim == 3 and face.shape[2] >= 3:
-            face = cv2.cvtColor(np.ascontiguousarray(face[..., :3]), cv2.COLOR_BGR2GRAY
-                                if self.channel_order == "bgr" else cv2.COLOR_RGB2GRAY)
-        level = float(np.percentile(face, 95))
+        level = float(np.percentile(to_gray(img[y0:y1, x0:x1],
+                                            channel_order=self.channel_order), 95))
         if level < MIN_FACE_LEVEL:
             self.gain = min(MAX_GAIN, MIN_FACE_LEVEL / max(level, 1.0))
             self._lut = np.clip(np.round(np.arange(256) * self.gain), 0, 255).astype(np.uint8)

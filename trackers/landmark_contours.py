@@ -27,6 +27,7 @@ __all__ = [
     "MESH_CURVES",
     "RIGID_POINTS",
     "eye_centres",
+    "interocular_distance",
     "landmark_curves",
     "layout_from_landmarks",
 ]
@@ -104,6 +105,11 @@ def eye_centres(points) -> np.ndarray:
     """(2, 2) eye centres from the mesh: row 0 subject's right (image left)."""
     p = _check(points)
     return p[_EYE_INDEX].mean(axis=1)
+
+
+def interocular_distance(points) -> float:
+    """The distance between the mesh's eye centres (:func:`eye_centres`), in its units."""
+    return float(np.hypot(*np.subtract(*eye_centres(points))))
 
 
 def landmark_curves(points, *, eyes=None) -> dict[str, np.ndarray]:

@@ -63,7 +63,7 @@ from faceanalysis.tracking import (
     track,
 )
 from trackers.fiducials import HeadFrame
-from trackers.landmark_contours import eye_centres
+from trackers.landmark_contours import interocular_distance
 
 log = logging.getLogger(__name__)
 
@@ -782,7 +782,7 @@ def _blocky_neutral(video, tracks: Tracks, k: int, fps) -> tuple[float, int | No
 def _interocular_px(tracks: Tracks) -> float | None:
     """The median distance between the eye centres (pixels) over the tracked frames with
     the landmark tracker's face mesh; None without one."""
-    gaps = [float(np.hypot(*np.subtract(*eye_centres(np.asarray(m, float)[:, :2]))))
+    gaps = [interocular_distance(np.asarray(m, float)[:, :2])
             for m, ok in zip(tracks.landmarks or (), tracks.success) if ok and m is not None]
     return float(np.median(gaps)) if gaps else None
 
