@@ -421,7 +421,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     return Analysis(table=table, contours=tracks.contours, metadata=metadata, calibration=cal,
                     response=response, measurements=meas, timings=timings,
                     fit_residual=residual, track_confidence=tracks.confidence, tracks=tracks,
-                    mirrored_tracks=mirrored)
+                    mirrored_tracks=mirrored, estimate=est)
 
 
 def _estimate(tracks: Tracks, k: int, response: FiducialResponse, estimator: str,
@@ -1063,7 +1063,7 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
                     calibration=analysis.calibration, response=analysis.response,
                     measurements=analysis.measurements, timings=dict(analysis.timings),
                     fit_residual=residual, track_confidence=track_conf, tracks=tracks,
-                    mirrored_tracks=mirrored)
+                    mirrored_tracks=mirrored, estimate=est)
 
 
 def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.estimation.calibration import Calibration
+from faceanalysis.estimation.registry import Estimate
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.outputs import (
     ANALYSIS_JSON,
@@ -66,7 +67,8 @@ class Analysis:
     calibration : Calibration
         The neutral-frame calibration.
     response : FiducialResponse
-        The model response the estimate inverted.
+        The model response of the 16 contour points (the calibration's; the estimators
+        that read more points carry theirs in ``estimate``).
     measurements : ndarray, shape (T, P, 2)
         Image positions of the response's measurement points (the 11 fiducials and
         the lower lip's centre) per frame; NaN for lost frames.
@@ -81,6 +83,12 @@ class Analysis:
         What the tracker saw (:func:`faceanalysis.tracking.track`).
     mirrored_tracks : Tracks or None
         What it saw in the video mirrored, with ``mirror_check`` (else None).
+    estimate : Estimate or None
+        What the estimator fitted (:class:`~faceanalysis.estimation.registry.Estimate`):
+        the response table of the points it read (``estimate.response.fiducials``, e.g.
+        the contour points and the face mesh's), their displacements from the neutral
+        frame in model cm (``estimate.displacements``, x = subject's left, y up) and its
+        values before the table's post-processing.
     """
 
     table: pd.DataFrame
@@ -94,6 +102,7 @@ class Analysis:
     track_confidence: np.ndarray | None = None
     tracks: Tracks | None = None
     mirrored_tracks: Tracks | None = None
+    estimate: Estimate | None = None
 
     @property
     def fiducials(self) -> np.ndarray:

@@ -35,6 +35,11 @@ def test_the_default_analysis_is_the_landmark_tracker_with_the_mesh_fit(surprise
     assert (p["tracker"], p["estimator"]) == ("landmarks", "mesh")
     assert a.table["success"].all()
     assert any(n.startswith("mesh_") for n in p["measurement_points"])
+    # what the estimator fitted: every point it read, from the neutral (first) frame
+    est = a.estimate
+    assert list(est.response.fiducials) == p["measurement_points"]
+    assert est.displacements.shape == (len(a.table), len(p["measurement_points"]), 2)
+    np.testing.assert_allclose(np.nan_to_num(est.displacements[0]), 0.0, atol=1e-9)
     # the snakes keep the joint fit
     assert analyze(surprise["video"], end=3, tracker="snakes").metadata[
         "parameters"]["estimator"] == "joint"
