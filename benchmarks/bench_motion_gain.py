@@ -3,11 +3,12 @@
 The ``mesh`` estimator reads each face-mesh landmark as the skin point under it on the
 neutral frame. On a rendered sequence the skin points' exact motion is known, so each
 tracked point's share of it can be measured
-(:func:`faceanalysis.evaluation.motion_gain.motion_gain`: the least-squares gain of the
+(:func:`faceanalysis.evaluation.motion_gain.sequence_gain`: the least-squares gain of the
 tracked displacements on the exact ones, pooled over the sequences weighted by how far the
-point moved). Reported per region of the face (bands of the model's rest positions: the
-forehead, the brows, the cheeks and nose between the brows and the mouth, the mouth, the
-chin) as the median over its face-mesh points, and for the 16 contour points, on:
+point moved, :func:`~faceanalysis.evaluation.motion_gain.pool_gains`). Reported per region
+of the face (bands of the model's rest positions: the forehead, the brows, the cheeks and
+nose between the brows and the mouth, the mouth, the chin) as the median over its face-mesh
+points, and for the 16 contour points, on:
 
 * the standard suite's procedural faces (the first two identities, its 11 scripts, head
   motion, noise and light as the suite renders them), analysed by default;
@@ -108,12 +109,10 @@ def _gains(kind: str, quick: bool):
     two muscles over the sequences of ``kind``."""
     import pandas as pd
 
-    from faceanalysis.analysis.pipeline import analyze
-    from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
-    from faceanalysis.evaluation.motion_gain import exact_displacements, motion_gain
+    from faceanalysis.evaluation.motion_gain import pool_gains, sequence_gain
     from faceanalysis.evaluation.suite import STANDARD_SEQUENCES, _label, script_kwargs
 
-    dot = energy = response = None
+    gains, motions, response = [], [], None
     pairs = {"zygomaticus_major": ([], []), "frontalis_major": ([], [])}
     skipped = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -121,28 +120,21 @@ def _gains(kind: str, quick: bool):
             for script in STANDARD_SEQUENCES:
                 d = Path(tmp) / f"{i}_{_label(*script)}"
                 render(d, **script_kwargs(*script))
-                truth = pd.read_csv(d / "truth.csv")
-                a = analyze(d / "video.mp4")
-                if a.metadata["parameters"]["neutral_frame"] != 0:
-                    skipped += 1          # the exact motion is from frame 0
+                g, motion, a = sequence_gain(d, model)
+                if not np.isfinite(g).any():
+                    skipped += 1          # the neutral frame was not the first
                     continue
-                est = a.estimate
-                response = est.response
-                controls = [c for c in truth.columns
-                            if c in model.muscle_names or c == "jaw_rotation"]
-                exact = exact_displacements(model, truth[controls].iloc[:len(a.table)],
-                                            response, calibrate_on=len(MEASUREMENT_POINTS))
-                g, motion = motion_gain(est.displacements, exact)
-                e2 = motion ** 2
-                dot = np.nan_to_num(g * e2) + (0 if dot is None else dot)
-                energy = e2 + (0 if energy is None else energy)
+                gains.append(g)
+                motions.append(motion)
+                response = a.estimate.response
+                truth = pd.read_csv(d / "truth.csv")
                 ok = a.table["success"].to_numpy(bool)
                 for m, (t, r) in pairs.items():
                     for s in "lr":
                         t.extend(truth[f"{m}_{s}"].to_numpy(float)[:len(ok)][ok])
                         r.extend(a.table[f"{m}_{s}"].to_numpy(float)[ok])
-    gain = np.where(energy > 0, dot / np.maximum(energy, 1e-12), np.nan)
-    return gain, np.sqrt(energy), response, pairs, skipped
+    gain, motion = pool_gains(gains, motions)
+    return gain, motion, response, pairs, skipped
 
 
 def _faces(quick: bool) -> tuple[list[Figure], dict]:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from faceanalysis.estimation.response import FiducialResponse
 
-__all__ = ["exact_displacements", "motion_gain"]
+__all__ = ["exact_displacements", "motion_gain", "pool_gains", "sequence_gain"]
 
 
 def _check_displacements(name: str, a) -> np.ndarray:
@@ -115,3 +115,55 @@ def exact_displacements(model, contractions: pd.DataFrame, response: FiducialRes
                          f"{calibrate_on}")
     points = perfect_measurements(model, contractions, response.fiducials)
     return _displacements(points, response, calibrate_on=calibrate_on)
+
+
+def sequence_gain(folder, model) -> tuple[np.ndarray, np.ndarray, object]:
+    """Gain of each point the default analysis reads on one rendered sequence.
+
+    Parameters
+    ----------
+    folder : path
+        A rendered sequence (``video.mp4`` and ``truth.csv``, as
+        :func:`synth.render.sequence.render_sequence` writes them), starting at rest.
+    model : synth.model.FaceModel
+        The face it was rendered from.
+
+    Returns
+    -------
+    gain, motion : ndarray, shape (P,)
+        :func:`motion_gain` of the points the analysis's estimator read (NaN gains where
+        the first frame was not the neutral one: the exact motion is from frame 0).
+    analysis : Analysis
+        The analysis (its ``estimate.response.fiducials`` name the points).
+    """
+    from pathlib import Path
+
+    from faceanalysis.analysis.pipeline import analyze
+    from faceanalysis.estimation.model_response import MEASUREMENT_POINTS
+
+    folder = Path(folder)
+    truth = pd.read_csv(folder / "truth.csv")
+    analysis = analyze(folder / "video.mp4")
+    est = analysis.estimate
+    n = len(est.response.fiducials)
+    if analysis.metadata["parameters"]["neutral_frame"] != 0:
+        return np.full(n, np.nan), np.zeros(n), analysis
+    controls = [c for c in truth.columns if c in model.muscle_names or c == "jaw_rotation"]
+    calibrate_on = len(MEASUREMENT_POINTS) if n > len(MEASUREMENT_POINTS) else None
+    exact = exact_displacements(model, truth[controls].iloc[:len(analysis.table)],
+                                est.response, calibrate_on=calibrate_on)
+    gain, motion = motion_gain(est.displacements, exact)
+    return gain, motion, analysis
+
+
+def pool_gains(gains, motions) -> tuple[np.ndarray, np.ndarray]:
+    """Gains of the same points over several sequences, pooled as one least-squares gain
+    (each sequence weighted by its exact motion squared): (gain, motion)."""
+    g = np.asarray(gains, dtype=float)
+    e2 = np.asarray(motions, dtype=float) ** 2
+    energy = e2.sum(axis=0)
+    dot = np.where(np.isfinite(g), g * e2, 0.0).sum(axis=0)
+    pooled = np.full(energy.shape, np.nan)
+    pooled[energy > 0] = dot[energy > 0] / energy[energy > 0]
+    return pooled, np.sqrt(energy)
+

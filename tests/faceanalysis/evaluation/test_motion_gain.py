@@ -90,3 +90,28 @@ def test_exact_displacements_start_at_zero_and_follow_the_smile():
         np.testing.assert_allclose(d[1, j], table_says[j], atol=0.05)
     with pytest.raises(ValueError, match="calibrate_on"):
         exact_displacements(FaceModel.default(), table, response, calibrate_on=2)
+
+
+def test_pooled_gains_weigh_each_sequence_by_its_motion():
+    from faceanalysis.evaluation.motion_gain import pool_gains
+
+    gain, motion = pool_gains([[0.5, np.nan], [1.0, 0.8]], [[1.0, 0.0], [2.0, 1.0]])
+    np.testing.assert_allclose(gain, [(0.5 * 1 + 1.0 * 4) / 5, 0.8])
+    np.testing.assert_allclose(motion, [np.sqrt(5.0), 1.0])
+
+
+def test_a_rendered_smile_measures_the_points_the_analysis_read(tmp_path):
+    from faceanalysis.evaluation.motion_gain import sequence_gain
+    from synth import FaceModel
+    from synth.face_shape import FaceShape
+    from synth.render.sequence import render_sequence
+
+    # the face render_sequence draws for a seed
+    render_sequence(tmp_path, expression="happiness", frames=8, size=256, seed=3, flow=False)
+    gain, motion, analysis = sequence_gain(tmp_path, FaceModel.build(FaceShape.random(3)))
+    names = list(analysis.estimate.response.fiducials)
+    assert gain.shape == motion.shape == (len(names),)
+    corners = [names.index(f"mouth_corner_{s}") for s in "lr"]
+    # the smile moves the corners a few millimetres, and the tracked corners follow it
+    assert (motion[corners] > 0.2).all()
+    assert ((gain[corners] > 0.3) & (gain[corners] < 1.5)).all()
