@@ -75,7 +75,7 @@ def regions(response) -> np.ndarray:
     return out
 
 
-def _sequences(kind: str, quick: bool, tmp: Path):
+def _sequences(kind: str, quick: bool):
     """(model, render function) per face of ``kind`` ('procedural' or 'photo')."""
     from faceanalysis.evaluation.suite import SUITE_SEEDS_START, SuiteConfig
     from synth.render.sequence import render_sequence
@@ -116,7 +116,7 @@ def _gains(kind: str, quick: bool):
     pairs = {"zygomaticus_major": ([], []), "frontalis_major": ([], [])}
     skipped = 0
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (model, render) in enumerate(_sequences(kind, quick, Path(tmp))):
+        for i, (model, render) in enumerate(_sequences(kind, quick)):
             for script in STANDARD_SEQUENCES:
                 d = Path(tmp) / f"{i}_{_label(*script)}"
                 render(d, **script_kwargs(*script))
@@ -137,7 +137,7 @@ def _gains(kind: str, quick: bool):
     return gain, motion, response, pairs, skipped
 
 
-def _faces(quick: bool) -> tuple[list[Figure], dict]:
+def _faces(quick: bool) -> list[Figure]:
     figs, gains = [], {}
     for kind in ("procedural", "photo"):
         if kind == "photo" and not IMM.is_dir():
@@ -171,7 +171,7 @@ def _faces(quick: bool) -> tuple[list[Figure], dict]:
                          "correlation of the per-point gains", np.corrcoef(
                              np.clip(a[ok], -1, 2), np.clip(b[ok], -1, 2))[0, 1], "",
                          points=int(ok.sum())))
-    return figs, gains
+    return figs
 
 
 def _real_smiles(quick: bool) -> list[Figure]:
@@ -204,11 +204,10 @@ def _real_smiles(quick: bool) -> list[Figure]:
     case = "real smiles (IMM, neutral then smile), landmark tracker"
     return [_fig(case, "cheek band's motion over what the other points' mesh fit predicts, "
                  "median", np.median(shares), "", people=len(shares)),
-            _fig(case, "the same, quartiles", np.percentile(shares, 25), "",
+            _fig(case, "the same, lower quartile", np.percentile(shares, 25), "",
                  upper_quartile=float(np.percentile(shares, 75)))]
 
 
 def run(quick: bool = False) -> list[Figure]:
     logging.getLogger("faceanalysis").setLevel(logging.ERROR)
-    figs, _ = _faces(quick)
-    return figs + _real_smiles(quick)
+    return _faces(quick) + _real_smiles(quick)
