@@ -14,6 +14,8 @@ points, and for the 16 contour points, on:
   motion, noise and light as the suite renders them), analysed by default;
 * photo-real faces made from the IMM neutral photographs (``../shared/data``; skipped when
   absent): five people, the same scripts;
+* the contour points of the free snakes (``--tracker snakes``) on the procedural faces, which
+  they are drawn for, beside the landmark tracker's, which holds them to the face mesh;
 * and, beside them, the correlation of the per-point gains of the two kinds of face (a
   property of the landmark model, or of the faces?) and the slope of the analysis's
   zygomaticus major and frontalis major on the truth (how much of a contraction the default
@@ -113,6 +115,7 @@ def _gains(kind: str, quick: bool):
     from faceanalysis.evaluation.suite import STANDARD_SEQUENCES, _label, script_kwargs
 
     gains, motions, response = [], [], None
+    free = ([], [])       # the contour points of the free snakes (procedural faces only)
     pairs = {"zygomaticus_major": ([], []), "frontalis_major": ([], [])}
     skipped = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -127,6 +130,10 @@ def _gains(kind: str, quick: bool):
                 gains.append(g)
                 motions.append(motion)
                 response = a.estimate.response
+                if kind == "procedural":
+                    g_free, m_free, _ = sequence_gain(d, model, tracker="snakes")
+                    free[0].append(g_free)
+                    free[1].append(m_free)
                 truth = pd.read_csv(d / "truth.csv")
                 ok = a.table["success"].to_numpy(bool)
                 for m, (t, r) in pairs.items():
@@ -134,7 +141,8 @@ def _gains(kind: str, quick: bool):
                         t.extend(truth[f"{m}_{s}"].to_numpy(float)[:len(ok)][ok])
                         r.extend(a.table[f"{m}_{s}"].to_numpy(float)[ok])
     gain, motion = pool_gains(gains, motions)
-    return gain, motion, response, pairs, skipped
+    free_gain = pool_gains(*free)[0] if free[0] else None
+    return gain, motion, response, pairs, skipped, free_gain
 
 
 def _faces(quick: bool) -> list[Figure]:
@@ -143,7 +151,7 @@ def _faces(quick: bool) -> list[Figure]:
         if kind == "photo" and not IMM.is_dir():
             print(f"# {IMM} is absent: photo-real faces skipped")
             continue
-        gain, motion, response, pairs, skipped = _gains(kind, quick)
+        gain, motion, response, pairs, skipped, free_gain = _gains(kind, quick)
         gains[kind] = gain
         case = f"{kind} faces, landmark tracker"
         region = regions(response)
@@ -155,6 +163,10 @@ def _faces(quick: bool) -> list[Figure]:
         contour = np.array([r is None for r in region]) & moved & np.isfinite(gain)
         figs.append(_fig(case, "median gain, the 16 contour points", np.median(gain[contour]),
                          ""))
+        if free_gain is not None:
+            # the same points held by nothing but the image: what the anchoring costs
+            figs.append(_fig(f"{kind} faces, free snakes (--tracker snakes)",
+                             "median gain, the 16 contour points", np.nanmedian(free_gain), ""))
         mesh = ~np.array([r is None for r in region]) & moved & np.isfinite(gain)
         figs.append(_fig(case, "median gain, all face-mesh points", np.median(gain[mesh]), ""))
         for m, (t, r) in pairs.items():

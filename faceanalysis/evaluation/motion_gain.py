@@ -117,8 +117,8 @@ def exact_displacements(model, contractions: pd.DataFrame, response: FiducialRes
     return _displacements(points, response, calibrate_on=calibrate_on)
 
 
-def sequence_gain(folder, model) -> tuple[np.ndarray, np.ndarray, object]:
-    """Gain of each point the default analysis reads on one rendered sequence.
+def sequence_gain(folder, model, **options) -> tuple[np.ndarray, np.ndarray, object]:
+    """Gain of each point an analysis reads on one rendered sequence.
 
     Parameters
     ----------
@@ -127,6 +127,9 @@ def sequence_gain(folder, model) -> tuple[np.ndarray, np.ndarray, object]:
         :func:`synth.render.sequence.render_sequence` writes them), starting at rest.
     model : synth.model.FaceModel
         The face it was rendered from.
+    **options
+        Passed to :func:`~faceanalysis.analysis.pipeline.analyze` (default: its defaults),
+        e.g. ``tracker="snakes"``.
 
     Returns
     -------
@@ -143,7 +146,7 @@ def sequence_gain(folder, model) -> tuple[np.ndarray, np.ndarray, object]:
 
     folder = Path(folder)
     truth = pd.read_csv(folder / "truth.csv")
-    analysis = analyze(folder / "video.mp4")
+    analysis = analyze(folder / "video.mp4", **options)
     est = analysis.estimate
     n = len(est.response.fiducials)
     if analysis.metadata["parameters"]["neutral_frame"] != 0:

@@ -115,3 +115,7 @@ def test_a_rendered_smile_measures_the_points_the_analysis_read(tmp_path):
     # the smile moves the corners a few millimetres, and the tracked corners follow it
     assert (motion[corners] > 0.2).all()
     assert ((gain[corners] > 0.3) & (gain[corners] < 1.5)).all()
+    # any analysis: the free snakes read the 16 contour points
+    gain, _, analysis = sequence_gain(tmp_path, FaceModel.build(FaceShape.random(3)),
+                                      tracker="snakes")
+    assert analysis.metadata["parameters"]["tracker"] == "snakes" and gain.shape == (16,)
