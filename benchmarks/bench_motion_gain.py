@@ -21,11 +21,14 @@ points, and for the 16 contour points, on:
   zygomaticus major and frontalis major on the truth (how much of a contraction the default
   estimator reads).
 
-Real faces have no exact motion. On the 20 IMM people's neutral-then-smile pairs the
-cheeks' share is measured against the rest of the face instead: the ``mesh`` fit of the
-points outside the cheek band predicts the band's displacements, and the band's tracked
-displacements are regressed on that prediction (1: the cheeks move as the mouth, brows and
-chin say the model moves them; 0: they stand still).
+Real faces have no exact motion, but the IMM photographs have hand-placed points. On the 20
+people's neutral-then-smile pairs, the face-mesh landmarks nearest the hand-placed mouth points
+(the two photographs' hand-placed points superposed by their eyes and nose) are regressed on
+the hand-placed motion, beside the same landmarks' gain on the procedural renders. The
+cheeks, which have no hand-placed points, are measured against the rest of the face instead:
+the ``mesh`` fit of the points outside the cheek band predicts the band's displacements, and
+the band's tracked displacements are regressed on that prediction (1: the cheeks move as the
+mouth, brows and chin say the model moves them; 0: they stand still).
 """
 
 from __future__ import annotations
@@ -145,14 +148,16 @@ def _gains(kind: str, quick: bool):
     return gain, motion, response, pairs, skipped, free_gain
 
 
-def _faces(quick: bool) -> list[Figure]:
-    figs, gains = [], {}
+def _faces(quick: bool) -> tuple[list[Figure], tuple | None]:
+    figs, gains, renders = [], {}, None
     for kind in ("procedural", "photo"):
         if kind == "photo" and not IMM.is_dir():
             print(f"# {IMM} is absent: photo-real faces skipped")
             continue
         gain, motion, response, pairs, skipped, free_gain = _gains(kind, quick)
         gains[kind] = gain
+        if kind == "procedural":
+            renders = (gain, list(response.fiducials))
         case = f"{kind} faces, landmark tracker"
         region = regions(response)
         moved = motion >= 0.05          # cm over the sequences: a point with motion to follow
@@ -183,10 +188,16 @@ def _faces(quick: bool) -> list[Figure]:
                          "correlation of the per-point gains", np.corrcoef(
                              np.clip(a[ok], -1, 2), np.clip(b[ok], -1, 2))[0, 1], "",
                          points=int(ok.sum())))
-    return figs
+    return figs, renders
 
 
-def _real_smiles(quick: bool) -> list[Figure]:
+#: The IMM mouth's hand-placed points (the corners first).
+MOUTH = (39, 43, 40, 41, 42, 44, 45, 46)
+
+
+def _real_smiles(quick: bool, renders=None) -> list[Figure]:
+    """The real smiles' figures; ``renders``: (gain, point names) of the procedural faces,
+    to compare the same landmarks."""
     import cv2
 
     from faceanalysis.analysis.pipeline import analyze
@@ -195,7 +206,12 @@ def _real_smiles(quick: bool) -> list[Figure]:
     if not IMM.is_dir():
         print(f"# {IMM} is absent: real smiles skipped")
         return []
-    shares = []
+    from bench_estimation import _hand_aligned
+
+    from faceanalysis.estimation.mesh_points import mesh_displacements, mesh_indices
+
+    indices = np.array(mesh_indices())
+    shares, corners, dot, energy, used = [], [], 0.0, 0.0, set()
     with tempfile.TemporaryDirectory() as tmp:
         for person in range(21, 26 if quick else 41):
             d = Path(tmp) / str(person)
@@ -203,7 +219,24 @@ def _real_smiles(quick: bool) -> list[Figure]:
             for i, t in enumerate((1, 2)):
                 cv2.imwrite(str(d / f"{i}.png"),
                             cv2.imread(str(next(IMM.glob(f"{person}-{t}?.jpg")))))
-            est = analyze(d, fps=1.0, neutral=0).estimate
+            analysis = analyze(d, fps=1.0, neutral=0)
+            # the mouth's motion by hand: each hand-placed mouth point against the face-mesh
+            # landmark nearest it on the neutral photograph (within 0.04 IOD)
+            first, moved = _hand_aligned(person, 2)
+            iod = np.hypot(*(first[13:21].mean(0) - first[21:29].mean(0)))
+            lm = np.asarray(analysis.tracks.landmarks[0], float)[indices, :2]
+            dist = np.hypot(*(lm[None] - first[:, None]).transpose(2, 0, 1))
+            mouth = [i for i in MOUTH if dist[i].min() < 0.04 * iod]
+            near = indices[dist[mouth].argmin(axis=1)]
+            hand = (moved - first)[mouth]
+            tracked = mesh_displacements(analysis.tracks.landmarks, 0, near)[1]
+            dot += float((tracked * hand).sum())
+            energy += float((hand * hand).sum())
+            used.update(int(i) for i in near)
+            ends = [k for k, i in enumerate(mouth) if i in MOUTH[:2]]
+            corners.append(float((tracked[ends] * hand[ends]).sum()
+                                 / max((hand[ends] ** 2).sum(), 1e-12)))
+            est = analysis.estimate
             response, disp = est.response, est.displacements
             band = regions(response) == "cheeks and nose"
             mesh = np.array([n.startswith("mesh_") for n in response.fiducials])
@@ -214,7 +247,17 @@ def _real_smiles(quick: bool) -> list[Figure]:
             p, m = predicted[seen], disp[1, seen]
             shares.append(float((m * p).sum() / max((p * p).sum(), 1e-12)))
     case = "real smiles (IMM, neutral then smile), landmark tracker"
-    return [_fig(case, "cheek band's motion over what the other points' mesh fit predicts, "
+    figs = [_fig(case, "face-mesh landmarks at the hand-placed mouth points: gain on the "
+                 "hand-placed motion", dot / energy, "", landmarks=sorted(used)),
+            _fig(case, "the same at the mouth corners, median over the people",
+                 np.median(corners), "", lower_quartile=float(np.percentile(corners, 25)),
+                 upper_quartile=float(np.percentile(corners, 75)))]
+    if renders is not None:
+        gain, names = renders
+        same = [names.index(f"mesh_{i}") for i in used if f"mesh_{i}" in names]
+        figs.append(_fig(case, "the same landmarks on the procedural renders: median gain",
+                         np.nanmedian(gain[same]), ""))
+    return figs + [_fig(case, "cheek band's motion over what the other points' mesh fit predicts, "
                  "median", np.median(shares), "", people=len(shares)),
             _fig(case, "the same, lower quartile", np.percentile(shares, 25), "",
                  upper_quartile=float(np.percentile(shares, 75)))]
@@ -222,4 +265,5 @@ def _real_smiles(quick: bool) -> list[Figure]:
 
 def run(quick: bool = False) -> list[Figure]:
     logging.getLogger("faceanalysis").setLevel(logging.ERROR)
-    return _faces(quick) + _real_smiles(quick)
+    figs, renders = _faces(quick)
+    return figs + _real_smiles(quick, renders)
