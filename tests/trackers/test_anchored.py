@@ -436,11 +436,10 @@ def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(
 def test_hands_are_reported_in_the_input_s_pixels(face_truth):
     import cv2
 
-    from trackers.landmark_contours import eye_centres
+    from trackers.landmark_contours import interocular_distance
 
     img, truth = face_truth
-    iod = float(np.hypot(*np.subtract(*eye_centres(AnchoredTracker().track(img)
-                                                   .extra["landmarks"]))))
+    iod = interocular_distance(AnchoredTracker().track(img).extra["landmarks"])
     big = cv2.resize(img, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)
     (rx, ry), (lx, _), (_, cy) = truth["mouth_corner_r"], truth["mouth_corner_l"], truth["chin"]
     # the enlarged face is tracked shrunk by 3: at the rendered face's own size, where the

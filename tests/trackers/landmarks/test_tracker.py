@@ -192,16 +192,12 @@ def test_a_far_face_is_looked_at_again_by_the_short_range_detector(face):
 def test_a_real_face_24_px_between_the_eyes_is_fitted_at_its_size(real_video_dir, models):
     import cv2
 
-    from trackers.landmark_contours import eye_centres
+    from trackers.landmark_contours import interocular_distance as iod
 
     path = real_video_dir / "WolfgangLanger_Pexels.mp4"
     if not path.is_file():
         pytest.skip(f"{path} is absent")
     ok, frame = cv2.VideoCapture(str(path)).read()
-
-    def iod(points):
-        return float(np.hypot(*np.subtract(*eye_centres(points))))
-
     given = iod(LandmarkTracker(channel_order="bgr").track(frame).points)
     small = cv2.resize(frame, None, fx=0.24, fy=0.24, interpolation=cv2.INTER_AREA)
     wide = cv2.copyMakeBorder(small, 300, 1080 - 300 - small.shape[0], 900,
