@@ -22,6 +22,7 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
 _SIZE = 192
 _SCALE = 1.5             # crop side / longer side of the face box, as MediaPipe
 _EYES = (33, 263)        # outer eye corners, subject's right (image left) then left
+_HALF = np.full(2, _SIZE / 2 - 0.5)
 
 
 def roi_transform(roi) -> np.ndarray:
@@ -32,20 +33,25 @@ def roi_transform(roi) -> np.ndarray:
     """
     if isinstance(roi, FaceDetection):
         (x0, y0, x1, y1), eyes = roi.box, roi.keypoints[:2]
+        dx, dy = eyes[1] - eyes[0]
     else:
         pts = np.asarray(roi, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[0] != N_LANDMARKS or pts.shape[1] not in (2, 3):
             raise ValueError(f"roi of shape {pts.shape} is neither a FaceDetection nor "
                              f"({N_LANDMARKS}, 2|3) landmarks")
-        (x0, y0), (x1, y1) = pts[:, :2].min(0), pts[:, :2].max(0)
-        eyes = pts[list(_EYES), :2]
-    dx, dy = eyes[1] - eyes[0]
+        xs, ys = pts[:, 0], pts[:, 1]
+        x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
+        dx, dy = pts[_EYES[1], :2] - pts[_EYES[0], :2]
+    # scalar arithmetic, NumPy's own trigonometry (the tracker calls this three times a
+    # frame; array construction cost three times the arithmetic)
     theta = np.arctan2(dy, dx)
     k = _SCALE * max(x1 - x0, y1 - y0) / _SIZE
-    rot = k * np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+    cos, sin = np.cos(theta), np.sin(theta)
+    out = np.empty((2, 3))
+    out[0, 0], out[0, 1], out[1, 0], out[1, 1] = k * cos, k * -sin, k * sin, k * cos
     # pixel indices: crop continuous = index + 0.5, around the crop centre at 96
-    return np.c_[rot, centre - rot @ np.full(2, _SIZE / 2 - 0.5)]
+    out[:, 2] = np.array([(x0 + x1) / 2, (y0 + y1) / 2]) - out[:, :2] @ _HALF
+    return out
 
 
 def face_landmarks(image, roi, *, channel_order: str = "rgb",
