@@ -8,9 +8,16 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from faceanalysis.cli._common import UsageError, non_negative_int, positive_float
-from faceanalysis.io.video import MIN_FACE_SIZE, VideoSource, open_video
+
+if TYPE_CHECKING:
+    from faceanalysis.io.video import VideoSource
+
+#: ``open_input``'s default ``min_size``: the smallest frame a face is looked for in
+#: (:data:`faceanalysis.io.video.MIN_FACE_SIZE`).
+FACE_SIZE = "face"
 
 
 def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
@@ -45,7 +52,15 @@ def check_input_options(args: argparse.Namespace) -> None:
 
 
 def open_input(args: argparse.Namespace, *, path: Path | None = None,
-               min_size: int | None = MIN_FACE_SIZE) -> VideoSource:
-    """Open ``args.video`` (or ``path``) with the options of :func:`add_input_options`."""
+               min_size: int | str | None = FACE_SIZE) -> VideoSource:
+    """Open ``args.video`` (or ``path``) with the options of :func:`add_input_options`;
+    ``min_size`` as :func:`~faceanalysis.io.video.open_video`'s, :data:`FACE_SIZE` for the
+    smallest frame a face is looked for in."""
+    # the decoder (OpenCV, NumPy) loads here, not with the command line: ``--help`` and
+    # ``--version`` stay instant
+    from faceanalysis.io.video import MIN_FACE_SIZE, open_video
+
+    if min_size == FACE_SIZE:
+        min_size = MIN_FACE_SIZE
     return open_video(path if path is not None else args.video, fps=args.fps,
                       start=args.start, end=args.end, min_size=min_size)

@@ -14,18 +14,16 @@ from faceanalysis.cli._common import (
     progress_wanted,
 )
 from faceanalysis.cli._input import add_input_options
-from faceanalysis.io.outputs import CONTRACTIONS_CSV
-from faceanalysis.io.report import lost_reasons_text
 
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
 
 
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     """Options of the analysis itself (shared with ``batch``)."""
-    from faceanalysis.estimation.registry import ESTIMATORS
+    from faceanalysis.estimation.names import ESTIMATOR_NAMES
 
     group = parser.add_argument_group("analysis")
-    group.add_argument("--estimator", choices=tuple(ESTIMATORS), default=None,
+    group.add_argument("--estimator", choices=ESTIMATOR_NAMES, default=None,
                        help="mesh: bounded least squares through the face model on the "
                             "contour points and the landmark tracker's face mesh (default "
                             "with the landmark tracker; implies --tracker landmarks); model: "
@@ -87,7 +85,7 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
 def check_analysis_options(args: argparse.Namespace) -> None:
     """Refuse option combinations the analysis cannot run, before any work (exit 2)."""
     from faceanalysis.cli._common import UsageError
-    from faceanalysis.estimation.registry import (
+    from faceanalysis.estimation.names import (
         MESH_ESTIMATORS,
         TEMPORAL_ESTIMATORS,
         VIDEO_ESTIMATORS,
@@ -137,6 +135,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from faceanalysis.analysis.pipeline import analyze_to_folder
+    from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
     check_analysis_options(args)
     result = analyze_to_folder(
@@ -173,6 +172,8 @@ def closing_line(metadata: dict, rows: int) -> str:
     ...               "parameters": {"neutral_frame": 4}}, 9)
     'analysed 9 frames (0 lost; neutral frame 4; all 0 controls measured)'
     """
+    from faceanalysis.io.report import lost_reasons_text
+
     q = metadata.get("quality") or {}
     ident = metadata.get("identifiability") or {}
     controls = ident.get("controls", {})

@@ -8,7 +8,6 @@ from pathlib import Path
 
 from faceanalysis.cli._common import add_quiet_option, non_negative_int, positive_float
 from faceanalysis.cli._input import add_input_options
-from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
 HELP = "name the expression (six primaries or neutral) of a video by flow templates"
 
@@ -59,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
     from faceanalysis.flow.recognition import CLASSES, classify_video
     from faceanalysis.flow.templates import FlowTemplates
+    from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
     if not args.video.exists():
         raise FileNotFoundError(f"{args.video}: no such file or folder")

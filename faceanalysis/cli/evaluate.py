@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 from faceanalysis.cli._common import add_quiet_option, positive_int, progress_wanted
-from faceanalysis.io.outputs import REPORT_MD
 
 HELP = "compare an analysis with ground truth, or run the standard synthetic suite"
 
@@ -80,6 +79,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from faceanalysis.evaluation import scores, suite
+    from faceanalysis.io.outputs import REPORT_MD
 
     if args.suite and (args.truth or args.estimate):
         raise ValueError("--suite runs its own sequences; do not combine it with "
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         faces = suite.photographs(args.faces) if args.faces else ()
         config = suite.SuiteConfig(identities=args.identities, frames=args.frames,
                                    faces=faces, tracker=args.tracker or "snakes")
-        from faceanalysis.estimation.registry import MESH_ESTIMATORS
+        from faceanalysis.estimation.names import MESH_ESTIMATORS
 
         # those read the landmark tracker's face mesh
         estimators = (("joint", *MESH_ESTIMATORS, "tw93", "flow") if args.tracker == "landmarks"

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from faceanalysis.io.report import software_versions
-
 HELP = "print the versions of the toolkit and its dependencies"
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -16,6 +14,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from faceanalysis.io.report import software_versions
+
     info = software_versions()
     if args.json:
         print(json.dumps(info))

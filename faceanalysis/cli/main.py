@@ -94,7 +94,11 @@ def _sigterm_raises():
         signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser: every subcommand's options, or, with ``only``, those of
+    that subcommand alone (the others listed with their help line; ``""``: none), so that a
+    command loads what its options name (estimators, flow methods, renderers) and
+    ``--help`` and ``--version`` load nothing of the kind."""
     parser = argparse.ArgumentParser(
         prog="faceanalysis",
         description="Analyse facial motion in video into muscle contractions, resynthesise "
@@ -110,9 +114,17 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"faceanalysis.cli.{module_name}")
         sp = sub.add_parser(name, help=module.HELP,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
-        module.configure(sp)
+        if only is None or only == name:
+            module.configure(sp)
         sp.set_defaults(_run=module.run, _parser=sp)
     return parser
+
+
+def _command(argv: list[str]) -> str:
+    """The subcommand ``argv`` names (its first argument not an option: the top-level
+    options take no value), or ``""`` where it names none of :data:`SUBCOMMANDS`."""
+    first = next((a for a in argv if not a.startswith("-")), "")
+    return first if first in SUBCOMMANDS else ""
 
 
 def _message(exc: BaseException) -> str:
@@ -129,7 +141,8 @@ def _message(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(only=_command(argv))
     args = parser.parse_args(argv)
     if getattr(args, "_run", None) is None:
         parser.print_help(sys.stderr)

@@ -35,12 +35,18 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.estimation.estimators import estimate_joint, estimate_tw93
+from faceanalysis.estimation.names import (
+    ESTIMATOR_NAMES,
+    MESH_ESTIMATORS,
+    TEMPORAL_ESTIMATORS,
+    VIDEO_ESTIMATORS,
+)
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import Tracks
 
-__all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "Estimate", "Observations",
-           "estimate_fused", "estimate_mesh", "estimate_model", "mesh_fit", "mesh_neutral",
-           "mesh_regions", "regions_lost", "run_estimator"]
+__all__ = ["ESTIMATORS", "MESH_ESTIMATORS", "REGIONS", "TEMPORAL_ESTIMATORS", "VIDEO_ESTIMATORS",
+           "Estimate", "Observations", "estimate_fused", "estimate_mesh", "estimate_model",
+           "mesh_fit", "mesh_neutral", "mesh_regions", "regions_lost", "run_estimator"]
 
 log = logging.getLogger(__name__)
 
@@ -116,10 +122,6 @@ def _in_response_order(values: np.ndarray, obs: Observations) -> pd.DataFrame:
 #: without, 338 / 124 / 36 with; on the standard suite (snakes, 110 sequences) its median
 #: per-control RMSE 0.1105 without, 0.1117 with.
 TEMPORAL = 0.01
-
-
-#: The estimators with the temporal prior (their ``temporal`` option).
-TEMPORAL_ESTIMATORS = ("joint", "mesh", "model", "fused")
 
 
 def _joint(obs: Observations, *, refine: bool = False, temporal: float = TEMPORAL
@@ -392,20 +394,10 @@ def _flow(obs: Observations, **kwargs) -> pd.DataFrame:
 #: Estimator name -> function(observations, **options) -> DataFrame with one column per
 #: estimated control (muscles, ``jaw_rotation``) and one row per frame of the tracks (a
 #: control it does not estimate is absent or NaN throughout), or an :class:`Estimate`
-#: when it reads other points than ``observations.response.fiducials``.
-ESTIMATORS: dict[str, Callable[..., pd.DataFrame]] = {
-    "joint": _joint,
-    "mesh": estimate_mesh,
-    "model": estimate_model,
-    "fused": estimate_fused,
-    "tw93": _tw93,
-    "flow": _flow,
-}
-
-#: The estimators that read the landmark tracker's face mesh.
-MESH_ESTIMATORS = ("mesh", "model", "fused")
-#: The estimators that read the video's frames a second time (its dense flow).
-VIDEO_ESTIMATORS = ("fused", "flow")
+#: when it reads other points than ``observations.response.fiducials``. In the order of
+#: :data:`~faceanalysis.estimation.names.ESTIMATOR_NAMES`.
+ESTIMATORS: dict[str, Callable[..., pd.DataFrame]] = dict(zip(ESTIMATOR_NAMES, (
+    _joint, estimate_mesh, estimate_model, estimate_fused, _tw93, _flow)))
 
 
 def run_estimator(name: str, obs: Observations, **options) -> Estimate:

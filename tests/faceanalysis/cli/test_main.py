@@ -19,6 +19,41 @@ def test_help_lists_every_subcommand(run_cli):
         assert name in out
 
 
+_HEAVY = ("numpy", "cv2", "pandas", "numba", "scipy", "matplotlib", "synth")
+
+
+def _loaded_after(*argv: str) -> list[str]:
+    """The numerical libraries a fresh interpreter has loaded after ``faceanalysis ARGV``."""
+    code = ("import sys\n"
+            "from faceanalysis.cli.main import main\n"
+            "try:\n"
+            f"    main({list(argv)!r})\n"
+            "except SystemExit:\n"
+            "    pass\n"
+            f"print('loaded:', *(m for m in {_HEAVY!r} if m in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.splitlines()[-1].split()[1:]
+
+
+def test_help_and_version_load_no_numerical_library():
+    # they answer at once: nothing of the analysis loads to print them
+    assert _loaded_after("--help") == []
+    assert _loaded_after("--version") == []
+    assert _loaded_after("analyze", "--help") == []
+    assert _loaded_after("batch", "--help") == []
+
+
+def test_a_subcommand_s_parser_is_the_same_built_alone():
+    from faceanalysis.cli.main import build_parser
+
+    argv = ["analyze", "v.mp4", "-o", "out", "--estimator", "tw93", "--start", "3"]
+    alone = vars(build_parser(only="analyze").parse_args(argv))
+    every = vars(build_parser().parse_args(argv))
+    assert {k: v for k, v in alone.items() if not k.startswith("_")} == \
+        {k: v for k, v in every.items() if not k.startswith("_")}
+
+
 def test_unknown_subcommand_is_a_one_line_usage_error():
     proc = subprocess.run([sys.executable, "-m", "faceanalysis", "nosuchcmd"],
                           capture_output=True, text=True)
