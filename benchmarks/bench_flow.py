@@ -33,7 +33,8 @@ NAME = "flow"
 
 def _epe_figures(quick: bool) -> list[Figure]:
     from faceanalysis.evaluation.suite import STANDARD_SEQUENCES, SUITE_SEEDS_START, SuiteConfig
-    from faceanalysis.flow.dense import FLOW_METHODS, compute_flow
+    from faceanalysis.flow.dense import compute_flow
+    from faceanalysis.flow.options import FLOW_METHODS
     from synth.render import synthesize
 
     cfg = SuiteConfig()
@@ -73,8 +74,9 @@ def _epe_figures(quick: bool) -> list[Figure]:
 
 
 def _fps_figures(quick: bool) -> list[Figure]:
-    from faceanalysis.flow.dense import FLOW_METHODS, _FlowStep
+    from faceanalysis.flow.dense import _FlowStep
     from faceanalysis.flow.grid import FaceGrid
+    from faceanalysis.flow.options import FLOW_METHODS
     from synth.model import FaceModel
     from synth.render import Renderer, default_camera, paint_skin_texture
     from synth.render.camera import HeadPose

@@ -13,8 +13,7 @@ HELP = "name the expression (six primaries or neutral) of a video by flow templa
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.flow.dense import FLOW_METHODS
-    from faceanalysis.flow.recognition import REST_LOOKBACK
+    from faceanalysis.flow.options import FLOW_METHODS, REST_LOOKBACK
 
     parser.description = (
         "Track the face, compute its flow from the neutral frame on the canonical face grid "

@@ -24,8 +24,7 @@ def _size(text: str):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.resynthesis.export import MESH_FORMATS
-    from faceanalysis.resynthesis.render import SHADINGS, VIEWS
+    from faceanalysis.resynthesis.options import MESH_FORMATS, SHADINGS, VIEWS
 
     parser.description = (
         "Drive the physics-based face model with a contraction time series (the muscle "

@@ -13,7 +13,7 @@ HELP = "compare the optical flow of a video with that of its analysis's resynthe
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from faceanalysis.flow.dense import FLOW_METHODS
+    from faceanalysis.flow.options import FLOW_METHODS
 
     parser.description = (
         "Compute the face flow of VIDEO (from its neutral frame, in the head frame, on the "

@@ -41,15 +41,13 @@ from faceanalysis.flow.grid import (
     head_array,
     smoothing_sigma,
 )
+from faceanalysis.flow.options import FLOW_METHODS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FLOW_METHODS", "STABILIZATION", "FaceFlow", "compute_flow", "tvl1_scales",
+__all__ = ["STABILIZATION", "FaceFlow", "compute_flow", "tvl1_scales",
            "stabilize", "face_flow", "video_face_flow", "VideoFlowStream",
            "flow_to_colour"]
-
-#: Optical-flow methods, first = default.
-FLOW_METHODS = ("dis", "farneback", "tvl1")
 
 
 # ---------------------------------------------------------------------------- flow

@@ -42,9 +42,10 @@ frame with the smallest total is the least contracted face of the clip, the rest
 unless another is less contracted by at least :data:`REST_MARGIN` and by
 :data:`REST_NOISE` times the clip's own frame-to-frame noise, so that a neutral or noisily
 tracked clip keeps its first frame rather than one picked by noise.
-The search covers the classified range and the :data:`REST_LOOKBACK` frames before it: a
-clip cut in the middle of an expression has no rest frame of its own, while the video often
-shows the face at rest just before. What the detector can say of its pick is reported
+The search covers the classified range and the
+:data:`~faceanalysis.flow.options.REST_LOOKBACK` frames before it: a clip cut in the middle
+of an expression has no rest frame of its own, while the video often shows the face at rest
+just before. What the detector can say of its pick is reported
 (:attr:`Recognition.reference_rest`): ``'still'`` when the face holds there for
 :data:`REST_HOLD` frames, ``'moving'`` when it does not (the least contracted instant of a
 laugh is a lull between bursts, not rest) and ``'unresolved'`` when :data:`REST_NOISE`
@@ -77,6 +78,7 @@ import pandas as pd
 
 from faceanalysis.flow.dense import FaceFlow
 from faceanalysis.flow.grid import remove_rigid
+from faceanalysis.flow.options import REST_LOOKBACK
 from faceanalysis.flow.templates import EXPRESSION_NAMES, FlowTemplates
 
 log = logging.getLogger(__name__)
@@ -84,7 +86,7 @@ log = logging.getLogger(__name__)
 __all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "REST_MARGIN", "Segment",
            "Recognition", "nuisance_free", "motion_energy", "find_segments", "score_segment",
            "classify_flow", "classify_video", "rest_frame", "relative_contraction", "REST_NOISE",
-           "calibrate_threshold", "REST_HOLD", "REST_LOOKBACK"]
+           "calibrate_threshold", "REST_HOLD"]
 
 #: Classes named by the recogniser: the six primary expressions and neutral.
 CLASSES = (*EXPRESSION_NAMES, "neutral")
@@ -109,8 +111,6 @@ REST_NOISE = 4.0
 #: value for this many frames on one side (a face at rest holds; a lull in a laugh does
 #: not).
 REST_HOLD = 4
-#: Frames before the classified range searched for the rest frame by default.
-REST_LOOKBACK = 240
 #: Frames processed at a time when the displacement is cleaned (bounds the temporaries).
 _CHUNK = 64
 
@@ -624,8 +624,9 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         (:func:`faceanalysis.flow.personalize.personalize_from_table`).
     rest_lookback : int, keyword-only
         Frames before ``start`` searched for the rest frame (default
-        :data:`REST_LOOKBACK`): a clip cut in the middle of an expression has no rest
-        frame of its own, while the video often shows the face at rest just before.
+        :data:`~faceanalysis.flow.options.REST_LOOKBACK`): a clip cut in the middle of an
+        expression has no rest frame of its own, while the video often shows the face at
+        rest just before.
     threshold, min_score, min_length, min_gap
         See :func:`classify_flow`.
 

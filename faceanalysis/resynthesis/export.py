@@ -8,13 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from faceanalysis.resynthesis.options import MESH_FORMATS
 from faceanalysis.resynthesis.personalize import SubjectInfo
 from faceanalysis.resynthesis.series import FrameState, Series
 
 log = logging.getLogger(__name__)
 
-#: Per-frame mesh formats of ``export_meshes`` (a path ending in ``.npz`` writes one file).
-MESH_FORMATS: tuple[str, ...] = ("obj", "ply")
 
 
 class MeshExporter:

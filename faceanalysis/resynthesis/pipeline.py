@@ -13,9 +13,10 @@ import numpy as np
 
 from faceanalysis.io.outputs import ANALYSIS_JSON
 from faceanalysis.io.table import JAW, MUSCLES
-from faceanalysis.resynthesis.export import MESH_FORMATS, MeshExporter
+from faceanalysis.resynthesis.export import MeshExporter
+from faceanalysis.resynthesis.options import MESH_FORMATS, SHADINGS, VIEWS
 from faceanalysis.resynthesis.personalize import SubjectInfo, personalize, personalize_series
-from faceanalysis.resynthesis.render import SHADINGS, VIEWS, Resynthesis
+from faceanalysis.resynthesis.render import Resynthesis
 from faceanalysis.resynthesis.series import load_series
 
 log = logging.getLogger(__name__)

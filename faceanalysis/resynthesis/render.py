@@ -47,15 +47,12 @@ from faceanalysis.resynthesis.framing import (
     rotation_2d,
     transfer_head_motion,
 )
+from faceanalysis.resynthesis.options import VIEWS
 from faceanalysis.resynthesis.personalize import SubjectInfo
 from faceanalysis.resynthesis.series import FrameState, Series
 
 log = logging.getLogger(__name__)
 
-#: Views of :func:`~faceanalysis.resynthesis.pipeline.resynthesize`: yaw of the head in degrees.
-VIEWS: dict[str, float] = {"front": 0.0, "three-quarter": 40.0, "profile": 90.0}
-#: Shadings of :func:`~faceanalysis.resynthesis.pipeline.resynthesize`.
-SHADINGS: tuple[str, ...] = ("textured", "plain", "wireframe")
 
 
 # ----------------------------------------------------------------------------- drawing
