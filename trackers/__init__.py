@@ -29,43 +29,68 @@
   landmarks, with lost frames where there is no face.
 """
 
-from trackers.anchored import AnchoredTracker
-from trackers.anchors import IrisAnchors, find_iris
-from trackers.contour_ends import refine_end
-from trackers.draw import draw_contours, draw_fiducials, draw_head_frame
-from trackers.fiducials import FIDUCIAL_NAMES, HeadFrame, fiducials, head_frame
-from trackers.layout import (
-    CONTOUR_NAMES,
-    FaceLayout,
-    LayoutContour,
-    detect_layout,
-    layout_from_eyes,
-    refine_layout,
-)
-from trackers.polyline import resample_polyline
-from trackers.potentials import (
-    dark_below_potential,
-    gaussian_potential,
-    paper_potential,
-    potential_from_gray,
-    potentials_in_boxes,
-    to_gray,
-    valley_potential,
-)
-from trackers.quality import ContourQuality, TrackResult
-from trackers.sampling import force_field, sample_bilinear
-from trackers.snake_types import Contour, RelaxResult, SnakeParams
-from trackers.snakes import ContourSystem, factorization_count, paper_equivalent_strength
-from trackers.tracking import Tracker
+from __future__ import annotations
 
-__all__ = [
-    "AnchoredTracker",
-    "CONTOUR_NAMES", "FIDUCIAL_NAMES", "Contour", "ContourQuality", "ContourSystem",
-    "FaceLayout", "HeadFrame", "LayoutContour", "RelaxResult", "SnakeParams", "TrackResult",
-    "Tracker", "detect_layout", "draw_contours", "draw_fiducials", "draw_head_frame",
-    "factorization_count", "fiducials", "force_field", "gaussian_potential", "head_frame",
-    "layout_from_eyes", "paper_equivalent_strength", "paper_potential",
-    "potential_from_gray", "potentials_in_boxes", "refine_end", "refine_layout",
-    "resample_polyline", "sample_bilinear", "to_gray", "valley_potential",
-    "dark_below_potential", "IrisAnchors", "find_iris",
-]
+import importlib
+
+# Public name -> the module that defines it: loaded on first use, so that importing one
+# module of the package (the snakes, the polylines) does not load the landmark models'
+# runtime and every tracker.
+_EXPORTS: dict[str, str] = {
+    "AnchoredTracker": "trackers.anchored",
+    "CONTOUR_NAMES": "trackers.layout",
+    "FIDUCIAL_NAMES": "trackers.fiducials",
+    "Contour": "trackers.snake_types",
+    "ContourQuality": "trackers.quality",
+    "ContourSystem": "trackers.snakes",
+    "FaceLayout": "trackers.layout",
+    "HeadFrame": "trackers.fiducials",
+    "LayoutContour": "trackers.layout",
+    "RelaxResult": "trackers.snake_types",
+    "SnakeParams": "trackers.snake_types",
+    "TrackResult": "trackers.quality",
+    "Tracker": "trackers.tracking",
+    "detect_layout": "trackers.layout",
+    "draw_contours": "trackers.draw",
+    "draw_fiducials": "trackers.draw",
+    "draw_head_frame": "trackers.draw",
+    "factorization_count": "trackers.snakes",
+    "fiducials": "trackers.fiducials",
+    "force_field": "trackers.sampling",
+    "gaussian_potential": "trackers.potentials",
+    "head_frame": "trackers.fiducials",
+    "layout_from_eyes": "trackers.layout",
+    "paper_equivalent_strength": "trackers.snakes",
+    "paper_potential": "trackers.potentials",
+    "potential_from_gray": "trackers.potentials",
+    "potentials_in_boxes": "trackers.potentials",
+    "refine_end": "trackers.contour_ends",
+    "refine_layout": "trackers.layout",
+    "resample_polyline": "trackers.polyline",
+    "sample_bilinear": "trackers.sampling",
+    "to_gray": "trackers.potentials",
+    "valley_potential": "trackers.potentials",
+    "dark_below_potential": "trackers.potentials",
+    "IrisAnchors": "trackers.anchors",
+    "find_iris": "trackers.anchors",
+}
+
+__all__ = [*_EXPORTS]
+
+# ``fiducials`` names both a module of the package and the function it defines: bound now,
+# the package's attribute is the function, as the import of the module would otherwise leave
+# the module there
+from trackers.fiducials import fiducials  # noqa: E402,F401
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value         # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
