@@ -82,6 +82,16 @@ POINT_CONTOUR = {
 #: many measurement points are; controls that only the missing points observe are NaN.
 MIN_POINTS = 7
 
+#: On this many frames before one where a hand covers contours (the landmark tracker's
+#: hand detector), those contours are taken as covered too: a hand moving over the face
+#: arrives fingers first, and the palm detector finds it only once its palm is in view.
+#: On ``WolfgangLanger_Pexels.mp4`` the hand is first found on frame 60; on frame 58 its
+#: fingers lie over the chin and the analysis read zygomaticus major 1.0 and orbicularis
+#: oris 0.78 on a crying face, on frame 59 over the mouth (0.94, 0.98). On cap12 a hand
+#: found on the chin on frame 1185 had deepened the chin's edges from 1.4 to 2.3 times
+#: their first frame's two frames before.
+HAND_LEAD = 2
+
 
 #: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
 #: tracked furrow is at least this long relative to the neutral frame. The face model
@@ -479,6 +489,36 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     frames, stamps, ok, conf, poses, mesh, reasons = [], [], [], [], [], [], []
     lids = []
     fid_rows, pt_rows, head_rows, stretch_rows, contours = [], [], [], [], []
+    under_hand: list[set] = []           # per row, the contours a hand covers there
+    fid_contour = [POINT_CONTOUR[n] for n in FIDUCIALS]
+    pending: list = []                   # overlay frames held back HAND_LEAD frames
+
+    def cover(r: int, covered: set) -> None:
+        """Row ``r`` with the contours ``covered`` by a hand found a frame or two later."""
+        pts = pt_rows[r].copy()
+        pts[[j for j, c in enumerate(point_contours) if c in covered]] = np.nan
+        if np.isfinite(pts).all(axis=1).sum() >= MIN_POINTS:
+            pt_rows[r] = pts
+            fids = fid_rows[r].copy()
+            fids[[j for j, c in enumerate(fid_contour) if c in covered]] = np.nan
+            fid_rows[r] = fids
+            return
+        ok[r], reasons[r], conf[r] = False, "hand", 0.0
+        fid_rows[r], pt_rows[r], head_rows[r] = nan_fid, nan_pts, nan_head
+        poses[r], lids[r], mesh[r] = nan_pose, nan_pose, None
+
+    def draw(frame, res, r: int) -> None:
+        nonlocal writer
+        if writer is None:
+            from synth.render.video import VideoWriter
+
+            writer = VideoWriter(overlay, source.fps, source.size, channel_order="bgr")
+        shown = None if res is None else res.contours
+        hands = None if res is None else res.extra.get("hands")
+        eyelids = None if not ok[r] else res.extra.get("eyelids")
+        why = reasons[r] and LOST_REASONS[reasons[r]][0]
+        writer.write(_draw(frame, shown, fid_rows[r], head_rows[r] if ok[r] else None,
+                           why or not ok[r], hands, eyelids))
     kind, tracker = tracker, None
     waiting = _Waiting()
     nan_pose = np.full(2, np.nan)
@@ -546,20 +586,23 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 head_rows.append(head)
                 stretch_rows.append(stretch)
                 contours.append(None if res is None or not keep_contours else res.contours)
+                covered = _under_hand(res)
+                under_hand.append(covered)
+                if covered:
+                    # the frames just before, which no hand covered yet, as far as the
+                    # hand's arrival can reach
+                    for r in range(len(ok) - 2, max(len(ok) - 2 - HAND_LEAD, -1), -1):
+                        if under_hand[r] or not ok[r]:
+                            break
+                        cover(r, covered)
                 if overlay is not None and frame.ok:
-                    if writer is None:
-                        from synth.render.video import VideoWriter
-
-                        writer = VideoWriter(overlay, source.fps, source.size,
-                                             channel_order="bgr")
-                    shown = None if res is None else res.contours
-                    hands = None if res is None else res.extra.get("hands")
-                    eyelids = None if not good else res.extra.get("eyelids")
-                    why = reasons[-1] and LOST_REASONS[reasons[-1]][0]
-                    writer.write(_draw(frame, shown, fids, head if good else None,
-                                       why or not good, hands, eyelids))
+                    pending.append((frame, res, len(ok) - 1))
+                    if len(pending) > HAND_LEAD:
+                        draw(*pending.pop(0))
                 if bar is not None:
                     bar.update(1)
+        for held in pending:
+            draw(*held)
         if frames and not any(ok) and layout is None:
             # before the overlay is finished: a failed run leaves no file behind
             hint = ""
@@ -667,6 +710,14 @@ def lost_reason_counts(reasons) -> dict[str, int]:
     """
     counts = {code: sum(r == code for r in reasons) for code in LOST_REASONS}
     return {code: n for code, n in counts.items() if n}
+
+
+def _under_hand(result) -> set:
+    """The contours the landmark tracker lost under a hand on ``result``'s frame (its
+    ``occluded`` contours where it found a hand), empty where it found none."""
+    if result is None or not result.extra.get("hands"):
+        return set()
+    return set(result.extra.get("occluded", ()))
 
 
 def _lost_reason(decoded: bool, result) -> str:

@@ -352,7 +352,8 @@ class AnchoredTracker:
         Lose the contours a hand covers (:data:`HAND_COVER`), the hands found by
         MediaPipe's palm detector where the lower face's edges deepen (:data:`HAND_GATE`)
         and followed by their landmarks (:class:`~trackers.landmarks.hands.HandTracker`).
-        Each frame's hands are in ``extra['hands']``.
+        Each frame's hands are in ``extra['hands']``, and the contours a hand or the
+        occlusion rule lost in ``extra['occluded']``.
     eyes : bool
         Trace both eyes' lids with MediaPipe's iris model (:mod:`trackers.landmarks.eyes`)
         on every frame: ``extra['eye_gaps']``, each eye's lid gap (subject's left, then
@@ -635,13 +636,15 @@ class AnchoredTracker:
         # the hand's landmarks or the palm detector lose the hand for a moment
         covered = covered or bool(under_hand & set(_LIPS)) or self._covered and deepened
         self._covered = covered
-        for name in set(LOWER_FACE) if covered else under_hand:
+        occluded = set(LOWER_FACE) if covered else under_hand
+        for name in occluded:
             quality[name] = replace(quality[name], lost=True)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
         source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
         extra = dict(res.extra, head_source=source, presence=float(lm.presence),
                      head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
-                     detected=bool(placed.detected), hands=hands)
+                     detected=bool(placed.detected), hands=hands,
+                     occluded=tuple(sorted(occluded)))
         if self.eyes:
             from trackers.landmarks.eyes import lid_gaps
 

@@ -264,3 +264,62 @@ def test_no_face_with_opencv_s_reader_names_the_full_range_detector(tmp_path):
         with pytest.raises(ValueError, match="no face found") as exc:
             track(tmp_path)
         assert "full-range" not in str(exc.value)
+
+
+class _HandAt:
+    """An anchored tracker that reports a hand on frame ``at`` covering ``covered``, as
+    the real one does where its hand detector finds one over those contours."""
+
+    def __init__(self, inner, at: int, covered):
+        self.inner, self.at, self.covered, self.n = inner, at, set(covered), 0
+        self.landmarks = inner.landmarks
+
+    def track(self, image, next_frame=None):
+        from dataclasses import replace
+
+        res = self.inner.track(image, next_frame=next_frame)
+        i, self.n = self.n, self.n + 1
+        if res is not None and i == self.at:
+            quality = {n: replace(q, lost=True) if n in self.covered else q
+                       for n, q in res.quality.items()}
+            res = replace(res, quality=quality,
+                          extra={**res.extra, "hands": [np.zeros((21, 2))],
+                                 "occluded": tuple(sorted(self.covered))})
+        return res
+
+    def close(self):
+        self.inner.close()
+
+
+@pytest.mark.parametrize("covered", [("upper_lip", "lower_lip", "chin_boss", "furrow_l",
+                                      "furrow_r"), ("chin_boss",)])
+def test_the_frames_before_a_hand_is_found_lose_what_it_covers(tmp_path, rendered_face,
+                                                               monkeypatch, covered):
+    # a hand arrives fingers first: the palm detector finds it a frame or two late, and
+    # the frames before it read the fingers as the face's motion
+    from faceanalysis import tracking
+    from faceanalysis.tracking import HAND_LEAD
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(7):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(rendered_face, cv2.COLOR_RGB2BGR))
+    real = tracking._anchored
+    monkeypatch.setattr(tracking, "_anchored",
+                        lambda *a: _HandAt(real(*a), at=5, covered=covered))
+    overlay = tmp_path / "overlay.mp4"
+    tr = track(folder, fps=10, tracker="landmarks", overlay=overlay)
+    before = list(range(5 - HAND_LEAD, 5))
+    chin = tr.table["fid_chin_x"]
+    if len(covered) > 1:             # the lower face: too few points left, the frames go
+        assert tr.success.tolist() == [i not in (*before, 5) for i in range(7)]
+        assert [tr.lost_reasons[i] for i in (*before, 5)] == ["hand"] * (HAND_LEAD + 1)
+        assert all(tr.landmarks[i] is None for i in before)
+    else:                            # the chin alone: its point goes, the frames stay
+        assert tr.success.all()
+        assert chin[[*before, 5]].isna().all()
+        assert tr.table.loc[before, "fid_mouth_corner_l_x"].notna().all()
+    untouched = [i for i in range(7) if i not in (*before, 5)]
+    assert chin[untouched].notna().all() and tr.success[untouched].all()
+    cap = cv2.VideoCapture(str(overlay))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 7          # held-back frames all drawn
