@@ -414,6 +414,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         learned landmark model (MediaPipe's face mesh) finds the face on every frame, places
         the contours and holds them with springs (:class:`trackers.AnchoredTracker`); a
         frame without a face is lost and the analysis starts on the first frame with one.
+        What a hand covers is lost, on the frame where it is found and on the
+        :data:`HAND_LEAD` frames before it (the overlay is drawn that many frames behind).
         'snakes': the method of 004 (Haar cascades, the template layout and free snakes),
         which needs no model.
     tracker_options : dict, optional
