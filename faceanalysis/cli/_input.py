@@ -15,10 +15,6 @@ from faceanalysis.cli._common import UsageError, non_negative_int, positive_floa
 if TYPE_CHECKING:
     from faceanalysis.io.video import VideoSource
 
-#: ``open_input``'s default ``min_size``: the smallest frame a face is looked for in
-#: (:data:`faceanalysis.io.video.MIN_FACE_SIZE`).
-FACE_SIZE = "face"
-
 
 def add_input_options(parser: argparse.ArgumentParser, *, positional: bool = True) -> None:
     """Add ``VIDEO`` (unless ``positional`` is false), ``--fps``, ``--start`` and ``--end``."""
@@ -52,15 +48,13 @@ def check_input_options(args: argparse.Namespace) -> None:
 
 
 def open_input(args: argparse.Namespace, *, path: Path | None = None,
-               min_size: int | str | None = FACE_SIZE) -> VideoSource:
+               any_size: bool = False) -> VideoSource:
     """Open ``args.video`` (or ``path``) with the options of :func:`add_input_options`;
-    ``min_size`` as :func:`~faceanalysis.io.video.open_video`'s, :data:`FACE_SIZE` for the
-    smallest frame a face is looked for in."""
+    frames smaller than a face is looked for in are refused unless ``any_size``."""
     # the decoder (OpenCV, NumPy) loads here, not with the command line: ``--help`` and
     # ``--version`` stay instant
     from faceanalysis.io.video import MIN_FACE_SIZE, open_video
 
-    if min_size == FACE_SIZE:
-        min_size = MIN_FACE_SIZE
     return open_video(path if path is not None else args.video, fps=args.fps,
-                      start=args.start, end=args.end, min_size=min_size)
+                      start=args.start, end=args.end,
+                      min_size=None if any_size else MIN_FACE_SIZE)

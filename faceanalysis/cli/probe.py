@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.io.cuts import frame_changes, shot_cuts
     from faceanalysis.io.report import input_metadata
 
-    with open_input(args, min_size=None) as source:
+    with open_input(args, any_size=True) as source:
         info = input_metadata(source)
         info["n_frames"] = source.n_frames
         if args.decode:
