@@ -137,6 +137,8 @@ ROBUST = 0.05
 _CHUNK_ELEMENTS = 2_000_000
 # Fewest frames a thread is given: below it, a thread's start costs more than it saves.
 _MIN_CHUNK = 16
+#: Frames :func:`fit_residual` predicts at a time.
+_RESIDUAL_CHUNK = 512
 
 
 #: Refits of the concave debiasing (``estimate_joint(debias=g)``), each with the prior
@@ -682,12 +684,18 @@ def fit_residual(displacements: np.ndarray, response: FiducialResponse,
     if c.shape != (d.shape[0], len(response.muscles)):
         raise ValueError(f"contractions must have shape ({d.shape[0]}, "
                          f"{len(response.muscles)}), got {c.shape}")
-    r2 = np.sum((d - response.predict(np.nan_to_num(c))) ** 2, axis=2)    # (T, F)
-    seen = np.isfinite(r2)
-    n = seen.sum(axis=1)
     out = np.full(d.shape[0], np.nan)
-    ok = (n > 0) & np.isfinite(c).any(axis=1)
-    out[ok] = np.sqrt(np.where(seen, r2, 0.0).sum(axis=1)[ok] / n[ok])
+    # a chunk of frames at a time: the prediction and its residual are the size of the
+    # displacements (some 6 kB a frame with the face mesh's points)
+    for a in range(0, d.shape[0], _RESIDUAL_CHUNK):
+        cc = c[a:a + _RESIDUAL_CHUNK]
+        r2 = np.sum((d[a:a + _RESIDUAL_CHUNK] - response.predict(np.nan_to_num(cc))) ** 2,
+                    axis=2)                                                 # (T, F)
+        seen = np.isfinite(r2)
+        n = seen.sum(axis=1)
+        ok = (n > 0) & np.isfinite(cc).any(axis=1)
+        out[a:a + _RESIDUAL_CHUNK][ok] = np.sqrt(np.where(seen, r2, 0.0).sum(axis=1)[ok]
+                                                 / n[ok])
     return out
 
 

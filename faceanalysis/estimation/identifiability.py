@@ -39,6 +39,8 @@ REFERENCE_NOISE_CM = 0.025
 MANY_POINTS = 32
 #: Second differences needed to measure a video's noise.
 MIN_SAMPLES = 30
+# Frames whose second differences :func:`tracking_noise` forms at a time.
+_NOISE_CHUNK = 512
 #: Correlation of two controls' frame-to-frame jitter at or below which they trade places
 #: (:func:`traded_pairs`). On the real clips with ``mesh``, levator labii and its alar twin
 #: reach -0.43 to -0.77 and the two mentalis -0.50 to -0.52; every other pair of active
@@ -150,7 +152,7 @@ def identifiability(response: FiducialResponse, *, level: float = 0.0,
     return out.sort_values("standard_error")
 
 
-def tracking_noise(displacements: np.ndarray) -> tuple[float | None, int]:
+def tracking_noise(displacements: np.ndarray, *, points=None) -> tuple[float | None, int]:
     """Noise of tracked points per coordinate (cm) from their frame-to-frame jitter.
 
     For white noise of standard deviation s on a smooth motion, the second difference
@@ -162,6 +164,8 @@ def tracking_noise(displacements: np.ndarray) -> tuple[float | None, int]:
     ----------
     displacements : ndarray, shape (T, P, 2)
         Point displacements (cm) per frame; NaN where not measured.
+    points : sequence of int, optional, keyword-only
+        The points (columns of ``displacements``) to read; default all.
 
     Returns
     -------
@@ -176,17 +180,37 @@ def tracking_noise(displacements: np.ndarray) -> tuple[float | None, int]:
     >>> d = np.sin(3 * t) + rng.normal(0, 0.02, (400, 5, 2))
     >>> round(tracking_noise(d)[0], 3)
     0.02
+    >>> round(tracking_noise(d, points=[0, 2])[0], 2)
+    0.02
     """
     d = np.asarray(displacements, dtype=float)
     if d.ndim != 3 or d.shape[2] != 2:
         raise ValueError(f"displacements must have shape (T, P, 2), got {d.shape}")
+    cols = np.arange(d.shape[1]) if points is None else np.asarray(points, dtype=np.intp)
+    if cols.ndim != 1 or (cols.size and (cols.min() < -d.shape[1]
+                                         or cols.max() >= d.shape[1])):
+        raise ValueError(f"points must index the {d.shape[1]} points of displacements, "
+                         f"got {points!r}")
     if d.shape[0] < 3:
         return None, 0
-    second = (d[2:] - 2.0 * d[1:-1] + d[:-2]).reshape(-1)
-    second = second[np.isfinite(second)]
+    # a chunk of frames at a time, into one buffer: a long video's second differences are
+    # as large as its displacements, and each temporary of them is one more such array
+    second = np.empty((d.shape[0] - 2) * cols.size * 2)
+    n = 0
+    for a in range(0, d.shape[0] - 2, _NOISE_CHUNK):
+        seg = d[a:a + _NOISE_CHUNK + 2][:, cols]
+        diff = seg[1:-1] * -2.0               # the same sums as d[2:] - 2 d[1:-1] + d[:-2]
+        diff += seg[2:]
+        diff += seg[:-2]
+        diff = diff[np.isfinite(diff)]
+        second[n:n + diff.size] = diff
+        n += diff.size
+    second = second[:n]
     if second.size < MIN_SAMPLES:
         return None, int(second.size)
-    mad = np.median(np.abs(second - np.median(second)))
+    # (the median does not depend on the order its partition leaves the values in)
+    second -= np.median(second, overwrite_input=True)
+    mad = np.median(np.abs(second, out=second), overwrite_input=True)
     return float(1.4826 * mad / np.sqrt(6.0)), int(second.size)
 
 
@@ -382,7 +406,7 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     frames = measured.any(axis=1)
     share = measured[frames].mean(axis=0) if frames.any() else np.zeros(d.shape[1])
     seen = [p for p, s in zip(response.fiducials, share) if s >= min_seen]
-    noise, samples = tracking_noise(d[:, [response.fiducials.index(p) for p in seen]])
+    noise, samples = tracking_noise(d, points=[response.fiducials.index(p) for p in seen])
     source = "measured"
     if noise is None:
         noise, source = REFERENCE_NOISE_CM, "reference"

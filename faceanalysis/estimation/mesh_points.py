@@ -67,6 +67,8 @@ ALIGN_ROUNDS = 4
 #: Residual (a fraction of the face's RMS radius in the image) at which a landmark's
 #: weight in the head alignment has halved.
 ALIGN_SCALE = 0.02
+#: Frames whose displacements :func:`mesh_displacements` works out at a time.
+DISPLACEMENT_CHUNK = 256
 
 #: Smallest |normal z| of a skin triangle a landmark may sit on (facing the camera).
 _MIN_FACING = 0.5
@@ -521,14 +523,23 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
     idx = np.asarray(indices, dtype=np.intp)
     ref = np.asarray(landmarks[neutral], dtype=float)
     out = np.full((len(landmarks), len(idx), 2), np.nan)
-    seen = [t for t, pts in enumerate(landmarks) if pts is not None]
-    p = np.stack([np.asarray(landmarks[t], dtype=float) for t in seen])
+    seen = np.array([t for t, pts in enumerate(landmarks) if pts is not None], np.intp)
+    # frames are independent: a chunk at a time, the working arrays (some 50 kB a frame)
+    # stay the size of a chunk however long the video is
+    for a in range(0, len(seen), DISPLACEMENT_CHUNK):
+        rows = seen[a:a + DISPLACEMENT_CHUNK]
+        p = np.stack([np.asarray(landmarks[t], dtype=float) for t in rows])
+        out[rows] = _displacements(ref, p, idx, rigid, rounds, stretch)
+    return out
+
+
+def _displacements(ref, p, idx, rigid, rounds, stretch):
+    """:func:`mesh_displacements` of the frames ``p`` (T, 468, 3), all with landmarks."""
     s, rot, tr = head_alignment(ref, p, rigid=rigid, rounds=rounds)
     if not stretch:
         # into the neutral pose: R^T (p - t) / s
         back = (p[:, idx] - tr[:, None]) @ rot / s[:, None, None]
-        out[seen] = back[..., :2] - ref[idx, :2]
-        return out
+        return back[..., :2] - ref[idx, :2]
     # (matrix products, not einsum: these are the estimation's largest array operations)
     predicted = ref @ np.swapaxes(s[:, None, None] * rot[:, :2], 1, 2) + tr[:, None, :2]
     m, centre, shift = image_stretch(predicted, p[..., :2], rounds=rounds)
@@ -537,8 +548,7 @@ def mesh_displacements(landmarks, neutral: int, indices, *, rigid=RIGID_3D,
     # what is left, seen in the image, taken back into the neutral frame's: the image moves
     # m s R_xy per unit of a neutral displacement in the face's plane
     jac = m @ (s[:, None, None] * rot[:, :2, :2])
-    out[seen] = (p[:, idx, :2] - expected) @ np.swapaxes(np.linalg.inv(jac), 1, 2)
-    return out
+    return (p[:, idx, :2] - expected) @ np.swapaxes(np.linalg.inv(jac), 1, 2)
 
 
 def mesh_indices() -> tuple[int, ...]:
@@ -553,7 +563,16 @@ def to_model_units(displacements: np.ndarray, reference: np.ndarray, head: np.nd
     (:class:`~faceanalysis.estimation.calibration.Calibration`)."""
     from faceanalysis.tracking import to_head_frame
 
-    q1 = to_head_frame(np.asarray(reference, float) + displacements, head)
-    q0 = to_head_frame(np.asarray(reference, float), head)
-    return (q1 - q0) @ np.linalg.inv(calibration.matrix).T
+    reference = np.asarray(reference, float)
+    disp = np.asarray(displacements, float)
+    q0 = to_head_frame(reference, head)
+    inv = np.linalg.inv(calibration.matrix).T
+    if disp.ndim < 3:
+        return (to_head_frame(reference + disp, head) - q0) @ inv
+    out = np.empty(disp.shape[:-1] + (inv.shape[1],))
+    # a chunk of frames at a time: the head frame's temporaries stay small
+    for a in range(0, len(disp), DISPLACEMENT_CHUNK):
+        out[a:a + DISPLACEMENT_CHUNK] = (to_head_frame(reference + disp[a:a + DISPLACEMENT_CHUNK],
+                                                       head) - q0) @ inv
+    return out
 

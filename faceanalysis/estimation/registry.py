@@ -175,6 +175,7 @@ def mesh_observations(obs: Observations, response: FiducialResponse) -> np.ndarr
     """Displacements (model cm) of ``response.fiducials``: the contour points from ``obs``,
     the face-mesh points from the tracks' landmarks, shape (T, P, 2)."""
     from faceanalysis.estimation.mesh_points import (
+        DISPLACEMENT_CHUNK,
         MESH_POINT_PREFIX,
         mesh_displacements,
         to_model_units,
@@ -195,9 +196,14 @@ def mesh_observations(obs: Observations, response: FiducialResponse) -> np.ndarr
         if not n.startswith(MESH_POINT_PREFIX) and n in obs.response.fiducials:
             d[:, j] = obs.displacements[:, obs.response.fiducials.index(n)]
     k = obs.neutral
-    px = mesh_displacements(landmarks, k, idx)
     ref = np.asarray(landmarks[k], dtype=float)[idx, :2]
-    d[:, mesh] = to_model_units(px, ref, tracks.heads[k], obs.calibration)
+    # a chunk of frames at a time (each frame's motion is its own): no array of the whole
+    # video's pixel motion beside ``d``
+    for a in range(0, len(d), DISPLACEMENT_CHUNK):
+        part = [landmarks[k], *landmarks[a:a + DISPLACEMENT_CHUNK]]    # neutral first
+        px = mesh_displacements(part, 0, idx)[1:]
+        d[a:a + DISPLACEMENT_CHUNK, mesh] = to_model_units(px, ref, tracks.heads[k],
+                                                           obs.calibration)
     # where the tracker lost a region (a brow under hair, the lower face under a hand),
     # the mesh goes on drawing a face the landmark model imagines: its points there go too
     lost = regions_lost(tracks)

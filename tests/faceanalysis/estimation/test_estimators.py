@@ -2,7 +2,12 @@ import numpy as np
 import pytest
 
 from faceanalysis.estimation.calibration import calibrate, find_suspect
-from faceanalysis.estimation.estimators import estimate, estimate_joint, estimate_tw93
+from faceanalysis.estimation.estimators import (
+    estimate,
+    estimate_joint,
+    estimate_tw93,
+    fit_residual,
+)
 from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.tracking import to_head_frame
 
@@ -482,3 +487,27 @@ def test_temporal_prior_needs_both_neighbours():
     for bad in (-0.1, np.nan, True, "0.01"):
         with pytest.raises(ValueError, match="temporal must be"):
             estimate_joint(d, resp, temporal=bad)
+
+
+def test_fit_residual_of_a_long_video_is_each_frame_own():
+    # more frames than one chunk, with lost frames and unseen points: each frame's RMS
+    # distance from the response's prediction, NaN where nothing was seen or estimated
+    levels = np.linspace(0, 1, 3)
+    disp = np.zeros((2, 3, 3, 2))
+    disp[0, :, :, 1] = levels[:, None]
+    disp[1, :, 0, 0] = 2 * levels
+    resp = FiducialResponse(("a", "b"), ("p", "q", "r"), np.zeros((3, 2)), disp,
+                            np.ones(2), levels)
+    rng = np.random.default_rng(2)
+    n = 1100
+    c = rng.uniform(0.0, 1.0, (n, 2))
+    d = resp.predict(c) + rng.normal(0.0, 0.1, (n, 3, 2))
+    d[700, 1] = np.nan
+    d[900] = np.nan
+    c[20] = np.nan
+    r = fit_residual(d, resp, c)
+    for t in (0, 511, 512, 700, 1099):
+        e = np.sum((d[t] - resp.predict(c[t])[0]) ** 2, axis=1)
+        assert r[t] == pytest.approx(np.sqrt(np.nanmean(e)), rel=1e-12)
+    assert np.isnan(r[[20, 900]]).all()
+    assert np.isfinite(np.delete(r, [20, 900])).all()

@@ -82,6 +82,25 @@ def test_tracking_noise_is_measured_from_jitter_not_motion():
     assert tracking_noise(motion[:2]) == (None, 0)
 
 
+def test_tracking_noise_of_a_long_video_reads_every_second_difference_once():
+    # more frames than one chunk, points lost across a chunk's edge, a subset of points:
+    # the same samples and noise as the formula over the whole array
+    rng = np.random.default_rng(8)
+    d = rng.normal(0.0, 0.03, (1300, 7, 2))
+    d[500:530, 1] = np.nan
+    d[1020:1030] = np.nan
+    cols = [0, 1, 4, 6]
+    second = (d[2:] - 2.0 * d[1:-1] + d[:-2])[:, cols].reshape(-1)
+    second = second[np.isfinite(second)]
+    expected = 1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0)
+    noise, n = tracking_noise(d, points=cols)
+    assert n == second.size
+    assert noise == pytest.approx(expected, rel=1e-12)
+    assert tracking_noise(d)[1] > n
+    with pytest.raises(ValueError, match="points"):
+        tracking_noise(d, points=[7])
+
+
 def test_assess_marks_what_the_noise_hides():
     response = model_response()
     rng = np.random.default_rng(4)

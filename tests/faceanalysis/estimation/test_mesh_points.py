@@ -6,6 +6,7 @@ import pytest
 
 from faceanalysis.estimation.calibration import Calibration
 from faceanalysis.estimation.mesh_points import (
+    DISPLACEMENT_CHUNK,
     RIGID_3D,
     mesh_displacements,
     similarity_3d,
@@ -99,6 +100,27 @@ def test_rigid_points_do_not_include_what_an_expression_moves():
     assert not {61, 291, 0, 17, 13, 14} & set(RIGID_3D)
 
 
+def test_a_long_video_is_measured_frame_by_frame_as_each_frame_alone():
+    # more frames than one chunk, a lost frame at a chunk's edge: every frame's motion is
+    # its own, however many frames come with it
+    rng = np.random.default_rng(5)
+    neutral = _face()
+    frames = []
+    for _ in range(DISPLACEMENT_CHUNK + 40):
+        rot = _rotation(*rng.normal(0.0, 0.1, 3))
+        frame = (neutral - neutral.mean(0)) @ rot.T + neutral.mean(0) + rng.normal(0, 2, 3)
+        frames.append(frame + rng.normal(0.0, 0.5, frame.shape))
+    frames[DISPLACEMENT_CHUNK - 1] = None
+    frames[3] = neutral
+    idx = [0, 61, 291, 400]
+    d = mesh_displacements(frames, 3, idx)
+    assert d.shape == (len(frames), 4, 2)
+    assert np.isnan(d[DISPLACEMENT_CHUNK - 1]).all()
+    for t in (0, DISPLACEMENT_CHUNK - 2, DISPLACEMENT_CHUNK, len(frames) - 1):
+        np.testing.assert_array_equal(d[t], mesh_displacements([neutral, frames[t]], 0, idx)[1])
+    np.testing.assert_allclose(d[3], 0.0, atol=1e-9)
+
+
 def test_neutral_frame_without_landmarks_is_refused():
     with pytest.raises(ValueError, match="neutral frame"):
         mesh_displacements([None, _face()], 0, [1])
@@ -112,6 +134,13 @@ def test_pixels_become_model_centimetres_through_the_calibration():
     d = to_model_units(np.array([[[0.0, 20.0]]]), np.array([[120.0, 90.0]]), head, cal)
     # 20 px down the image = +2 along the head's x axis = +1 cm along the model's x
     np.testing.assert_allclose(d, [[[1.0, 0.0]]], atol=1e-12)
+    # one frame or many (more than a chunk): the same per frame
+    many = np.tile(np.array([[[0.0, 20.0]]]), (DISPLACEMENT_CHUNK + 3, 1, 1))
+    np.testing.assert_allclose(to_model_units(many, np.array([[120.0, 90.0]]), head, cal),
+                               np.tile([[[1.0, 0.0]]], (len(many), 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(to_model_units(np.array([[0.0, 20.0]]),
+                                              np.array([[120.0, 90.0]]), head, cal),
+                               [[1.0, 0.0]], atol=1e-12)
 
 
 def _models_or_skip():
