@@ -43,6 +43,7 @@ __all__ = [
     "Tracks",
     "faded_furrow_ends",
     "find_face",
+    "hidden_frames",
     "lost_reason_counts",
     "measure_frame",
     "progress_bar",
@@ -712,6 +713,31 @@ def lost_reason_counts(reasons) -> dict[str, int]:
     """
     counts = {code: sum(r == code for r in reasons) for code in LOST_REASONS}
     return {code: n for code, n in counts.items() if n}
+
+
+#: Lost-frame reasons (:data:`~faceanalysis.io.report.LOST_REASONS`) that leave nothing of
+#: the face to see: no face found, a hand over it, no picture at all. (A frame lost for
+#: ``'contours'`` still shows the face.)
+HIDDEN_REASONS = ("no_face", "hand", "undecodable")
+
+
+def hidden_frames(frames, lost_reasons) -> np.ndarray:
+    """The frame numbers on which the face cannot be seen: lost for one of
+    :data:`HIDDEN_REASONS` (``frames`` and ``lost_reasons`` as in :class:`Tracks`; no
+    reasons, None: none known).
+
+    Examples
+    --------
+    >>> hidden_frames([10, 11, 12, 13], [None, "hand", "contours", "no_face"]).tolist()
+    [11, 13]
+    """
+    frames = np.asarray(frames, dtype=int)
+    if lost_reasons is None:
+        return frames[:0]
+    if len(lost_reasons) != len(frames):
+        raise ValueError(f"lost_reasons has {len(lost_reasons)} entries for {len(frames)} "
+                         "frames")
+    return frames[np.array([r in HIDDEN_REASONS for r in lost_reasons], bool)]
 
 
 def _under_hand(result) -> set:

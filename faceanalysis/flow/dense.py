@@ -424,7 +424,7 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
                     grid: FaceGrid | None = None, fps: float | None = None, start: int = 0,
                     end: int | None = None, px_per_unit: float | None = None,
                     normalize: bool = True, stabilization: str = "flow",
-                    dtype=np.float64) -> FaceFlow:
+                    hidden=None, dtype=np.float64) -> FaceFlow:
     """Face flow of a video file, streamed (frames are not kept in memory).
 
     Parameters
@@ -441,6 +441,13 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
         frame only, as the video is streamed forward).
     fps, start, end
         Input options, as for ``analyze``.
+    hidden : iterable of int, optional
+        Frame numbers on which the face cannot be seen (no face found, a hand over it:
+        the lost frames of :attr:`Tracks.lost_reasons <faceanalysis.tracking.Tracks>`
+        ``'no_face'``, ``'hand'`` and ``'undecodable'``;
+        :func:`faceanalysis.tracking.hidden_frames`): their
+        flow is lost (NaN) instead of bridged from the last frame's alignment. Default:
+        those of the tracks when ``table`` is tracked here, none of a given table's.
     dtype : numpy float dtype, keyword-only
         Type of the stored displacement: ``float64`` (default) or ``float32``, which halves
         the memory a long video needs (a 64 x 48 grid: 49 kB a frame in ``float64``).
@@ -454,8 +461,8 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     grid = grid or FaceGrid()
     t0 = time.perf_counter()
     stream = VideoFlowStream(video, table=table, neutral=neutral, method=method, grid=grid,
-                                  fps=fps, start=start, end=end, px_per_unit=px_per_unit,
-                                  normalize=normalize, stabilization=stabilization)
+                             fps=fps, start=start, end=end, px_per_unit=px_per_unit,
+                             normalize=normalize, stabilization=stabilization, hidden=hidden)
     frames = stream.frames
     disp = np.full((len(frames), *grid.shape, 2), np.nan, dtype=dtype)
     for i, d in stream:
@@ -480,14 +487,18 @@ class VideoFlowStream:
                  neutral: int | None = None, method: str = "dis",
                  grid: FaceGrid | None = None, fps: float | None = None, start: int = 0,
                  end: int | None = None, px_per_unit: float | None = None,
-                 normalize: bool = True, stabilization: str = "flow"):
+                 normalize: bool = True, stabilization: str = "flow", hidden=None):
         from faceanalysis.io.table import heads_from_table
         from faceanalysis.io.video import open_video
-        from faceanalysis.tracking import track
+        from faceanalysis.tracking import hidden_frames, track
 
         grid = grid or FaceGrid()
         if table is None:
-            table = track(video, fps=fps, start=start, end=end, redetect=True).table
+            tracks = track(video, fps=fps, start=start, end=end, redetect=True,
+                           keep_contours=False)
+            table = tracks.table
+            if hidden is None:
+                hidden = hidden_frames(tracks.frames, tracks.lost_reasons)
         if "frame" not in table.columns:
             raise ValueError("table lacks the 'frame' column")
         heads = heads_from_table(table)
@@ -517,6 +528,7 @@ class VideoFlowStream:
         self._back = _FlowStep(ref_img, heads[ref_pos], grid, method, px_per_unit, normalize,
                                stabilization="head")
         self._video, self._fps, self._heads, self._ok = video, fps, heads, ok
+        self._hidden = frozenset(int(f) for f in (() if hidden is None else hidden))
         self._ref_pos = ref_pos
         self.frames = frames
         self.reference = ref_frame
@@ -534,6 +546,11 @@ class VideoFlowStream:
             for f in src:
                 i = pos.get(f.index)
                 if i is None or not f.ok:
+                    continue
+                if f.index in self._hidden and i != ref_pos:
+                    # nothing of the face to align on: bridged, the flow would measure
+                    # the hand or the background as the face's motion
+                    yield i, lost
                     continue
                 if i == ref_pos:
                     yield i, np.zeros((*self.grid.shape, 2))

@@ -644,7 +644,7 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     """
     from faceanalysis.flow.dense import VideoFlowStream
     from faceanalysis.flow.personalize import personalize_from_table
-    from faceanalysis.tracking import track
+    from faceanalysis.tracking import hidden_frames, track
 
     if templates is None:
         from faceanalysis.flow.templates import default_templates
@@ -660,11 +660,16 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     if not thr > 0:
         raise ValueError(f"threshold={thr} must be positive")
     first = max(0, start - rest_lookback) if neutral is None else min(start, int(neutral))
+    hidden = None
     if table is None:
         # the contours are not needed here; keeping them would grow with the video
-        table = track(video, fps=fps, start=first, end=end, redetect=True,
-                      keep_contours=False).table
-    options = dict(table=table, method=method, grid=templates.grid, fps=fps, end=end)
+        tracks = track(video, fps=fps, start=first, end=end, redetect=True,
+                       keep_contours=False)
+        table = tracks.table
+        hidden = hidden_frames(tracks.frames, tracks.lost_reasons)
+        del tracks                 # its face meshes: 6 kB a frame that nothing here reads
+    options = dict(table=table, method=method, grid=templates.grid, fps=fps, end=end,
+                   hidden=hidden)
     rest = None
     if neutral is None:
         stream = VideoFlowStream(video, start=first, **options)

@@ -13,6 +13,7 @@ from faceanalysis.flow.dense import (
     flow_to_colour,
     stabilize,
     tvl1_scales,
+    video_face_flow,
 )
 from faceanalysis.flow.grid import (
     FaceGrid,
@@ -189,6 +190,24 @@ def test_lost_frames_and_bad_arguments(rng):
         face_flow(frames, heads, grid=g, reference=5)
     with pytest.raises(ValueError, match="stabilization"):
         face_flow(frames, np.nan_to_num(heads, nan=100.0), grid=g, stabilization="none")
+
+
+def test_a_frame_without_the_face_in_view_is_lost_not_bridged(rng, tmp_path):
+    # a frame the tracker lost keeps a flow bridged from the last alignment, unless the
+    # face cannot be seen there (no face found, a hand over it): then it is lost
+    import pandas as pd
+
+    frames, heads, g, _ = _moving_face(rng, T=5)
+    for t, im in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"{t}.png"), im)
+    table = pd.DataFrame(heads, columns=["head_x", "head_y", "head_scale", "head_roll"])
+    table.insert(0, "frame", np.arange(5))
+    table.insert(1, "success", [1, 1, 1, 0, 1])
+    bridged = video_face_flow(tmp_path, table=table, grid=g)
+    assert bridged.valid.tolist() == [True] * 5
+    hidden = video_face_flow(tmp_path, table=table, grid=g, hidden=[3])
+    assert hidden.valid.tolist() == [True, True, True, False, True]
+    np.testing.assert_array_equal(hidden.displacement[4], bridged.displacement[4])
 
 
 def test_rigid_basis_projection():
