@@ -42,7 +42,7 @@ from faceanalysis.estimation.registry import (
     run_estimator,
 )
 from faceanalysis.estimation.response import FiducialResponse
-from faceanalysis.io.report import analysis_metadata, quality_summary
+from faceanalysis.io.report import analysis_metadata, frame_ranges, quality_summary
 from faceanalysis.io.table import (
     EYE_COLUMNS,
     FIDUCIALS,
@@ -58,6 +58,7 @@ from faceanalysis.io.table import (
 from faceanalysis.tracking import (
     Tracks,
     faded_furrow_ends,
+    hidden_frames,
     lost_reason_counts,
     resolve_tracker,
     track,
@@ -411,6 +412,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                                         "identifiability": ident, "eyes": eye_summary})
     if metadata.get("quality") is not None:
         metadata["quality"]["lost_reasons"] = lost_reason_counts(tracks.lost_reasons)
+        metadata["quality"]["hidden_ranges"] = frame_ranges(
+            hidden_frames(tracks.frames, tracks.lost_reasons))
         metadata["quality"]["shot_cuts"] = list(tracks.cuts)
         metadata["quality"]["interocular_px"] = None if iod is None else round(iod, 1)
     timings = {"track_s": tracks.timings["track_s"], "estimate_s": t_estimate,

@@ -57,21 +57,25 @@ def run(args: argparse.Namespace) -> int:
 
     from faceanalysis.flow.recognition import CLASSES, classify_video
     from faceanalysis.flow.templates import FlowTemplates
-    from faceanalysis.io.outputs import CONTRACTIONS_CSV
+    from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
+    from faceanalysis.io.report import hidden_frames_of, read_analysis
 
     if not args.video.exists():
         raise FileNotFoundError(f"{args.video}: no such file or folder")
-    table = None
+    table = hidden = None
     if args.analysis is not None:
         csv = args.analysis / CONTRACTIONS_CSV
         if not csv.is_file():
             raise FileNotFoundError(f"{csv}: no contractions.csv in the analysis folder")
         table = pd.read_csv(csv)
+        meta = args.analysis / ANALYSIS_JSON
+        if meta.is_file():
+            hidden = hidden_frames_of(read_analysis(meta))
     templates = FlowTemplates.load(args.templates) if args.templates is not None else None
     lookback = {} if args.rest_lookback is None else {"rest_lookback": args.rest_lookback}
     rec = classify_video(args.video, templates=templates, table=table, neutral=args.neutral,
                          method=args.method, fps=args.fps, start=args.start, end=args.end,
-                         threshold=args.threshold, **lookback)
+                         threshold=args.threshold, hidden=hidden, **lookback)
     if args.output is not None:
         from faceanalysis.io.outputs import write_text_atomic
 

@@ -142,6 +142,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     -------
     ValidationResult
     """
+    from faceanalysis.io.report import hidden_frames_of
     from faceanalysis.io.table import heads_from_table, read_contractions
 
     folder = Path(analysis)
@@ -172,7 +173,8 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     agree, summary, o, pred = video_flow_agreement(
         video, table, neutral=int(neutral), model=model, personal=personal,
         contractions=contractions, templates=templates, method=method, fps=fps,
-        personalised=bool(personalised), temporal_sigma=temporal_sigma)
+        personalised=bool(personalised), temporal_sigma=temporal_sigma,
+        hidden=hidden_frames_of(meta))
     summary.update(resynthesis="shuffled/override" if contractions is not None
                    else "analysis")
     result = ValidationResult(agree, summary, o, pred)

@@ -197,7 +197,7 @@ def video_flow_agreement(video: str | os.PathLike, table: pd.DataFrame, *, neutr
                          model=None, personal=None, contractions: pd.DataFrame | None = None,
                          templates: FlowTemplates | None = None, method: str = "dis",
                          fps: float | None = None, personalised: bool = True,
-                         temporal_sigma: float = 1.0
+                         temporal_sigma: float = 1.0, hidden=None
                          ) -> tuple[pd.DataFrame, dict, np.ndarray, np.ndarray]:
     """Flow of a video against the flow of the face model driven by its contractions.
 
@@ -225,6 +225,10 @@ def video_flow_agreement(video: str | os.PathLike, table: pd.DataFrame, *, neutr
         fiducials in 2-D (:class:`faceanalysis.flow.personalize.SubjectWarp`).
     temporal_sigma : float
         Gaussian smoothing of the input flow over time (frames; 0 = none).
+    hidden : iterable of int, optional
+        Frames on which the face cannot be seen (an analysis's ``quality.hidden_ranges``,
+        :func:`faceanalysis.io.report.hidden_frames_of`): the input's flow there is lost,
+        not bridged (:func:`~faceanalysis.flow.dense.video_face_flow`).
 
     Returns
     -------
@@ -258,7 +262,7 @@ def video_flow_agreement(video: str | os.PathLike, table: pd.DataFrame, *, neutr
 
         model = FaceModel.default()
     ff = video_face_flow(video, table=table, neutral=int(neutral), method=method,
-                         grid=templates.grid, fps=fps)
+                         grid=templates.grid, fps=fps, hidden=hidden)
     drive = table if contractions is None else contractions
     personalisation = "none"
     tpl = templates

@@ -597,7 +597,7 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                    end: int | None = None, personalised: bool = True,
                    rest_lookback: int = REST_LOOKBACK, threshold: float | None = None,
                    min_score: float = MIN_SCORE, min_length: int = 3,
-                   min_gap: int = 5) -> Recognition:
+                   min_gap: int = 5, hidden=None) -> Recognition:
     """Recognise the expressions of a video (flow from its neutral frame, then
     :func:`classify_flow`), in memory that does not grow with the video's length.
 
@@ -629,6 +629,11 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         rest just before.
     threshold, min_score, min_length, min_gap
         See :func:`classify_flow`.
+    hidden : iterable of int, optional
+        Frames on which the face cannot be seen, whose flow is lost rather than bridged
+        (:func:`~faceanalysis.flow.dense.video_face_flow`); default: those the tracking
+        finds when ``table`` is tracked here, none of a given table's (an analysis's are
+        :func:`faceanalysis.io.report.hidden_frames_of` its ``analysis.json``).
 
     Returns
     -------
@@ -660,13 +665,13 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     if not thr > 0:
         raise ValueError(f"threshold={thr} must be positive")
     first = max(0, start - rest_lookback) if neutral is None else min(start, int(neutral))
-    hidden = None
     if table is None:
         # the contours are not needed here; keeping them would grow with the video
         tracks = track(video, fps=fps, start=first, end=end, redetect=True,
                        keep_contours=False)
         table = tracks.table
-        hidden = hidden_frames(tracks.frames, tracks.lost_reasons)
+        if hidden is None:
+            hidden = hidden_frames(tracks.frames, tracks.lost_reasons)
         del tracks                 # its face meshes: 6 kB a frame that nothing here reads
     options = dict(table=table, method=method, grid=templates.grid, fps=fps, end=end,
                    hidden=hidden)

@@ -29,6 +29,8 @@ __all__ = [
     "FORMAT",
     "LOST_REASONS",
     "analysis_metadata",
+    "frame_ranges",
+    "hidden_frames_of",
     "input_metadata",
     "lost_reasons_text",
     "quality_summary",
@@ -93,14 +95,38 @@ def _jsonable(value, key: str = "value"):
     raise ValueError(f"{key}: cannot store a {type(value).__name__} in analysis.json")
 
 
-def _ranges(frames: np.ndarray) -> list[list[int]]:
-    """Group sorted frame numbers into inclusive ``[first, last]`` runs of consecutive ones."""
+def frame_ranges(frames) -> list[list[int]]:
+    """Group sorted frame numbers into inclusive ``[first, last]`` runs of consecutive ones.
+
+    Examples
+    --------
+    >>> frame_ranges([3, 4, 5, 9, 11, 12])
+    [[3, 5], [9, 9], [11, 12]]
+    """
+    frames = np.asarray(frames, dtype=int)
     if frames.size == 0:
         return []
     breaks = np.flatnonzero(np.diff(frames) != 1)
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks, [frames.size - 1]])
     return [[int(frames[s]), int(frames[e])] for s, e in zip(starts, ends)]
+
+
+def hidden_frames_of(metadata) -> np.ndarray | None:
+    """The frames on which the face could not be seen, from an ``analysis.json``'s
+    ``quality.hidden_ranges``; None where it does not say (an older analysis).
+
+    Examples
+    --------
+    >>> hidden_frames_of({"quality": {"hidden_ranges": [[3, 5], [9, 9]]}}).tolist()
+    [3, 4, 5, 9]
+    >>> hidden_frames_of({}) is None
+    True
+    """
+    ranges = ((metadata or {}).get("quality") or {}).get("hidden_ranges")
+    if ranges is None:
+        return None
+    return np.array([f for a, b in ranges for f in range(int(a), int(b) + 1)], dtype=int)
 
 
 def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
@@ -145,7 +171,7 @@ def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
     success = pd.to_numeric(table["success"], errors="coerce").to_numpy(float) > 0
     frames = pd.to_numeric(table["frame"], errors="coerce").to_numpy(float)
     lost_frames = np.sort(frames[~success].astype(np.int64))
-    ranges = _ranges(lost_frames)
+    ranges = frame_ranges(lost_frames)
     n_total = int(len(table))
     n_tracked = int(success.sum())
     n_lost = n_total - n_tracked + int(frames_missing)

@@ -170,6 +170,7 @@ def _flow_agreement(series, res: Resynthesis, subject, input_video) -> dict:
     """The flow agreement of the resynthesis with the analysed video, for the report; a
     ``skipped`` reason when it cannot be measured."""
     from faceanalysis.flow.agreement import video_flow_agreement
+    from faceanalysis.io.report import hidden_frames_of
     from faceanalysis.io.table import HEAD_COLUMNS
 
     video = Path(input_video) if input_video is not None else series.input_path
@@ -188,7 +189,7 @@ def _flow_agreement(series, res: Resynthesis, subject, input_video) -> dict:
     try:
         agree, summary, _, _ = video_flow_agreement(
             video, table, neutral=neutral, model=None if same else res.model,
-            personal=res.model if same else None)
+            personal=res.model if same else None, hidden=hidden_frames_of(series.metadata))
     except ValueError as exc:
         return {"skipped": str(exc)}
     act = agree[agree["active"].astype(bool)]

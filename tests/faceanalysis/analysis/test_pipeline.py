@@ -825,6 +825,9 @@ def test_the_analysis_says_why_frames_were_lost(run_cli, surprise, tmp_path):
     assert code == 0, err
     quality = json.loads((out / "analysis.json").read_text())["quality"]
     assert quality["frames_lost"] == 2 and quality["lost_reasons"] == {"no_face": 2}
+    # which frames showed no face, for what reads the video's flow again (classify,
+    # validate: not bridged there)
+    assert quality["hidden_ranges"] == [[0, 0], [3, 3]]
     assert "(2 lost: 2 without a face;" in err
     # and the plot's legend
     legend = [t.get_text() for t in analyze(folder, fps=10).plot().legends[0].get_texts()]
