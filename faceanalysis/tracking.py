@@ -43,6 +43,7 @@ __all__ = [
     "Tracks",
     "faded_furrow_ends",
     "find_face",
+    "HIDDEN_REASONS",
     "hidden_frames",
     "lost_reason_counts",
     "measure_frame",

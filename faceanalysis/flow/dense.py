@@ -442,12 +442,10 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
     fps, start, end
         Input options, as for ``analyze``.
     hidden : iterable of int, optional
-        Frame numbers on which the face cannot be seen (no face found, a hand over it:
-        the lost frames of :attr:`Tracks.lost_reasons <faceanalysis.tracking.Tracks>`
-        ``'no_face'``, ``'hand'`` and ``'undecodable'``;
-        :func:`faceanalysis.tracking.hidden_frames`): their
-        flow is lost (NaN) instead of bridged from the last frame's alignment. Default:
-        those of the tracks when ``table`` is tracked here, none of a given table's.
+        Frame numbers on which the face cannot be seen (lost for no face, a hand over it
+        or no picture: :func:`faceanalysis.tracking.hidden_frames`): their flow is lost
+        (NaN) instead of bridged from the last frame's alignment. Default: those of the
+        tracks when ``table`` is tracked here, none of a given table's.
     dtype : numpy float dtype, keyword-only
         Type of the stored displacement: ``float64`` (default) or ``float32``, which halves
         the memory a long video needs (a 64 x 48 grid: 49 kB a frame in ``float64``).
