@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "CURVE_POINTS",
+    "HIDDEN_REASONS",
     "MIN_FURROW_STRETCH",
     "MIN_POINTS",
     "POINT_CONTOUR",
@@ -43,7 +44,6 @@ __all__ = [
     "Tracks",
     "faded_furrow_ends",
     "find_face",
-    "HIDDEN_REASONS",
     "hidden_frames",
     "lost_reason_counts",
     "measure_frame",
