@@ -37,6 +37,7 @@ _EXPORTS: dict[str, str] = {
     "track": "faceanalysis.tracking",
     "Tracks": "faceanalysis.tracking",
     "open_video": "faceanalysis.io.video",
+    "Frames": "faceanalysis.io.video",
     "read_contractions": "faceanalysis.io.table",
     "write_contractions": "faceanalysis.io.table",
     "read_analysis": "faceanalysis.io.report",

@@ -28,7 +28,7 @@ from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.cuts import frame_changes, shot_cuts
 from faceanalysis.io.report import LOST_REASONS, input_metadata
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
-from faceanalysis.io.video import MIN_FACE_SIZE, open_video, read_ahead
+from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
 
 log = logging.getLogger(__name__)
@@ -247,8 +247,8 @@ class Tracks:
 
     Attributes
     ----------
-    video : str
-        The input's path.
+    video : str or Frames
+        The input's path, or the frames in memory (:class:`~faceanalysis.io.video.Frames`).
     input : dict
         The input's metadata (:func:`faceanalysis.io.report.input_metadata`).
     frames, timestamps : ndarray, shape (T,)
@@ -300,7 +300,7 @@ class Tracks:
         empty for tracks not made by :func:`track`.
     """
 
-    video: str
+    video: str | Frames
     input: dict
     frames: np.ndarray
     timestamps: np.ndarray
@@ -397,8 +397,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
 
     Parameters
     ----------
-    video : path-like
-        Video file, folder of images, or a single image.
+    video : path-like, Frames or array_like
+        Video file, folder of images, a single image, or frames in memory (an array
+        ``(T, H, W[, 3])`` or a sequence of arrays, RGB; :class:`~faceanalysis.io.video.Frames`).
     points : tuple of str, keyword-only
         Measurement points to read: fiducials (:data:`~faceanalysis.io.table.FIDUCIALS`),
         ``lip_lower_centre`` and the :data:`CURVE_POINTS`. A frame succeeds when at
@@ -461,6 +462,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         Unreadable video, an empty frame range, no face in any frame, unknown points or
         bad parameters.
     """
+    video = as_video(video)         # frames in memory: messages name them, not their pixels
     points = tuple(points)
     unknown = [p for p in points if p not in POINT_CONTOUR]
     if unknown:
@@ -629,7 +631,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             tracker.close()
     if not frames:
         raise ValueError(f"{video}: no frames in the requested range")
-    return Tracks(video=str(video), input=input_metadata(source), frames=np.array(frames),
+    return Tracks(video=video if isinstance(video, Frames) else str(video),
+                  input=input_metadata(source), frames=np.array(frames),
                   timestamps=np.array(stamps, float), success=np.array(ok, bool),
                   confidence=np.where(ok, conf, 0.0), heads=np.stack(head_rows),
                   pose=np.stack(poses), eyes=np.stack(lids).astype(float), tracker=kind,

@@ -55,6 +55,7 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
+from faceanalysis.io.video import Frames, as_video
 from faceanalysis.tracking import (
     Tracks,
     faded_furrow_ends,
@@ -154,8 +155,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
 
     Parameters
     ----------
-    video : path-like
-        Video file, folder of images, or a single image.
+    video : path-like, Frames or array_like
+        Video file, folder of images, a single image, or frames in memory (an array
+        ``(T, H, W[, 3])`` or a sequence of arrays, RGB, as imageio reads them: give their
+        ``fps``; :class:`~faceanalysis.io.video.Frames`).
     estimator : {'joint', 'mesh', 'model', 'fused', 'tw93', 'flow'}, optional
         ``joint``: bounded least squares of all contractions through the model's
         fiducial response on the contours' points; ``mesh``: the same on the contour
@@ -262,6 +265,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     """
     from trackers.torch_backend import check_backend
 
+    video = as_video(video)         # frames in memory: messages name them, not their pixels
     if estimator is None:
         estimator = default_estimator(tracker, layout=layout, refine=refine)
     if estimator not in ESTIMATORS:
@@ -1083,8 +1087,10 @@ def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,
     it did not write again (an overlay, ``validation.*``) are removed
     (see :class:`~faceanalysis.analysis.results.OutputFolder`).
     """
+    video = as_video(video)
     with OutputFolder(output, overwrite=overwrite) as folder:
         result = analyze(video, overlay=folder.overlay_mp4 if overlay else None,
                          progress=not quiet, **options)
-        folder.write(result.table, result.metadata, title=Path(video).name)
+        folder.write(result.table, result.metadata,
+                     title=video.name if isinstance(video, Frames) else Path(video).name)
     return result

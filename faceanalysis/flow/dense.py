@@ -429,7 +429,8 @@ def video_face_flow(video: str | os.PathLike, *, table: pd.DataFrame | None = No
 
     Parameters
     ----------
-    video : path-like
+    video : path-like, Frames or array_like
+        As :func:`faceanalysis.analysis.pipeline.analyze` takes it.
     table : DataFrame, optional
         Head frames per frame (``frame, head_*`` and ``success`` columns, e.g. an analysis's
         ``contractions.csv``); default: tracked with
@@ -487,9 +488,10 @@ class VideoFlowStream:
                  end: int | None = None, px_per_unit: float | None = None,
                  normalize: bool = True, stabilization: str = "flow", hidden=None):
         from faceanalysis.io.table import heads_from_table
-        from faceanalysis.io.video import open_video
+        from faceanalysis.io.video import as_video, open_video
         from faceanalysis.tracking import hidden_frames, track
 
+        video = as_video(video)
         grid = grid or FaceGrid()
         if table is None:
             tracks = track(video, fps=fps, start=start, end=end, redetect=True,

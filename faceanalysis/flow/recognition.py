@@ -603,7 +603,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
 
     Parameters
     ----------
-    video : path-like
+    video : path-like, Frames or array_like
+        As :func:`faceanalysis.analysis.pipeline.analyze` takes it.
     templates : FlowTemplates, optional
         Default: the generic face model's (:func:`faceanalysis.flow.templates.default_templates`).
     table : DataFrame, optional
@@ -649,8 +650,10 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     """
     from faceanalysis.flow.dense import VideoFlowStream
     from faceanalysis.flow.personalize import personalize_from_table
+    from faceanalysis.io.video import as_video
     from faceanalysis.tracking import hidden_frames, track
 
+    video = as_video(video)         # frames in memory: messages name them, not their pixels
     if templates is None:
         from faceanalysis.flow.templates import default_templates
 

@@ -201,11 +201,11 @@ def quality_summary(table: pd.DataFrame, *, frames_missing: int = 0) -> dict:
 def input_metadata(source) -> dict:
     """Describe an input: a :class:`faceanalysis.io.video.VideoSource` or a plain mapping.
 
-    A mapping is copied as is (it must be JSON-compatible); a ``VideoSource``
-    gives ``path`` (absolute), ``kind``, ``size`` ``[width, height]``, ``fps``,
-    ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``: the
-    real end when the frame count is known, else None = to the end), ``dtype``,
-    ``channels``, ``frames_undecodable`` and ``missing_tail``.
+    A mapping is copied as is (it must be JSON-compatible); a ``VideoSource`` gives ``path``
+    (absolute; None for frames in memory), ``kind``, ``size`` ``[width, height]``, ``fps``,
+    ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``: the real end
+    when the frame count is known, else None = to the end), ``dtype``, ``channels``,
+    ``frames_undecodable`` and ``missing_tail``.
     """
     if isinstance(source, Mapping):
         return dict(source)
@@ -217,7 +217,8 @@ def input_metadata(source) -> dict:
     if missing:
         raise ValueError(f"input description lacks {', '.join(missing)}")
     return {
-        "path": str(Path(source.path).resolve()),
+        # (frames in memory have no path)
+        "path": None if source.path is None else str(Path(source.path).resolve()),
         "kind": source.kind,
         "size": list(source.size),
         "fps": source.fps,

@@ -1,12 +1,14 @@
-"""Streaming frame input: video files that OpenCV can read, and folders of images.
+"""Streaming frame input: video files that OpenCV can read, folders of images, and frames
+already in memory.
 
-:func:`open_video` returns a :class:`VideoSource`, an iterable of :class:`Frame`
-objects that decodes one frame at a time, so memory stays flat however long the
-video is. Frame rate and timestamps come from the container unless the caller
-gives ``fps``. Frames that fail to decode in the middle of a stream are yielded
-with ``ok=False`` (the caller counts them as lost and goes on); a stream that
-stops decoding before the end announced by its container (a truncated file) ends
-the iteration with a warning and is recorded in :attr:`VideoSource.missing_tail`.
+:func:`open_video` returns a :class:`VideoSource`, an iterable of :class:`Frame` objects
+that decodes one frame at a time, so memory stays flat however long the video is. Frames
+already in memory (an array, or a list of arrays, in RGB as imageio and scikit-image read
+them) come in as :class:`Frames`. Frame rate and timestamps come from the container unless
+the caller gives ``fps``. Frames that fail to decode in the middle of a stream are yielded
+with ``ok=False`` (the caller counts them as lost and goes on); a stream that stops decoding
+before the end announced by its container (a truncated file) ends the iteration with a
+warning and is recorded in :attr:`VideoSource.missing_tail`.
 
 :mod:`faceanalysis.io.frames` normalises the frames (grey, BGR, BGRA; 8-bit, 16-bit or
 float) for the trackers and for drawing. The analysis opens its input with
@@ -46,7 +48,9 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "MIN_FACE_SIZE",
     "Frame",
+    "Frames",
     "VideoSource",
+    "as_video",
     "open_video",
     "read_ahead",
 ]
@@ -99,6 +103,107 @@ class Frame:
     ok: bool = True
 
 
+class Frames:
+    """Frames already in memory, as a video: what :func:`open_video` and the analysis take
+    instead of a file.
+
+    Parameters
+    ----------
+    frames : array_like
+        An array ``(T, H, W)`` (grey) or ``(T, H, W, C)`` with ``C`` 3 (RGB) or 4 (RGBA), or
+        a sequence of ``T`` arrays ``(H, W)`` / ``(H, W, C)`` of one shape and type; ``uint8``,
+        ``uint16``, or floats in [0, 1]. Colour is RGB, as imageio, scikit-image and PIL
+        give it (OpenCV's BGR frames: ``frames[..., ::-1]``). Kept by reference, not copied,
+        and never modified.
+    fps : float, optional
+        Frame rate (default :data:`DEFAULT_FPS`, which :func:`open_video`'s ``fps``
+        overrides).
+    name : str, keyword-only
+        What messages call them (default ``"frames"``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> clip = Frames(np.zeros((5, 80, 96, 3), np.uint8), fps=25)
+    >>> len(clip), clip.size, str(clip)
+    (5, (96, 80), '<frames: 5 frames of 96x80>')
+    >>> with open_video(clip, start=1, end=3) as video:
+    ...     [(f.index, f.timestamp, f.image.shape) for f in video]
+    [(1, 0.04, (80, 96, 3)), (2, 0.08, (80, 96, 3))]
+    """
+
+    def __init__(self, frames, fps: float | None = None, *, name: str = "frames"):
+        if isinstance(frames, (str, bytes, os.PathLike)):
+            raise ValueError(f"frames must be arrays, not a path ({frames!r}): open a file "
+                             "with open_video(path)")
+        if isinstance(frames, np.ndarray):
+            if frames.ndim not in (3, 4):
+                raise ValueError(f"frames must have shape (T, H, W) or (T, H, W, C), got "
+                                 f"{frames.shape}")
+            items = frames
+        else:
+            try:
+                items = [np.asarray(f) for f in frames]
+            except TypeError:
+                raise ValueError(f"frames must be an array or a sequence of arrays, got "
+                                 f"{type(frames).__name__}") from None
+            for i, f in enumerate(items):
+                if f.shape != items[0].shape or f.dtype != items[0].dtype:
+                    raise ValueError(f"frame {i} is {f.shape} {f.dtype}, frame 0 "
+                                     f"{items[0].shape} {items[0].dtype}: every frame must "
+                                     "have the same shape and type")
+        if len(items) == 0:
+            raise ValueError("frames: no frame")
+        first = np.asarray(items[0])
+        if first.ndim not in (2, 3) or (first.ndim == 3 and first.shape[2] not in (1, 3, 4)):
+            raise ValueError(f"each frame must be (H, W) grey or (H, W, 3|4) RGB(A), got "
+                             f"{first.shape}")
+        if not (first.dtype in (np.uint8, np.uint16) or first.dtype.kind == "f"):
+            raise ValueError(f"frames must be uint8, uint16 or floats in [0, 1], got "
+                             f"{first.dtype}")
+        if fps is not None and (isinstance(fps, bool) or not isinstance(
+                fps, (int, float, np.number)) or not math.isfinite(fps) or fps <= 0):
+            raise ValueError(f"fps must be a positive number, got {fps!r}")
+        self._items = items
+        self.fps = None if fps is None else float(fps)
+        self.name = str(name)
+        self.shape = first.shape
+        self.dtype = first.dtype
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels."""
+        return int(self.shape[1]), int(self.shape[0])
+
+    def __str__(self) -> str:
+        return f"<{self.name}: {len(self)} frames of {self.size[0]}x{self.size[1]}>"
+
+    __repr__ = __str__
+
+    def image(self, index: int) -> np.ndarray:
+        """Frame ``index`` in OpenCV's layout (grey, BGR or BGRA), as a decoder gives it."""
+        f = np.asarray(self._items[index])
+        if f.ndim == 3 and f.shape[2] == 1:
+            return f[:, :, 0]
+        if f.ndim == 3:
+            code = cv2.COLOR_RGB2BGR if f.shape[2] == 3 else cv2.COLOR_RGBA2BGRA
+            if f.dtype.kind == "f" and f.dtype != np.float32:
+                return np.ascontiguousarray(f[..., [2, 1, 0, 3][:f.shape[2]]])
+            return cv2.cvtColor(np.ascontiguousarray(f), code)
+        return f
+
+
+def as_video(video):
+    """``video`` as :func:`open_video` and the analysis take it: frames in memory (an
+    array, a sequence of arrays) as :class:`Frames`; a path or :class:`Frames` as given."""
+    if isinstance(video, (str, bytes, os.PathLike, Frames)):
+        return video
+    return Frames(video)
+
+
 def _natural_key(name: str) -> list:
     """Sort key that orders ``img2`` before ``img10``."""
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
@@ -136,10 +241,13 @@ class VideoSource:
 
     Attributes
     ----------
-    path : Path
-        The file or folder.
-    kind : {'video', 'images'}
-        What ``path`` is: a video file, or an image folder (or a single image).
+    path : Path or None
+        The file or folder; None for frames in memory.
+    kind : {'video', 'images', 'frames'}
+        What ``path`` is: a video file, or an image folder (or a single image); 'frames':
+        frames in memory (:class:`Frames`).
+    name : str
+        What messages call the input: the path, or the frames' label.
     fps : float
         Frame rate used for timestamps that the container does not give.
     fps_origin : {'user', 'container', 'default'}
@@ -168,8 +276,9 @@ class VideoSource:
     def __init__(self, path: Path, kind: str, *, fps: float, fps_origin: str, size: tuple,
                  dtype: np.dtype, channels: int, start: int, end: int | None,
                  frame_count: int | None, files: list[Path] | None = None,
-                 eight_bit: bool = False):
+                 eight_bit: bool = False, frames: Frames | None = None):
         self.path = path
+        self._frames = frames
         self.eight_bit = bool(eight_bit)
         self.kind = kind
         self.fps = fps
@@ -196,15 +305,19 @@ class VideoSource:
         stop = self.end if self.end is not None else self.frame_count
         return None if stop is None else max(stop - self.start, 0)
 
+    @property
+    def name(self) -> str:
+        return str(self._frames) if self._frames is not None else str(self.path)
+
     def __repr__(self) -> str:
-        return (f"VideoSource({str(self.path)!r}, kind={self.kind!r}, size={self.size}, "
+        return (f"VideoSource({self.name!r}, kind={self.kind!r}, size={self.size}, "
                 f"fps={self.fps:g}, start={self.start}, end={self.end}, "
                 f"n_frames={self.n_frames})")
 
     def __len__(self) -> int:
         n = self.n_frames
         if n is None:
-            raise TypeError(f"{self.path}: the number of frames is unknown")
+            raise TypeError(f"{self.name}: the number of frames is unknown")
         return n
 
     # -- context manager --------------------------------------------------------------------
@@ -226,7 +339,16 @@ class VideoSource:
         self.missing_tail = 0
         if self.kind == "images":
             return self._iter_images()
+        if self.kind == "frames":
+            return self._iter_frames()
         return self._iter_video()
+
+    def _iter_frames(self) -> Iterator[Frame]:
+        stop = len(self._frames) if self.end is None else self.end
+        for index in range(self.start, stop):
+            image = self._frames.image(index)
+            yield Frame(index, index / self.fps, to_uint8(image) if self.eight_bit else image,
+                        True)
 
     def _iter_images(self) -> Iterator[Frame]:
         files = self._files or []
@@ -362,6 +484,15 @@ def _open_images(path: Path, fps: float | None) -> dict:
                 frame_count=len(files), files=files)
 
 
+def _open_frames(frames: Frames, fps: float | None) -> dict:
+    rate = fps if fps is not None else frames.fps
+    if rate is None and len(frames) > 1:
+        log.info("%s: no frame rate given; assuming %g fps (fps=...)", frames, DEFAULT_FPS)
+    return dict(kind="frames", fps=DEFAULT_FPS if rate is None else rate,
+                fps_origin="default" if rate is None else "user", first=frames.image(0),
+                frame_count=len(frames), files=None)
+
+
 def _open_file(path: Path, fps: float | None) -> dict:
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: file is empty (0 bytes)")
@@ -493,18 +624,20 @@ def _read_ahead(frames: Iterable, depth: int) -> Iterator:
         worker.join()
 
 
-def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int = 0,
-               end: int | None = None, min_size: int | None = None,
+def open_video(path: str | os.PathLike | Frames, *, fps: float | None = None,
+               start: int = 0, end: int | None = None, min_size: int | None = None,
                eight_bit: bool = False) -> VideoSource:
-    """Open a video file or an image folder for streaming.
+    """Open a video file, an image folder or frames in memory for streaming.
 
     Parameters
     ----------
-    path : path-like
+    path : path-like, Frames or array_like
         A video file that OpenCV (FFmpeg) can read, a folder of images
         (``.png``, ``.jpg``, ``.tif``, ``.bmp``; sorted naturally, so ``f2`` comes
         before ``f10``) or a single image (one frame). Images are read unchanged:
-        grey and 16-bit stay so.
+        grey and 16-bit stay so. Or frames in memory: :class:`Frames`, or what it takes
+        (an array ``(T, H, W[, C])`` or a sequence of arrays, RGB); they come out in
+        OpenCV's layout (BGR), as a decoder's do.
     fps : float, optional
         Frame rate. Overrides the container's, and then timestamps are
         ``index / fps``. Image folders default to :data:`DEFAULT_FPS`.
@@ -552,7 +685,7 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
     2 0.2 (80, 96)
     3 0.3 (80, 96)
     """
-    path = Path(path)
+    frames = None if isinstance(path, (str, bytes, os.PathLike)) else as_video(path)
     if fps is not None:
         if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) \
                 or not math.isfinite(fps) or fps <= 0:
@@ -563,28 +696,33 @@ def open_video(path: str | os.PathLike, *, fps: float | None = None, start: int 
         end = _check_int(end, "end", minimum=0)
         if end <= start:
             raise ValueError(f"end ({end}) must be greater than start ({start})")
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file or folder")
-    if not os.access(path, os.R_OK):
-        raise PermissionError(f"{path}: permission denied")
-    if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:
-        info = _open_images(path, fps)
+    if frames is not None:
+        path, info = None, _open_frames(frames, fps)
     else:
-        info = _open_file(path, fps)
+        path = Path(os.fsdecode(path))
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such file or folder")
+        if not os.access(path, os.R_OK):
+            raise PermissionError(f"{path}: permission denied")
+        if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:
+            info = _open_images(path, fps)
+        else:
+            info = _open_file(path, fps)
+    where = path if frames is None else frames
     first = info["first"]
     height, width = first.shape[:2]
     channels = 1 if first.ndim == 2 else first.shape[2]
     if min_size is not None and min(width, height) < min_size:
-        raise ValueError(f"{path}: frames are {width}x{height} pixels; the analysis needs at "
+        raise ValueError(f"{where}: frames are {width}x{height} pixels; the analysis needs at "
                          f"least {min_size} on each side")
     frame_count = info["frame_count"]
     if frame_count is not None:
         if start >= frame_count:
             raise ValueError(f"start ({start}) is beyond the last frame ({frame_count - 1}) "
-                             f"of {path}")
+                             f"of {where}")
         if end is not None and end > frame_count:
-            raise ValueError(f"end ({end}) is beyond the {frame_count} frames of {path}")
+            raise ValueError(f"end ({end}) is beyond the {frame_count} frames of {where}")
     return VideoSource(path, info["kind"], fps=info["fps"], fps_origin=info["fps_origin"],
                        size=(width, height), dtype=first.dtype, channels=channels,
                        start=start, end=end, frame_count=frame_count, files=info["files"],
-                       eight_bit=eight_bit)
+                       eight_bit=eight_bit, frames=frames)

@@ -29,6 +29,25 @@ def analysed(surprise):
     return analyze(surprise["video"], tracker="snakes")
 
 
+def test_frames_in_memory_are_analysed_as_the_video_they_came_from(surprise, tmp_path):
+    cap = cv2.VideoCapture(str(surprise["video"]))
+    fps = cap.get(cv2.CAP_PROP_FPS)
+    rgb = []
+    for _ in range(6):
+        ok, img = cap.read()
+        assert ok
+        rgb.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    cap.release()
+    from_file = analyze(surprise["video"], end=6, fps=fps)
+    from_memory = analyze(np.stack(rgb), fps=fps)
+    pd.testing.assert_frame_equal(from_memory.table, from_file.table)
+    assert from_memory.metadata["input"]["path"] is None
+    assert from_memory.metadata["input"]["kind"] == "frames"
+    # a list of frames, written out like any analysis
+    analyze_to_folder(rgb, tmp_path / "out", fps=fps)
+    assert (tmp_path / "out" / "contractions.csv").is_file()
+
+
 def test_the_default_analysis_is_the_landmark_tracker_with_the_mesh_fit(surprise):
     a = analyze(surprise["video"], end=6)
     p = a.metadata["parameters"]

@@ -12,9 +12,12 @@ import numpy as np
 import pytest
 
 from faceanalysis.io.frames import to_gray_float
+from faceanalysis.io.report import input_metadata
 from faceanalysis.io.video import (
     DEFAULT_FPS,
     Frame,
+    Frames,
+    as_video,
     open_video,
     read_ahead,
 )
@@ -490,3 +493,48 @@ def test_eight_bit_brings_sixteen_bit_frames_to_their_eight_bit_originals(tmp_pa
     image = next(iter(src)).image
     assert src.dtype == np.uint16                 # the input as stored
     assert image.dtype == np.uint8 and np.array_equal(image, frame)
+
+
+# ------------------------------------------------------------------ frames in memory
+def test_frames_in_memory_come_out_as_a_decoder_gives_them():
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (5, H, W, 3), dtype=np.uint8)
+    with open_video(rgb, fps=10, start=1, end=4) as video:
+        assert video.kind == "frames" and video.path is None and video.n_frames == 3
+        assert video.size == (W, H) and video.fps == 10 and video.fps_origin == "user"
+        got = list(video)
+    assert [(f.index, f.timestamp, f.ok) for f in got] == [(1, 0.1, True), (2, 0.2, True),
+                                                          (3, 0.3, True)]
+    # RGB in, OpenCV's BGR out; the caller's array untouched
+    for f in got:
+        np.testing.assert_array_equal(f.image, rgb[f.index][:, :, ::-1])
+    assert input_metadata(open_video(rgb))["path"] is None
+    # a list of frames, grey, 16 bits: as an image folder's, brought to 8 bits on request
+    grey = [np.full((H, W), 257 * v, np.uint16) for v in (10, 20)]
+    with open_video(grey, eight_bit=True) as video:
+        assert video.fps == DEFAULT_FPS and video.fps_origin == "default"
+        assert [int(f.image[0, 0]) for f in video] == [10, 20]
+    # floats in [0, 1], RGBA
+    rgba = np.zeros((2, H, W, 4))
+    rgba[..., 0] = 1.0
+    with open_video(Frames(rgba, fps=5), eight_bit=True) as video:
+        first = next(iter(video)).image
+    assert first.shape == (H, W, 4) and first[0, 0].tolist() == [0, 0, 255, 0]
+
+
+def test_frames_in_memory_are_named_in_messages_and_checked():
+    clip = as_video(np.zeros((3, H, W, 3), np.uint8))
+    assert isinstance(clip, Frames) and str(clip) == f"<frames: 3 frames of {W}x{H}>"
+    assert as_video(clip) is clip and as_video("x.mp4") == "x.mp4"
+    with pytest.raises(ValueError, match="of 96x64>: frames are 96x64 pixels"):
+        open_video(clip, min_size=W + 1)
+    with pytest.raises(ValueError, match=r"end \(4\) is beyond the 3 frames of <frames"):
+        open_video(clip, end=4)
+    for bad, match in [(np.zeros((H, W)), "shape"), ([], "no frame"),
+                       ([np.zeros((H, W)), np.zeros((H, W + 1))], "frame 1 is"),
+                       (np.zeros((2, H, W, 2)), "RGB"), (np.zeros((2, H, W), np.int32), "uint8"),
+                       (object(), "sequence of arrays")]:
+        with pytest.raises(ValueError, match=match):
+            Frames(bad)
+    with pytest.raises(ValueError, match="fps"):
+        Frames(np.zeros((2, H, W)), fps=0)
