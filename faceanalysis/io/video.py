@@ -140,6 +140,10 @@ class Frames:
             if frames.ndim not in (3, 4):
                 raise ValueError(f"frames must have shape (T, H, W) or (T, H, W, C), got "
                                  f"{frames.shape}")
+            if frames.ndim == 3 and frames.shape[2] in (3, 4):
+                # a grey video 3 or 4 pixels wide is no face video: one colour picture
+                raise ValueError(f"frames of shape {frames.shape} look like one (H, W, C) "
+                                 "picture, not a video: pass frames[None] or [picture]")
             items = frames
         else:
             try:
@@ -185,15 +189,16 @@ class Frames:
 
     def image(self, index: int) -> np.ndarray:
         """Frame ``index`` in OpenCV's layout (grey, BGR or BGRA), as a decoder gives it."""
+        # always a new array: what reads the frames may draw on them, the caller's stay
         f = np.asarray(self._items[index])
         if f.ndim == 3 and f.shape[2] == 1:
-            return f[:, :, 0]
+            return f[:, :, 0].copy()
         if f.ndim == 3:
             code = cv2.COLOR_RGB2BGR if f.shape[2] == 3 else cv2.COLOR_RGBA2BGRA
             if f.dtype.kind == "f" and f.dtype != np.float32:
                 return np.ascontiguousarray(f[..., [2, 1, 0, 3][:f.shape[2]]])
             return cv2.cvtColor(np.ascontiguousarray(f), code)
-        return f
+        return f.copy()
 
 
 def as_video(video):

@@ -514,6 +514,11 @@ def test_frames_in_memory_come_out_as_a_decoder_gives_them():
     with open_video(grey, eight_bit=True) as video:
         assert video.fps == DEFAULT_FPS and video.fps_origin == "default"
         assert [int(f.image[0, 0]) for f in video] == [10, 20]
+    # each frame a new array: drawing on it leaves the caller's as they were
+    g = np.zeros((2, H, W), np.uint8)
+    for f in open_video(g):
+        f.image[:] = 255
+    assert not g.any()
     # floats in [0, 1], RGBA
     rgba = np.zeros((2, H, W, 4))
     rgba[..., 0] = 1.0
@@ -531,6 +536,7 @@ def test_frames_in_memory_are_named_in_messages_and_checked():
     with pytest.raises(ValueError, match=r"end \(4\) is beyond the 3 frames of <frames"):
         open_video(clip, end=4)
     for bad, match in [(np.zeros((H, W)), "shape"), ([], "no frame"),
+                       (np.zeros((H, W, 3), np.uint8), "one \\(H, W, C\\) picture"),
                        ([np.zeros((H, W)), np.zeros((H, W + 1))], "frame 1 is"),
                        (np.zeros((2, H, W, 2)), "RGB"), (np.zeros((2, H, W), np.int32), "uint8"),
                        (object(), "sequence of arrays")]:
