@@ -158,7 +158,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     video : path-like, Frames or array_like
         Video file, folder of images, a single image, or frames in memory (an array
         ``(T, H, W[, 3])`` or a sequence of arrays, RGB, as imageio reads them: give their
-        ``fps``; :class:`~faceanalysis.io.video.Frames`).
+        ``fps``; :class:`~faceanalysis.io.video.Frames`, whose ``channel_order='bgr'``
+        takes OpenCV's frames as they are).
     estimator : {'joint', 'mesh', 'model', 'fused', 'tw93', 'flow'}, optional
         ``joint``: bounded least squares of all contractions through the model's
         fiducial response on the contours' points; ``mesh``: the same on the contour

@@ -112,12 +112,13 @@ class Frames:
     frames : array_like
         An array ``(T, H, W)`` (grey) or ``(T, H, W, C)`` with ``C`` 3 (RGB) or 4 (RGBA), or
         a sequence of ``T`` arrays ``(H, W)`` / ``(H, W, C)`` of one shape and type; ``uint8``,
-        ``uint16``, or floats in [0, 1]. Colour is RGB, as imageio, scikit-image and PIL
-        give it (OpenCV's BGR frames: ``frames[..., ::-1]``). Kept by reference, not copied,
-        and never modified.
+        ``uint16``, or floats in [0, 1]. Kept by reference, not copied, and never modified.
     fps : float, optional
         Frame rate (default :data:`DEFAULT_FPS`, which :func:`open_video`'s ``fps``
         overrides).
+    channel_order : {'rgb', 'bgr'}, keyword-only
+        Colour order: RGB (default) as imageio, scikit-image and PIL give it, or BGR as
+        OpenCV's ``VideoCapture`` and ``imread`` do.
     name : str, keyword-only
         What messages call them (default ``"frames"``).
 
@@ -132,7 +133,10 @@ class Frames:
     [(1, 0.04, (80, 96, 3)), (2, 0.08, (80, 96, 3))]
     """
 
-    def __init__(self, frames, fps: float | None = None, *, name: str = "frames"):
+    def __init__(self, frames, fps: float | None = None, *, channel_order: str = "rgb",
+                 name: str = "frames"):
+        if channel_order not in ("rgb", "bgr"):
+            raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if isinstance(frames, (str, bytes, os.PathLike)):
             raise ValueError(f"frames must be arrays, not a path ({frames!r}): open a file "
                              "with open_video(path)")
@@ -169,6 +173,7 @@ class Frames:
                 fps, (int, float, np.number)) or not math.isfinite(fps) or fps <= 0):
             raise ValueError(f"fps must be a positive number, got {fps!r}")
         self._items = items
+        self.channel_order = channel_order
         self.fps = None if fps is None else float(fps)
         self.name = str(name)
         self.shape = first.shape
@@ -193,7 +198,7 @@ class Frames:
         f = np.asarray(self._items[index])
         if f.ndim == 3 and f.shape[2] == 1:
             return f[:, :, 0].copy()
-        if f.ndim == 3:
+        if f.ndim == 3 and self.channel_order == "rgb":
             code = cv2.COLOR_RGB2BGR if f.shape[2] == 3 else cv2.COLOR_RGBA2BGRA
             if f.dtype.kind == "f" and f.dtype != np.float32:
                 return np.ascontiguousarray(f[..., [2, 1, 0, 3][:f.shape[2]]])

@@ -509,6 +509,9 @@ def test_frames_in_memory_come_out_as_a_decoder_gives_them():
     for f in got:
         np.testing.assert_array_equal(f.image, rgb[f.index][:, :, ::-1])
     assert input_metadata(open_video(rgb))["path"] is None
+    # OpenCV's own frames, BGR, as they are
+    with open_video(Frames(rgb[:, :, :, ::-1], channel_order="bgr")) as video:
+        np.testing.assert_array_equal(next(iter(video)).image, rgb[0][:, :, ::-1])
     # a list of frames, grey, 16 bits: as an image folder's, brought to 8 bits on request
     grey = [np.full((H, W), 257 * v, np.uint16) for v in (10, 20)]
     with open_video(grey, eight_bit=True) as video:
@@ -544,3 +547,5 @@ def test_frames_in_memory_are_named_in_messages_and_checked():
             Frames(bad)
     with pytest.raises(ValueError, match="fps"):
         Frames(np.zeros((2, H, W)), fps=0)
+    with pytest.raises(ValueError, match="'rgb' or 'bgr'"):
+        Frames(np.zeros((2, H, W)), channel_order="BGR")
