@@ -563,16 +563,7 @@ def to_model_units(displacements: np.ndarray, reference: np.ndarray, head: np.nd
     (:class:`~faceanalysis.estimation.calibration.Calibration`)."""
     from faceanalysis.tracking import to_head_frame
 
-    reference = np.asarray(reference, float)
-    disp = np.asarray(displacements, float)
-    q0 = to_head_frame(reference, head)
-    inv = np.linalg.inv(calibration.matrix).T
-    if disp.ndim < 3:
-        return (to_head_frame(reference + disp, head) - q0) @ inv
-    out = np.empty(disp.shape[:-1] + (inv.shape[1],))
-    # a chunk of frames at a time: the head frame's temporaries stay small
-    for a in range(0, len(disp), DISPLACEMENT_CHUNK):
-        out[a:a + DISPLACEMENT_CHUNK] = (to_head_frame(reference + disp[a:a + DISPLACEMENT_CHUNK],
-                                                       head) - q0) @ inv
-    return out
+    q1 = to_head_frame(np.asarray(reference, float) + displacements, head)
+    q0 = to_head_frame(np.asarray(reference, float), head)
+    return (q1 - q0) @ np.linalg.inv(calibration.matrix).T
 

@@ -169,12 +169,9 @@ class Frames:
         if not (first.dtype in (np.uint8, np.uint16) or first.dtype.kind == "f"):
             raise ValueError(f"frames must be uint8, uint16 or floats in [0, 1], got "
                              f"{first.dtype}")
-        if fps is not None and (isinstance(fps, bool) or not isinstance(
-                fps, (int, float, np.number)) or not math.isfinite(fps) or fps <= 0):
-            raise ValueError(f"fps must be a positive number, got {fps!r}")
         self._items = items
         self.channel_order = channel_order
-        self.fps = None if fps is None else float(fps)
+        self.fps = None if fps is None else _check_fps(fps)
         self.name = str(name)
         self.shape = first.shape
         self.dtype = first.dtype
@@ -225,6 +222,13 @@ def _looks_like_container(path: Path) -> bool:
     if head[:1] == b"\x47" and path.suffix.lower() in (".ts", ".m2ts", ".mts"):
         return True
     return any(head[offset:offset + len(magic)] == magic for offset, magic in _CONTAINER_MAGIC)
+
+
+def _check_fps(fps) -> float:
+    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) \
+            or not math.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    return float(fps)
 
 
 def _check_int(value, name: str, *, minimum: int) -> int:
@@ -697,10 +701,7 @@ def open_video(path: str | os.PathLike | Frames, *, fps: float | None = None,
     """
     frames = None if isinstance(path, (str, bytes, os.PathLike)) else as_video(path)
     if fps is not None:
-        if isinstance(fps, bool) or not isinstance(fps, (int, float, np.number)) \
-                or not math.isfinite(fps) or fps <= 0:
-            raise ValueError(f"fps must be a positive number, got {fps!r}")
-        fps = float(fps)
+        fps = _check_fps(fps)
     start = _check_int(start, "start", minimum=0)
     if end is not None:
         end = _check_int(end, "end", minimum=0)
