@@ -271,6 +271,27 @@ def _crop_scale(ref_scale: float, px_per_unit) -> float:
 #: Ways of putting a frame into the reference's head frame (see :func:`face_flow`).
 STABILIZATION = ("flow", "head")
 
+#: Short side (px) of the finest pyramid level of the DIS flow that aligns a frame before its
+#: flow is measured (``stabilization="flow"``): the similarity fitted to it needs the face's
+#: common motion, not its fine detail, so that flow stops at the coarsest level (halving the
+#: crop each time) whose short side is still this large: a crop of 267 px (160 px to the
+#: head unit) at a quarter of its resolution, one of 128 at half, one under 128 at full. Below
+#: it the coarse flow blurs the moving mouth into the cheeks and the alignment follows the
+#: expression (at 27 px, a relaxing smile's rest frames swing by a third of the smile).
+ALIGN_MIN_SIDE = 64
+
+
+def _compose_similarity(flow: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+    """The flow to a crop resampled by a similarity ``S``, from the flow to the crop as it
+    was and ``inverse`` = ``S^-1`` (3x3): a point ``x + flow(x)`` of the old crop lies at
+    ``S^-1 (x + flow(x))`` in the new one."""
+    h, w = flow.shape[:2]
+    x, y = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    px, py = x + flow[..., 0], y + flow[..., 1]
+    a = inverse.astype(np.float32)
+    return np.stack([a[0, 0] * px + a[0, 1] * py + a[0, 2] - x,
+                     a[1, 0] * px + a[1, 1] * py + a[1, 2] - y], axis=-1)
+
 
 class _FlowStep:
     """Reference crop + per-frame flow to it (shared by :func:`face_flow` and videos)."""
@@ -297,6 +318,7 @@ class _FlowStep:
         self.blur = smoothing_sigma(grid, self.crop.px_per_unit)
         self.max_motion = 0.25 * self.crop.px_per_unit
         self.prev = None                              # last crop->image matrix (3x3)
+        self._align_dis = None
         # points of the face (an ellipse inside the grid) for the rigid fit
         cx = 0.5 * (grid.u[0] + grid.u[1])
         cy = 0.5 * (grid.v[0] + grid.v[1])
@@ -318,6 +340,15 @@ class _FlowStep:
 
     def _flow(self, cur):
         return compute_flow(self.ref, cur, self.method, max_motion=self.max_motion)
+
+    def _align_flow(self, cur):
+        """The coarse DIS flow from which a frame's alignment is fitted (one instance per
+        step: an OpenCV algorithm object keeps state between calls)."""
+        if self._align_dis is None:
+            side = min(self.crop.size)
+            self._align_dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+            self._align_dis.setFinestScale(max(0, int(np.log2(side / ALIGN_MIN_SIDE))))
+        return self._align_dis.calc(self.ref, cur, None)
 
     def _rigid(self, fl):
         """Similarity (3x3, reference crop -> current crop) fitted robustly to the flow."""
@@ -343,15 +374,20 @@ class _FlowStep:
         else:
             M = self.prev                     # no head frame: bridged from the last one
         cur = self._prep(image, M)
-        fl = self._flow(cur)
         if self.stabilization == "flow":
-            S, frac = self._rigid(fl)
+            S, frac = self._rigid(self._align_flow(cur))
             if S is None or frac < 0.1:
                 self.prev = None if not have_head else self.prev
                 return np.full((*self.grid.shape, 2), np.nan)
             M = M @ S
+            cur = self._prep(image, M)
+        fl = self._flow(cur)
+        if self.stabilization == "flow":
+            S, _ = self._rigid(fl)
+            if S is not None:
+                M = M @ S
+                fl = _compose_similarity(fl, np.linalg.inv(S))
             self.prev = M
-            fl = self._flow(self._prep(image, M))
         if self.blur > 0.3:
             fl = cv2.GaussianBlur(fl, (0, 0), self.blur)
         out = np.stack([cv2.remap(np.ascontiguousarray(fl[..., k]), self.gpx[..., 0],
@@ -383,8 +419,9 @@ def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis
     stabilization : {'flow', 'head'}
         ``head``: every frame is warped by its own head frame. ``flow`` (default): every
         frame starts from its head frame (a frame without one from the previous frame's
-        alignment); a similarity fitted robustly (RANSAC) to a first flow on the face
-        then corrects the alignment, and the flow is measured again. It corrects
+        alignment); a similarity fitted robustly (RANSAC) to a first, coarse flow on the
+        face (DIS down to :data:`ALIGN_MIN_SIDE`) then corrects the alignment, and the flow
+        is measured on the aligned crop. It corrects
         head-frame jitter and bridges frames where the tracker lost the face; frames
         where fewer than a tenth of the face points fit a common rigid motion are lost.
     frame_numbers : array_like, optional

@@ -491,18 +491,78 @@ class _ContractionFit:
         return out
 
 
-def _stream_clean(stream, templates: FlowTemplates):
-    """``(positions, clean (k, n, 2) float32, energy (k,))`` a chunk of a
+def _stream_chunks(stream):
+    """``(positions, displacement (k, rows, cols, 2))`` a chunk of a
     :class:`~faceanalysis.flow.dense.VideoFlowStream`'s frames at a time."""
     pos, buf = [], []
     for i, d in stream:
         pos.append(i)
         buf.append(d)
         if len(buf) == _CHUNK:
-            yield (np.array(pos), *_masked_clean(np.stack(buf), templates))
+            yield np.array(pos), np.stack(buf)
             pos, buf = [], []
     if buf:
-        yield (np.array(pos), *_masked_clean(np.stack(buf), templates))
+        yield np.array(pos), np.stack(buf)
+
+
+def _stream_clean(stream, templates: FlowTemplates):
+    """``(positions, clean (k, n, 2) float32, energy (k,))`` a chunk of a
+    :class:`~faceanalysis.flow.dense.VideoFlowStream`'s frames at a time."""
+    for pos, disp in _stream_chunks(stream):
+        yield (pos, *_masked_clean(disp, templates))
+
+
+class _HeldBack(logging.Filter):
+    """Within it, ``logger``'s records are held back, to be logged later (:meth:`release`)
+    or never: they may concern a choice not yet made."""
+
+    def __init__(self, logger: logging.Logger):
+        super().__init__()
+        self.logger, self.records = logger, []
+
+    def filter(self, record) -> bool:
+        self.records.append(record)
+        return False
+
+    def __enter__(self):
+        self.logger.addFilter(self)
+        return self
+
+    def __exit__(self, *exc):
+        self.logger.removeFilter(self)
+        return False
+
+    def release(self) -> None:
+        for record in self.records:
+            self.logger.handle(record)
+        self.records = []
+
+
+class _Classified:
+    """The frames of the classified range as the pass from the reference frame keeps them:
+    the nuisance-free displacement in a :class:`_FrameStore`, the motion energy, and (to judge
+    the reference again) the total contraction of every streamed frame."""
+
+    def __init__(self, stream_frames: np.ndarray, start: int, templates: FlowTemplates,
+                 total: bool):
+        self.stream_frames = stream_frames
+        self.keep = stream_frames >= start           # frames before the range: not classified
+        self.row = np.cumsum(self.keep) - 1
+        self.frames = stream_frames[self.keep]
+        self.templates = templates
+        self.store = _FrameStore(len(self.frames), (int(templates.mask.sum()), 2))
+        self.energy = np.full(len(self.frames), np.nan)
+        self.fit = _ContractionFit(templates) if total else None
+        self.total = np.full(len(stream_frames), np.nan)
+
+    def add(self, pos: np.ndarray, disp: np.ndarray) -> None:
+        clean, energy = _masked_clean(disp, self.templates)
+        if self.fit is not None:
+            self.total[pos] = self.fit(clean).sum(axis=1)
+        for i, c, v in zip(pos, clean, energy):
+            if self.keep[i]:
+                self.store[self.row[i]] = c
+                self.energy[self.row[i]] = v
 
 
 def relative_contraction(flow: FaceFlow | np.ndarray, templates: FlowTemplates
@@ -643,10 +703,13 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
 
     Notes
     -----
-    The flow is streamed twice (from the first frame of the search span to find the rest
-    frame, then from the rest frame): every frame is reduced to its total contraction on
-    the first pass, and on the second its displacement on the face mask goes to a
-    temporary file (16 kB a frame on disk) from which the segments are scored.
+    The flow is streamed from the first frame of the search span to find the rest frame,
+    every frame reduced to its total contraction, then from the rest frame, each frame's
+    displacement on the face mask going to a temporary file (16 kB a frame on disk) from
+    which the segments are scored. Where the rest frame is the first tracked frame and the
+    range starts where the search does, the second stream would be the first again: the
+    first keeps the range's frames as the second would (with the templates personalised
+    on that frame), and the video is streamed once.
     """
     from faceanalysis.flow.dense import VideoFlowStream
     from faceanalysis.flow.personalize import personalize_from_table
@@ -679,48 +742,62 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     options = dict(table=table, method=method, grid=templates.grid, fps=fps, end=end,
                    hidden=hidden)
     rest = None
-    if neutral is None:
-        stream = VideoFlowStream(video, start=first, **options)
-        fit = _ContractionFit(templates)
-        total = np.full(len(stream.frames), np.nan)
-        for pos, clean, _ in _stream_clean(stream, templates):
-            total[pos] = fit(clean).sum(axis=1)
-        ref, rest = _pick_rest(total, stream.frames, stream.reference)
-        source = "first" if ref == stream.reference else "detected"
-        if source == "detected":
-            log.info("%s: frame %d is more at rest than the first tracked frame %d; it is "
-                     "the neutral reference", video, ref, stream.reference)
-        del stream, total
-    else:
-        ref, source = int(neutral), "given"
-    if personalised:
-        templates = personalize_from_table(templates, table, ref)
-    stream = VideoFlowStream(video, neutral=ref, start=min(start, ref), **options)
-    keep = stream.frames >= start          # frames before the range are not classified
-    row = np.cumsum(keep) - 1
-    frames = stream.frames[keep]
-    store = _FrameStore(len(frames), (int(templates.mask.sum()), 2))
-    energy = np.full(len(frames), np.nan)
-    # where the first pass could not tell rest from noise (its flow runs from the first
-    # frame, perhaps the apex of an expression, and is noisy where it is large), the flow
-    # from the rest frame found is small near it: judge there whether the face holds still
-    rejudge = rest == "unresolved" and source == "detected"
-    fit = _ContractionFit(templates) if rejudge else None
-    total = np.full(len(stream.frames), np.nan)
+    kept = None
     try:
-        for pos, clean, e in _stream_clean(stream, templates):
-            if rejudge:
+        if neutral is None:
+            stream = VideoFlowStream(video, start=first, **options)
+            fit = _ContractionFit(templates)
+            total = np.full(len(stream.frames), np.nan)
+            # the pass from the rest frame would stream this same flow again where the rest
+            # frame is the first tracked one (most clips) and the range starts where the
+            # search does: this pass keeps the range's frames as that one would, with the
+            # templates personalised there (their warnings held until that choice is made)
+            guess = stream.reference if min(start, stream.reference) == first else None
+            held = _HeldBack(logging.getLogger("faceanalysis.flow.personalize"))
+            if guess is not None:
+                with held:
+                    personal = (personalize_from_table(templates, table, guess)
+                                if personalised else templates)
+                kept = _Classified(stream.frames, start, personal, total=False)
+            for pos, disp in _stream_chunks(stream):
+                clean, _ = _masked_clean(disp, templates)
                 total[pos] = fit(clean).sum(axis=1)
-            for i, c, v in zip(pos, clean, e):
-                if keep[i]:
-                    store[row[i]] = c
-                    energy[row[i]] = v
-        rec = _classify_clean(store, energy, frames, templates, thr, min_score=min_score,
-                              min_length=min_length, min_gap=min_gap)
+                if kept is not None:
+                    kept.add(pos, disp)
+            ref, rest = _pick_rest(total, stream.frames, stream.reference)
+            source = "first" if ref == stream.reference else "detected"
+            if source == "detected":
+                log.info("%s: frame %d is more at rest than the first tracked frame %d; it "
+                         "is the neutral reference", video, ref, stream.reference)
+            if kept is not None and ref == guess:
+                held.release()
+            elif kept is not None:
+                kept.store.close()
+                kept = None
+            del stream, total
+        else:
+            ref, source = int(neutral), "given"
+        # where the first pass could not tell rest from noise (its flow runs from the first
+        # frame, perhaps the apex of an expression, and is noisy where it is large), the
+        # flow from the rest frame found is small near it: judge there whether the face
+        # holds still
+        rejudge = rest == "unresolved" and source == "detected"
+        if kept is None:
+            if personalised:
+                templates = personalize_from_table(templates, table, ref)
+            stream = VideoFlowStream(video, neutral=ref, start=min(start, ref), **options)
+            kept = _Classified(stream.frames, start, templates, total=rejudge)
+            for pos, disp in _stream_chunks(stream):
+                kept.add(pos, disp)
+        else:
+            templates = kept.templates
+        rec = _classify_clean(kept.store, kept.energy, kept.frames, templates, thr,
+                              min_score=min_score, min_length=min_length, min_gap=min_gap)
     finally:
-        store.close()
+        if kept is not None:
+            kept.store.close()
     if rejudge:
-        again, verdict = _pick_rest(total, stream.frames, ref)
+        again, verdict = _pick_rest(kept.total, kept.stream_frames, ref)
         if again == ref:
             rest = verdict
     return replace(rec, reference=int(ref), reference_source=source, reference_rest=rest)

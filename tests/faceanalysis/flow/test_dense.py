@@ -121,16 +121,17 @@ def test_stabilize_puts_the_head_frame_at_the_grid(rng):
         assert abs(int(crop[cy, cx]) - int(cv2.getRectSubPix(img, (1, 1), (x, y))[0, 0])) < 40
 
 
-def _moving_face(rng, T=6, stabil_noise=0.0):
+def _moving_face(rng, T=6, stabil_noise=0.0, scale=140.0):
     """Frames of a textured 'face' that moves rigidly (known head frames) and whose lower
-    part is pushed down by a smooth bump that grows over time (known, in head units)."""
+    part is pushed down by a smooth bump that grows over time (known, in head units);
+    ``scale`` px to the head unit on the first frame."""
     base = _texture(rng, 420, 420, sigma=1.2)
     g = FaceGrid(rows=24, cols=18)
     heads = []
     frames = []
     bumps = []
-    # canonical image: head frame (210, 90, 140, 0)
-    H0 = np.array([210.0, 90.0, 140.0, 0.0])
+    # canonical image: head frame (210, 90, scale, 0)
+    H0 = np.array([210.0, 90.0, scale, 0.0])
     yy, xx = np.mgrid[0:420, 0:420].astype(np.float32)
     hu = (xx - H0[0]) / H0[2]
     hv = (yy - H0[1]) / H0[2]
@@ -140,7 +141,7 @@ def _moving_face(rng, T=6, stabil_noise=0.0):
         # deformed canonical image: content moves down by bump (backward map approx.)
         deformed = cv2.remap(base, xx, (yy - bump * H0[2]).astype(np.float32),
                              cv2.INTER_LINEAR)
-        head = np.array([210 + 6 * t, 90 - 3 * t, 140 * (1 + 0.02 * t), 0.03 * t])
+        head = np.array([210 + 6 * t, 90 - 3 * t, scale * (1 + 0.02 * t), 0.03 * t])
         M = _similarity(*head) @ np.linalg.inv(np.vstack([_similarity(*H0), [0, 0, 1]]))
         frames.append(cv2.warpAffine(deformed, M, (420, 420), borderMode=cv2.BORDER_REFLECT))
         jitter = rng.normal(0, stabil_noise, 4) * [1, 1, 1, 0.01] if stabil_noise else 0
@@ -175,6 +176,25 @@ def test_flow_stabilisation_corrects_head_frame_jitter(rng):
         ff = face_flow(frames, heads, grid=g, stabilization=mode)
         errs[mode] = np.abs(ff.displacement - truth)[:, inner].mean()
     assert errs["flow"] < 0.5 * errs["head"], errs
+
+
+def test_a_large_face_is_aligned_on_a_coarse_flow_as_well_as_on_the_full_one(rng, monkeypatch):
+    import faceanalysis.flow.dense as dense
+
+    # 170 px to the head unit: a crop of 267 px, aligned on the flow at a quarter of it
+    frames, heads, g, truth = _moving_face(rng, stabil_noise=1.5, scale=170.0)
+    inner = np.zeros(g.shape, bool)
+    inner[3:-3, 3:-3] = True
+    errs = {}
+    for label, side in (("coarse", dense.ALIGN_MIN_SIDE), ("full", 10**6)):
+        monkeypatch.setattr(dense, "ALIGN_MIN_SIDE", side)
+        ff = face_flow(frames, heads, grid=g, stabilization="flow")
+        assert ff.valid.all() and ff.px_per_unit == 160.0
+        errs[label] = np.abs(ff.displacement - truth)[:, inner].mean()
+    head = face_flow(frames, heads, grid=g, stabilization="head")
+    errs["head"] = np.abs(head.displacement - truth)[:, inner].mean()
+    assert errs["coarse"] < 0.5 * errs["head"], errs
+    assert errs["coarse"] < 1.2 * errs["full"], errs
 
 
 def test_lost_frames_and_bad_arguments(rng):

@@ -86,3 +86,26 @@ def test_a_clip_that_starts_at_rest_keeps_its_first_frame(smile):
     rec = classify_video(smile["video"], end=12)
     assert rec.reference == 0 and rec.reference_source == "first"
     assert rec.label == "happiness"
+
+
+def test_a_clip_that_starts_at_rest_is_streamed_once_with_the_same_result(smile, monkeypatch):
+    import faceanalysis.flow.dense as dense
+
+    streams = []
+    real = dense.VideoFlowStream
+
+    class Counted(real):
+        def __iter__(self):
+            streams.append(self.reference)
+            return super().__iter__()
+
+    monkeypatch.setattr(dense, "VideoFlowStream", Counted)
+    found = classify_video(smile["video"])
+    assert found.reference_source == "first" and streams == [0]
+    # the same reference given: the search is skipped and the frames are streamed from it
+    given = classify_video(smile["video"], neutral=0)
+    assert streams == [0, 0]
+    assert given.label == found.label == "happiness"
+    assert given.scores == found.scores
+    assert [s.as_dict() for s in given.segments] == [s.as_dict() for s in found.segments]
+    np.testing.assert_array_equal(given.energy, found.energy)
