@@ -383,8 +383,9 @@ class _FlowStep:
             cur = self._prep(image, M)
         fl = self._flow(cur)
         if self.stabilization == "flow":
-            S, _ = self._rigid(fl)
-            if S is not None:
+            # what the coarse flow's alignment left, from the measured flow itself
+            S, frac = self._rigid(fl)
+            if S is not None and frac >= 0.1:
                 M = M @ S
                 fl = _compose_similarity(fl, np.linalg.inv(S))
             self.prev = M
