@@ -342,8 +342,8 @@ class _FlowStep:
         return compute_flow(self.ref, cur, self.method, max_motion=self.max_motion)
 
     def _align_flow(self, cur):
-        """The coarse DIS flow from which a frame's alignment is fitted (one instance per
-        step: an OpenCV algorithm object keeps state between calls)."""
+        """The coarse DIS flow from which a frame's alignment is fitted (an instance of this
+        step's own: its finest level follows the crop's size)."""
         if self._align_dis is None:
             side = min(self.crop.size)
             self._align_dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -421,10 +421,11 @@ def face_flow(frames, heads, *, grid: FaceGrid | None = None, method: str = "dis
         ``head``: every frame is warped by its own head frame. ``flow`` (default): every
         frame starts from its head frame (a frame without one from the previous frame's
         alignment); a similarity fitted robustly (RANSAC) to a first, coarse flow on the
-        face (DIS down to :data:`ALIGN_MIN_SIDE`) then corrects the alignment, and the flow
-        is measured on the aligned crop. It corrects
-        head-frame jitter and bridges frames where the tracker lost the face; frames
-        where fewer than a tenth of the face points fit a common rigid motion are lost.
+        face (DIS down to :data:`ALIGN_MIN_SIDE`) then corrects the alignment, the flow is
+        measured on the aligned crop, and the similarity fitted to it takes out what the
+        alignment left. It corrects head-frame jitter and bridges frames where the tracker
+        lost the face; frames where fewer than a tenth of the face points fit a common
+        rigid motion are lost.
     frame_numbers : array_like, optional
         Frame numbers to record (default ``0..T-1``).
 
