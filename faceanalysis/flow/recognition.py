@@ -505,13 +505,6 @@ def _stream_chunks(stream):
         yield np.array(pos), np.stack(buf)
 
 
-def _stream_clean(stream, templates: FlowTemplates):
-    """``(positions, clean (k, n, 2) float32, energy (k,))`` a chunk of a
-    :class:`~faceanalysis.flow.dense.VideoFlowStream`'s frames at a time."""
-    for pos, disp in _stream_chunks(stream):
-        yield (pos, *_masked_clean(disp, templates))
-
-
 class _HeldBack(logging.Filter):
     """Within it, ``logger``'s records are held back, to be logged later (:meth:`release`)
     or never: they may concern a choice not yet made."""
