@@ -109,3 +109,27 @@ def test_a_clip_that_starts_at_rest_is_streamed_once_with_the_same_result(smile,
     assert given.scores == found.scores
     assert [s.as_dict() for s in given.segments] == [s.as_dict() for s in found.segments]
     np.testing.assert_array_equal(given.energy, found.energy)
+
+
+def test_the_templates_warn_once_and_only_about_the_reference_used(smile, relaxing, monkeypatch,
+                                                                   caplog):
+    import logging
+
+    import faceanalysis.flow.personalize as personalize
+
+    real = personalize.personalize_from_table
+
+    def warning(templates, table, neutral):
+        personalize.log.warning("neutral frame %d: templates checked", neutral)
+        return real(templates, table, neutral)
+
+    monkeypatch.setattr(personalize, "personalize_from_table", warning)
+    for clip, first in ((smile, True), (relaxing, False)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="faceanalysis.flow.personalize"):
+            rec = classify_video(clip["video"])
+        said = [r.getMessage() for r in caplog.records if "templates checked" in r.getMessage()]
+        # the first pass personalises for the first frame in case it is the reference; where
+        # the reference is found elsewhere, that frame's warning is not shown
+        assert said == [f"neutral frame {rec.reference}: templates checked"]
+        assert (rec.reference_source == "first") == first
