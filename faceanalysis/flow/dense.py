@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 
 import cv2
@@ -93,7 +94,9 @@ def tvl1_scales(size: tuple[int, int], max_motion: float, *, scale_step: float =
     return int(max(1, min(max(need, 3), fit)))
 
 
-_DIS_CACHE: dict = {}
+#: One DIS instance per thread: an OpenCV algorithm keeps its working buffers in itself, so
+#: two threads calculating with one instance corrupt each other's flow (or crash).
+_DIS_PER_THREAD = threading.local()
 
 
 def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | None = None
@@ -137,11 +140,11 @@ def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | Non
     if max_motion is None:
         max_motion = 0.1 * min(a.shape)
     if method == "dis":
-        dis = _DIS_CACHE.get("dis")
+        dis = getattr(_DIS_PER_THREAD, "dis", None)
         if dis is None:
             dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
             dis.setFinestScale(0)       # full resolution: sub-pixel face motion needs it
-            _DIS_CACHE["dis"] = dis
+            _DIS_PER_THREAD.dis = dis
         flow = dis.calc(a, b, None)
     elif method == "farneback":
         levels = int(max(3, min(6, math.ceil(math.log2(max(max_motion, 1.0))) + 1)))

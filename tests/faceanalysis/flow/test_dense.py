@@ -47,6 +47,22 @@ def test_methods_recover_a_translation(rng, method):
     np.testing.assert_allclose(np.median(inner.reshape(-1, 2), axis=0), [2.0, -1.0], atol=0.15)
 
 
+def test_flows_calculated_in_threads_at_once_are_those_calculated_one_by_one(rng):
+    from concurrent.futures import ThreadPoolExecutor
+
+    pairs = []
+    for k in range(2):
+        a = _texture(rng, 300, 260)
+        pairs.append((a, np.roll(a, k + 1, axis=1)))
+    alone = [compute_flow(a, b) for a, b in pairs]
+    with ThreadPoolExecutor(2) as pool:
+        together = list(pool.map(lambda k: [compute_flow(*pairs[k]) for _ in range(20)],
+                                 [0, 1]))
+    for k, flows in enumerate(together):
+        for fl in flows:
+            np.testing.assert_array_equal(fl, alone[k])
+
+
 def test_flow_inputs_are_checked(rng):
     a = _texture(rng, 64, 64)
     with pytest.raises(ValueError, match="unknown flow method"):
