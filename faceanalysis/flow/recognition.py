@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -324,15 +325,20 @@ class _Prepared:
 
 
 _PREP_CACHE: dict = {}
+#: Classifications in several threads share the cache; its eviction reads and changes it.
+_PREP_LOCK = threading.Lock()
 
 
 def _prepared(templates: FlowTemplates) -> _Prepared:
     key = id(templates)
-    hit = _PREP_CACHE.get(key)
+    with _PREP_LOCK:
+        hit = _PREP_CACHE.get(key)
     if hit is None or hit.t is not templates:
-        hit = _PREP_CACHE[key] = _Prepared(templates)
-        if len(_PREP_CACHE) > 8:
-            _PREP_CACHE.pop(next(iter(_PREP_CACHE)))
+        hit = _Prepared(templates)
+        with _PREP_LOCK:
+            _PREP_CACHE[key] = hit
+            if len(_PREP_CACHE) > 8:
+                _PREP_CACHE.pop(next(iter(_PREP_CACHE)))
     return hit
 
 
