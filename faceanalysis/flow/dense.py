@@ -94,9 +94,20 @@ def tvl1_scales(size: tuple[int, int], max_motion: float, *, scale_step: float =
     return int(max(1, min(max(need, 3), fit)))
 
 
-#: One DIS instance per thread: an OpenCV algorithm keeps its working buffers in itself, so
-#: two threads calculating with one instance corrupt each other's flow (or crash).
+#: DIS instances per thread: an OpenCV algorithm keeps its working buffers in itself, so two
+#: threads calculating with one instance corrupt each other's flow (or crash).
 _DIS_PER_THREAD = threading.local()
+
+
+def _dis(finest: int):
+    """This thread's DIS flow (medium preset) refined down to pyramid level ``finest``
+    (0: full resolution)."""
+    levels = _DIS_PER_THREAD.__dict__.setdefault("by_level", {})
+    dis = levels.get(finest)
+    if dis is None:
+        dis = levels[finest] = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        dis.setFinestScale(finest)
+    return dis
 
 
 def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | None = None
@@ -140,12 +151,7 @@ def compute_flow(image0, image1, method: str = "dis", *, max_motion: float | Non
     if max_motion is None:
         max_motion = 0.1 * min(a.shape)
     if method == "dis":
-        dis = getattr(_DIS_PER_THREAD, "dis", None)
-        if dis is None:
-            dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-            dis.setFinestScale(0)       # full resolution: sub-pixel face motion needs it
-            _DIS_PER_THREAD.dis = dis
-        flow = dis.calc(a, b, None)
+        flow = _dis(0).calc(a, b, None)     # full resolution: sub-pixel face motion needs it
     elif method == "farneback":
         levels = int(max(3, min(6, math.ceil(math.log2(max(max_motion, 1.0))) + 1)))
         flow = cv2.calcOpticalFlowFarneback(a, b, None, 0.5, levels, 15, 5, 5, 1.1, 0)
@@ -321,7 +327,7 @@ class _FlowStep:
         self.blur = smoothing_sigma(grid, self.crop.px_per_unit)
         self.max_motion = 0.25 * self.crop.px_per_unit
         self.prev = None                              # last crop->image matrix (3x3)
-        self._align_dis = None
+        self.align_level = max(0, int(np.log2(min(self.crop.size) / ALIGN_MIN_SIDE)))
         # points of the face (an ellipse inside the grid) for the rigid fit
         cx = 0.5 * (grid.u[0] + grid.u[1])
         cy = 0.5 * (grid.v[0] + grid.v[1])
@@ -345,13 +351,8 @@ class _FlowStep:
         return compute_flow(self.ref, cur, self.method, max_motion=self.max_motion)
 
     def _align_flow(self, cur):
-        """The coarse DIS flow from which a frame's alignment is fitted (an instance of this
-        step's own: its finest level follows the crop's size)."""
-        if self._align_dis is None:
-            side = min(self.crop.size)
-            self._align_dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-            self._align_dis.setFinestScale(max(0, int(np.log2(side / ALIGN_MIN_SIDE))))
-        return self._align_dis.calc(self.ref, cur, None)
+        """The coarse DIS flow from which a frame's alignment is fitted."""
+        return _dis(self.align_level).calc(self.ref, cur, None)
 
     def _rigid(self, fl):
         """Similarity (3x3, reference crop -> current crop) fitted robustly to the flow."""
