@@ -109,15 +109,12 @@ def _fps_figures(quick: bool) -> list[Figure]:
                 if meth == "tvl1" and quick and stab == "flow":
                     continue
                 step = _FlowStep(img0, head, grid, meth, None, True, stabilization=stab)
-
-                def once(step=step):
-                    step.prev = None
-                    step(img1, head)
-
-                t = median_time(once, repeat=repeat if meth != "tvl1" else 2, number=1)
+                t = _step_time(step, img1, head, repeat if meth != "tvl1" else 2)
                 peer = ratio = None
                 if meth == "dis" and stab == "flow":
-                    t_full = _full_alignment_time(img0, img1, head, grid, repeat)
+                    full = _FlowStep(img0, head, grid, meth, None, True, stabilization=stab)
+                    full.align_level = 0                # aligned on the full-resolution flow
+                    t_full = _step_time(full, img1, head, repeat)
                     out.append(Figure(NAME, "flow step dis (flow stabilisation, aligned on the "
                                       "full-resolution flow) 640x480", "frames per second",
                                       1.0 / t_full, "frames/s", True, extra={"threads": 1}))
@@ -133,23 +130,13 @@ def _fps_figures(quick: bool) -> list[Figure]:
     return out
 
 
-def _full_alignment_time(img0, img1, head, grid, repeat: int) -> float:
-    """Seconds of the DIS flow step with its alignment flow refined to full resolution (no
-    coarse level: :data:`faceanalysis.flow.dense.ALIGN_MIN_SIDE` beyond any crop)."""
-    import faceanalysis.flow.dense as dense
+def _step_time(step, img1, head, repeat: int) -> float:
+    """Median seconds of one flow step from ``step``'s reference to ``img1``."""
+    def once():
+        step.prev = None
+        step(img1, head)
 
-    saved = dense.ALIGN_MIN_SIDE
-    dense.ALIGN_MIN_SIDE = 10**9
-    try:
-        step = dense._FlowStep(img0, head, grid, "dis", None, True, stabilization="flow")
-
-        def once():
-            step.prev = None
-            step(img1, head)
-
-        return median_time(once, repeat=repeat, number=1)
-    finally:
-        dense.ALIGN_MIN_SIDE = saved
+    return median_time(once, repeat=repeat, number=1)
 
 
 def _recognition_figures(quick: bool) -> list[Figure]:
