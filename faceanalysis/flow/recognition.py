@@ -554,8 +554,10 @@ class _Classified:
         self.fit = _ContractionFit(templates) if total else None
         self.total = np.full(len(stream_frames), np.nan)
 
-    def add(self, pos: np.ndarray, disp: np.ndarray) -> None:
-        clean, energy = _masked_clean(disp, self.templates)
+    def add(self, pos: np.ndarray, disp: np.ndarray, cleaned=None) -> None:
+        """Frames ``pos`` of the stream with their displacement; ``cleaned``: their
+        :func:`_masked_clean` with these templates where the caller has it already."""
+        clean, energy = _masked_clean(disp, self.templates) if cleaned is None else cleaned
         if self.fit is not None:
             self.total[pos] = self.fit(clean).sum(axis=1)
         for i, c, v in zip(pos, clean, energy):
@@ -759,10 +761,11 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                                 if personalised else templates)
                 kept = _Classified(stream.frames, start, personal, total=False)
             for pos, disp in _stream_chunks(stream):
-                clean, _ = _masked_clean(disp, templates)
-                total[pos] = fit(clean).sum(axis=1)
+                cleaned = _masked_clean(disp, templates)
+                total[pos] = fit(cleaned[0]).sum(axis=1)
                 if kept is not None:
-                    kept.add(pos, disp)
+                    # (templates not personalised: the same cleaning serves both)
+                    kept.add(pos, disp, cleaned if kept.templates is templates else None)
             ref, rest = _pick_rest(total, stream.frames, stream.reference)
             source = "first" if ref == stream.reference else "detected"
             if source == "detected":
