@@ -304,8 +304,31 @@ def real_clips(quick=False):
         figs.append(_fig(name, rest, tr.success[other].sum(), f"of {len(other)}", True))
     hand = folder / "WolfgangLanger_Pexels.mp4"
     if hand.is_file():
+        figs += _hand_from_its_first_frame(hand)
         figs += _hand_clip_altered(hand, quick)
     return figs
+
+
+#: A frame of ``WolfgangLanger_Pexels.mp4`` whose fingers lie over the nose and the mouth.
+UNDER_HAND = 120
+
+
+def _hand_from_its_first_frame(path):
+    """The clip analysed from :data:`UNDER_HAND`: a hand over the face on the first frame,
+    which must not become the neutral frame (the first tracked one, by default) nor the
+    reference the later frames' edges are judged against."""
+    from faceanalysis.tracking import track
+
+    lo, hi = UNDER_HAND, HAND_OVER_MOUTH[1]
+    tr = track(path, tracker="landmarks", start=lo)
+    case = f"{path.name} from frame {lo} (a hand over the face on the first frame)"
+    tracked = np.flatnonzero(tr.success)
+    return [_fig(case, f"frames {lo}-{hi - 1} (the hand over the face) marked lost",
+                 (~tr.success[:hi - lo]).sum(), f"of {hi - lo}", True, hi - lo),
+            _fig(case, "first tracked frame (the default neutral frame)",
+                 int(tr.frames[tracked[0]]) if tracked.size else -1, "", True),
+            _fig(case, "other frames tracked", tr.success[hi - lo:].sum(),
+                 f"of {len(tr) - (hi - lo)}", True)]
 
 
 def _hand_clip_altered(path, quick):

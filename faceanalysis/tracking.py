@@ -26,7 +26,7 @@ import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.cuts import frame_changes, shot_cuts
-from faceanalysis.io.report import LOST_REASONS, input_metadata
+from faceanalysis.io.report import LOST_REASONS, input_metadata, lost_reasons_text
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
@@ -611,6 +611,12 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             draw(*held)
         if frames and not any(ok) and layout is None:
             # before the overlay is finished: a failed run leaves no file behind
+            counts = lost_reason_counts(reasons)
+            if set(counts) - {"no_face", "undecodable"}:
+                # a face was found, and lost for what covered it or the contours it lost
+                raise ValueError(f"{video}: the face was lost in every one of the "
+                                 f"{len(frames)} frames ({lost_reasons_text(counts)}); "
+                                 "nothing to analyse")
             hint = ""
             if kind == "landmarks" and getattr(getattr(tracker, "landmarks", None),
                                                "full_range", True) is False:

@@ -52,7 +52,7 @@ from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
-__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD",
+__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "HAND_START", "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD",
            "OCCLUSION_CHIN", "OCCLUSION_HOLD", "OCCLUSION_WITNESSES", "AnchoredTracker",
            "rigid_similarity", "rotation_angles"]
 
@@ -168,6 +168,18 @@ HAND_EVERY_COVERED = 6
 #: on 12 and 11 frames instead of 27 and 24; the hand's frames lost on the clip as given,
 #: enlarged and turned stayed the same.
 HAND_RETRY = 3
+
+#: The palm detector looks on each of the first this many frames with a face, whatever
+#: their edges: the first frame's edges are the reference that a later frame's deepening
+#: is judged against, so a hand over the face from the start does not deepen them, and the
+#: detector, which needs the palm in view, can miss a hand's fingers on one frame and find
+#: them on the next. The analysis takes a hand as covering the frames just before the one
+#: it is found on (``faceanalysis.tracking.HAND_LEAD`` = 2), so one found on the second or
+#: third frame covers the first too. ``WolfgangLanger_Pexels.mp4`` from frame 120 (fingers
+#: over the nose and mouth): not found on the first frame, found on the second; with a
+#: look on the first frame only, it was found on the fourth, and the first, under the
+#: fingers, was the analysis's neutral frame.
+HAND_START = 3
 
 #: The palm detector looks for a new hand within a square this many times the face's size
 #: (its landmarks' extent) round the face, not in the whole frame: it sees the frame at 192
@@ -412,6 +424,9 @@ class AnchoredTracker:
         self._edges_covered = False   # the last frame's edges covered the lower face
         self._hand_age = 0          # frames since a followed hand's landmarks were read
         self._since_palm = HAND_RETRY   # frames since the palm detector last found nothing
+        self._faced = 0             # frames with a face so far
+        self._since_init = 0        # frames since the contours were placed
+        self._restart = False       # place them afresh on the next frame with a face
         if hands:
             from trackers.landmarks.hands import HandTracker
 
@@ -475,6 +490,8 @@ class AnchoredTracker:
         """
         index = self.index
         self.index += 1
+        if self._restart:
+            self._unplace()
         given, frame = frame, self._working(frame)
         lm = placed = self.landmarks.track(frame)
         if lm is not None and self.downscale is None:
@@ -577,8 +594,10 @@ class AnchoredTracker:
                 self.tracker.system.freeze(k)
                 self._carried = {k: self.tracker.system.contour_points(k)}
             first = True
+            self._since_init = 0
         else:
             first = False
+            self._since_init += 1
             a, b = rigid_similarity(self._ref_rigid, rigid)
             head = _apply_similarity(self.tracker.ref_head, a, b)
             for k, ref in self._carried.items():
@@ -637,6 +656,11 @@ class AnchoredTracker:
         covered = covered or bool(under_hand & set(_LIPS)) or self._covered and deepened
         self._covered = covered
         occluded = set(LOWER_FACE) if covered else under_hand
+        # a hand over the face on one of the first frames since the contours were placed:
+        # the first frame's references (its edges' depths, the contours' offsets from
+        # their curves) may lie under it, and would then hide the hand from every later
+        # frame's edges; the contours are placed afresh on the next frame
+        self._restart = bool(hands and occluded and self._since_init < HAND_START)
         for name in occluded:
             quality[name] = replace(quality[name], lost=True)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
@@ -655,6 +679,16 @@ class AnchoredTracker:
                                                  res.iterations, res.converged, res.head,
                                                  res.fiducials, extra))
 
+    def _unplace(self) -> None:
+        """Forget the contours and what was learnt on the frame they were placed on (the
+        working size, brightness, landmarks and hands are kept): the next frame with a face
+        places them as a first frame does."""
+        self._restart = False
+        self.tracker = None
+        self._ref_rigid = self._ref_rigid3 = None
+        self._offsets, self._unreferenced, self._carried = {}, set(), {}
+        self._gap = self._covered = self._edges_covered = False
+
     def _hands(self, frame, quality, iod: float, first: bool, following=None, face=None):
         """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
         the lower face's edges deepened (:data:`HAND_GATE`). ``following``: the followed
@@ -669,7 +703,9 @@ class AnchoredTracker:
                        for n in ("lower_lip", "chin_boss"))
         hands = following.result() if hasattr(following, "result") else following
         self._since_palm += 1
-        look = first or deepened and self._since_palm >= HAND_RETRY
+        self._faced += 1
+        look = (first or self._faced <= HAND_START
+                or deepened and self._since_palm >= HAND_RETRY)
         if hands is None or not hands and look:
             # nothing was followed, or the followed hands were lost: the palm detector
             # looks for one where the edges call for it

@@ -291,6 +291,33 @@ class _HandAt:
         self.inner.close()
 
 
+class _HandOver(_HandAt):
+    """:class:`_HandAt` with the hand on every frame."""
+
+    def track(self, image, next_frame=None):
+        self.at = self.n
+        return super().track(image, next_frame=next_frame)
+
+
+def test_a_face_under_a_hand_on_every_frame_is_reported_as_such(tmp_path, rendered_face,
+                                                                 monkeypatch):
+    # the face is found on every frame and lost under the hand: "no face found" would send
+    # the user looking for a detector problem
+    from faceanalysis import tracking
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(rendered_face, cv2.COLOR_RGB2BGR))
+    real = tracking._anchored
+    lower = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
+    monkeypatch.setattr(tracking, "_anchored",
+                        lambda *a: _HandOver(real(*a), at=0, covered=lower))
+    with pytest.raises(ValueError, match=r"frames: the face was lost in every one of the 3 "
+                                         r"frames \(3 under a hand\); nothing to analyse"):
+        track(folder, fps=10, tracker="landmarks")
+
+
 @pytest.mark.parametrize("covered", [("upper_lip", "lower_lip", "chin_boss", "furrow_l",
                                       "furrow_r"), ("chin_boss",)])
 def test_the_frames_before_a_hand_is_found_lose_what_it_covers(tmp_path, rendered_face,

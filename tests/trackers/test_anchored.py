@@ -6,6 +6,7 @@ import pytest
 from tests.trackers.landmarks.conftest import face, models  # noqa: F401 (fixtures)
 from trackers.anchored import (
     HAND_SEARCH,
+    HAND_START,
     LOWER_FACE,
     AnchoredTracker,
     near_convex_polygon,
@@ -410,8 +411,10 @@ def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(
     over_mouth = _hand_over(rx - 6, ry - 6, lx + 6, cy + 15)
     on_chin = _hand_over(cx - 15, cy - 3, cx + 15, cy + 20)
     tracker = AnchoredTracker()
-    tracker.hand_tracker = hands = _Hands([], [over_mouth], [on_chin], [])
-    first, mouth, chin, free = (tracker.track(img) for _ in range(4))
+    # (after the first frames, on which a hand would have the contours placed again)
+    tracker.hand_tracker = hands = _Hands(*[[]] * HAND_START, [over_mouth], [on_chin], [])
+    first, *_ = (tracker.track(img) for _ in range(HAND_START))
+    mouth, chin, free = (tracker.track(img) for _ in range(3))
     assert not any(q.lost for q in first.quality.values() if q is not first.quality["hairline"])
     assert all(mouth.quality[n].lost for n in LOWER_FACE)
     assert not mouth.quality["brow_l"].lost and not mouth.quality["nose_tip"].lost
@@ -419,9 +422,9 @@ def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(
     assert chin.quality["chin_boss"].lost
     assert not chin.quality["upper_lip"].lost and not chin.quality["lower_lip"].lost
     assert not any(free.quality[n].lost for n in LOWER_FACE) and free.extra["hands"] == []
-    # the palm detector runs on the first frame, then only where the lower face's edges
-    # deepen (on this still face: never)
-    assert hands.asked == [True, False, False, False]
+    # the palm detector runs on each of the first HAND_START frames, then only where the
+    # lower face's edges deepen (on this still face: never)
+    assert hands.asked == [True] * HAND_START + [False] * 3
     # and looks round the face: a square HAND_SEARCH times the landmarks' extent
     lm = first.extra["landmarks"]
     lo, hi = lm.min(0), lm.max(0)
@@ -526,3 +529,53 @@ def test_a_dim_face_is_tracked_brightened(face_truth):
     x0, y0, x1, y1 = (int(v) for v in box)
     grey = (half[y0:y1, x0:x1] @ [0.299, 0.587, 0.114])
     assert tracker.gain == pytest.approx(MIN_FACE_LEVEL / np.percentile(grey, 95), rel=0.05)
+
+
+class _MissedPalm(_Hands):
+    """A palm detector that misses the hand on its first look and finds it on every later
+    one (a hand whose fingers lie over the face, its palm turned away)."""
+
+    def __init__(self, hand):
+        super().__init__()
+        self.hand = hand
+
+    def track(self, frame, *, detect=True, region=None):
+        self.asked.append(detect)
+        return [self.hand] if detect and len(self.asked) > 1 else []
+
+
+def test_a_hand_over_the_face_from_the_first_frame_is_looked_for_again(face_truth):
+    # the first frame's edges are the reference later frames' deepening is judged by: a
+    # hand that lies there from the start deepens nothing, so only the palm detector's
+    # next looks can find it
+    img, truth = face_truth
+    (rx, ry), (lx, _), (_, cy) = truth["mouth_corner_r"], truth["mouth_corner_l"], truth["chin"]
+    covered = _fingers(img, truth, int(ry) - 10)
+    tracker = AnchoredTracker()
+    tracker.hand_tracker = hands = _MissedPalm(_hand_over(rx - 6, ry - 6, lx + 6, cy + 15))
+    first, second = tracker.track(covered), tracker.track(covered)
+    if first is None or second is None:
+        pytest.skip("the mesh gave up on the covered face")
+    assert hands.asked == [True, True]
+    assert first.extra["hands"] == []
+    assert len(second.extra["hands"]) == 1
+    assert all(second.quality[n].lost for n in LOWER_FACE)
+
+
+def test_contours_placed_under_a_hand_are_placed_again_once_it_leaves(face_truth):
+    # a video that starts with a hand over the mouth: the contours are placed again on the
+    # first frame without it, so that later frames' edges are judged against the face's
+    img, truth = face_truth
+    (rx, ry), (lx, _), (_, cy) = truth["mouth_corner_r"], truth["mouth_corner_l"], truth["chin"]
+    covered = _fingers(img, truth, int(ry) - 10)
+    tracker = AnchoredTracker()
+    # the hand is found on the first frame, then the palm detector misses it
+    tracker.hand_tracker = _Hands([_hand_over(rx - 6, ry - 6, lx + 6, cy + 15)])
+    under, clear, again = (tracker.track(f) for f in (covered, img, covered))
+    if under is None or again is None:
+        pytest.skip("the mesh gave up on the covered face")
+    assert all(under.quality[n].lost for n in LOWER_FACE)
+    assert not any(clear.quality[n].lost for n in LOWER_FACE)
+    # the fingers' edges, deeper than the lips', lose the lower face by themselves
+    assert all(again.quality[n].lost for n in LOWER_FACE)
+    assert not again.quality["brow_l"].lost and not again.quality["brow_r"].lost
