@@ -302,11 +302,49 @@ def real_clips(quick=False):
         # a black frame (noface_face.mov's last) shows no face either
         other = other[~_blank_frames(folder / name)[other]]
         figs.append(_fig(name, rest, tr.success[other].sum(), f"of {len(other)}", True))
+    talking = folder / "cap13_edit2.mp4"
+    if talking.is_file():
+        figs += _fade_in(talking)
     hand = folder / "WolfgangLanger_Pexels.mp4"
     if hand.is_file():
         figs += _hand_from_its_first_frame(hand)
         figs += _hand_clip_altered(hand, quick)
     return figs
+
+
+#: Frames over which :func:`_fade_in` brings its clip up from black.
+FADE_FRAMES = 20
+
+
+def _fade_in(path, frames: int = 200):
+    """The clip's first ``frames`` frames, the first :data:`FADE_FRAMES` faded in from black
+    (in memory, uncompressed): the frames lost, and the largest difference of the tracked
+    fiducials from the first full-light frame on from those of the clip tracked from there."""
+    import cv2
+
+    from faceanalysis.io.video import Frames
+    from faceanalysis.tracking import track
+
+    cap = cv2.VideoCapture(str(path))
+    clip = []
+    while len(clip) < frames:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        clip.append(frame)
+    faded = [np.clip(f * min(1.0, (i + 1) / FADE_FRAMES) + 0.5, 0, 255).astype(np.uint8)
+             for i, f in enumerate(clip)]
+    tr = track(Frames(faded, fps=25.0, channel_order="bgr"), tracker="landmarks")
+    full = FADE_FRAMES - 1
+    ref = track(Frames(clip[full:], fps=25.0, channel_order="bgr"), tracker="landmarks")
+    case = f"{path.name}, its first {len(clip)} frames faded in over {FADE_FRAMES}"
+    diff = np.abs(tr.fiducials[full:] - ref.fiducials)
+    return [_fig(case, "frames lost", (~tr.success).sum(), f"of {len(clip)}", False),
+            _fig(case, "frames lost while the picture brightened",
+                 sum(r == "fading" for r in tr.lost_reasons), "", False),
+            _fig(case, f"largest fiducial difference from frame {full} on, against the clip "
+                 f"tracked from there", float(np.nanmax(diff)) if np.isfinite(diff).any()
+                 else float("nan"), "px", False)]
 
 
 #: A frame of ``WolfgangLanger_Pexels.mp4`` whose fingers lie over the nose and the mouth.

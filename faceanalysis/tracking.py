@@ -40,6 +40,7 @@ __all__ = [
     "MIN_POINTS",
     "POINT_CONTOUR",
     "DEFAULT_TRACKER",
+    "FADE_RISE",
     "TRACKERS",
     "Tracks",
     "faded_furrow_ends",
@@ -93,6 +94,16 @@ MIN_POINTS = 7
 #: found on the chin on frame 1185 had deepened the chin's edges from 1.4 to 2.3 times
 #: their first frame's two frames before.
 HAND_LEAD = 2
+
+#: Until a face is first found, a frame of a video is lost (``'fading'``, not shown to the
+#: tracker) where the next frame is brighter than it by more than this factor (the mean of
+#: its grey levels): a video that fades in from black, a camera's exposure still settling.
+#: The first frame with a face is the one the contours are placed on, whose edges every
+#: later frame's are judged against, and by default the analysis's neutral frame: cap13 faded
+#: in over its first 20 frames had its face found on the second, at a tenth of the light, and
+#: lost 199 of its 200 frames. Frames one by one from an image folder (photographs, often
+#: under other light) are not held to it. The real clips' frames change by at most 1.5 %.
+FADE_RISE = 1.03
 
 
 #: A furrow's lower end (``furrow_bottom_*``) is measured only on frames where the
@@ -526,6 +537,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         writer.write(_draw(frame, shown, fid_rows[r], head_rows[r] if ok[r] else None,
                            why or not ok[r], hands, eyelids))
     kind, tracker = tracker, None
+    # frames of a video, in time: a fade-in there holds the tracker back (FADE_RISE)
+    fades, faced = source.kind != "images", False
     waiting = _Waiting()
     nan_pose = np.full(2, np.nan)
     writer = None
@@ -546,12 +559,14 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 res = None
                 t0 = time.perf_counter()
                 upcoming = next(decoded, None)
+                fading = (fades and not faced and frame.ok and upcoming is not None
+                          and upcoming.ok and _brightening(frame.image, upcoming.image))
                 if kind != "landmarks":
                     t0 = time.perf_counter()
                 # else the landmark tracker works on this frame (prefetched) while the
                 # next one is decoded: the wait counts as tracking time, so that no
                 # landmark work hides outside the timed span
-                if frame.ok:
+                if frame.ok and not fading:
                     if kind == "landmarks":
                         if tracker is None:
                             tracker = _anchored(backend, device, tracker_options)
@@ -564,6 +579,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                                                     tracker_options,
                                                     waiting=None if any(ok) else waiting)
                     t_track += time.perf_counter() - t0
+                    faced = faced or res is not None
                 if res is None:
                     good, c = False, 0.0
                     fids, pts, head, stretch = nan_fid, nan_pts, nan_head, nan_stretch
@@ -585,7 +601,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 lids.append(res.extra.get("eye_gaps", nan_pose) if good else nan_pose)
                 mesh.append(_mesh(res) if good else None)
                 ok.append(good)
-                reasons.append(None if good else _lost_reason(frame.ok, res))
+                reasons.append(None if good else "fading" if fading
+                               else _lost_reason(frame.ok, res))
                 conf.append(c)
                 fid_rows.append(fids)
                 pt_rows.append(pts)
@@ -728,7 +745,7 @@ def lost_reason_counts(reasons) -> dict[str, int]:
 #: Lost-frame reasons (:data:`~faceanalysis.io.report.LOST_REASONS`) that leave nothing of
 #: the face to see: no face found, a hand over it, no picture at all. (A frame lost for
 #: ``'contours'`` still shows the face.)
-HIDDEN_REASONS = ("no_face", "hand", "undecodable")
+HIDDEN_REASONS = ("no_face", "hand", "undecodable", "fading")
 
 
 def hidden_frames(frames, lost_reasons) -> np.ndarray:
@@ -766,6 +783,15 @@ def _lost_reason(decoded: bool, result) -> str:
     if result is None:
         return "no_face"
     return "hand" if result.extra.get("hands") else "contours"
+
+
+def _brightening(image, following) -> bool:
+    """Whether ``following`` is brighter than ``image`` by more than :data:`FADE_RISE`."""
+    import cv2
+
+    level = float(np.mean(cv2.mean(image)[:3 if np.ndim(image) == 3 else 1]))
+    after = float(np.mean(cv2.mean(following)[:3 if np.ndim(following) == 3 else 1]))
+    return after > FADE_RISE * max(level, 0.5)
 
 
 def _with_changes(frames, changes: dict):

@@ -118,6 +118,34 @@ def rendered_face():
                       supersample=1).images[0]
 
 
+def _fade_in(image, levels):
+    return np.stack([np.clip(image * k + 0.5, 0, 255).astype(np.uint8) for k in levels])
+
+
+def test_a_video_that_fades_in_is_tracked_from_where_its_light_settles(rendered_face):
+    # the first frame with a face is placed on and judged against: a dark one held the
+    # fade's lost the whole video (the contours' edges all "deepened" after it)
+    levels = [0.15, 0.3, 0.5, 0.75, 1.0, 1.0, 1.0, 1.0]
+    frames = _fade_in(rendered_face.astype(np.float32), levels)
+    tr = track(frames, fps=10, tracker="landmarks")
+    assert tr.lost_reasons[:4] == ["fading"] * 4
+    assert tr.success.tolist() == [False] * 4 + [True] * 4
+    # from there on, as the video from that frame
+    settled = track(frames[4:], fps=10, tracker="landmarks")
+    np.testing.assert_array_equal(tr.fiducials[4:], settled.fiducials)
+    np.testing.assert_array_equal(tr.heads[4:], settled.heads)
+
+
+def test_photographs_under_other_light_are_not_a_fade(tmp_path, rendered_face):
+    # a folder of photographs is not a video in time: the second, brighter, is not held
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, img in enumerate(_fade_in(rendered_face.astype(np.float32), [0.8, 1.0])):
+        cv2.imwrite(str(folder / f"{i}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    tr = track(folder, fps=1, tracker="landmarks")
+    assert "fading" not in tr.lost_reasons and tr.success[0]
+
+
 def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
         tmp_path, rendered_face):
     folder = tmp_path / "frames"
