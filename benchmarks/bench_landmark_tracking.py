@@ -305,6 +305,7 @@ def real_clips(quick=False):
     talking = folder / "cap13_edit2.mp4"
     if talking.is_file():
         figs += _fade_in(talking)
+        figs += _zoomed(talking)
     hand = folder / "WolfgangLanger_Pexels.mp4"
     if hand.is_file():
         figs += _hand_from_its_first_frame(hand)
@@ -320,18 +321,10 @@ def _fade_in(path, frames: int = 200):
     """The clip's first ``frames`` frames, the first :data:`FADE_FRAMES` faded in from black
     (in memory, uncompressed): the frames lost, and the largest difference of the tracked
     fiducials from the first full-light frame on from those of the clip tracked from there."""
-    import cv2
-
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
-    cap = cv2.VideoCapture(str(path))
-    clip = []
-    while len(clip) < frames:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        clip.append(frame)
+    clip = _clip(path, frames)
     faded = [np.clip(f * min(1.0, (i + 1) / FADE_FRAMES) + 0.5, 0, 255).astype(np.uint8)
              for i, f in enumerate(clip)]
     tr = track(Frames(faded, fps=25.0, channel_order="bgr"), tracker="landmarks")
@@ -345,6 +338,42 @@ def _fade_in(path, frames: int = 200):
             _fig(case, f"largest fiducial difference from frame {full} on, against the clip "
                  f"tracked from there", float(np.nanmax(diff)) if np.isfinite(diff).any()
                  else float("nan"), "px", False)]
+
+
+def _clip(path, frames: int) -> list:
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    out = []
+    while len(out) < frames:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        out.append(frame)
+    return out
+
+
+def _zoomed(path, frames: int = 150, over: int = 60):
+    """The clip's first ``frames`` frames zoomed about the frame's centre, by 2 and by 0.6
+    over the first ``over`` (in memory): a camera's zoom, a subject leaning in or back. The
+    frames lost."""
+    import cv2
+
+    from faceanalysis.io.video import Frames
+    from faceanalysis.tracking import track
+
+    clip = _clip(path, frames)
+    h, w = clip[0].shape[:2]
+    figs = []
+    for end in (2.0, 0.6):
+        zoomed = [cv2.warpAffine(f, cv2.getRotationMatrix2D(
+            (w / 2, h / 2), 0, 1.0 + (end - 1.0) * min(i, over) / over), (w, h),
+            borderMode=cv2.BORDER_REPLICATE) for i, f in enumerate(clip)]
+        tr = track(Frames(zoomed, fps=25.0, channel_order="bgr"), tracker="landmarks")
+        figs.append(_fig(f"{path.name}, its first {len(clip)} frames zoomed by {end:g} over "
+                         f"{over}", "frames lost", (~tr.success).sum(), f"of {len(clip)}",
+                         False))
+    return figs
 
 
 #: A frame of ``WolfgangLanger_Pexels.mp4`` whose fingers lie over the nose and the mouth.

@@ -636,10 +636,13 @@ class AnchoredTracker:
                                             lost=False)
                 self._unreferenced -= set(agreeing)
         # an edge much stronger than the features' own across the lower face: a hand,
-        # fingers, a microphone; the mesh goes on drawing a mouth under it
-        chin = quality["chin_boss"].depth
+        # fingers, a microphone; the mesh goes on drawing a mouth under it. A face seen
+        # smaller than on the first frame has its edges squeezed into fewer pixels, their
+        # gradients steeper by up to as much: its depths count for that much less here
+        shrink = min(1.0, abs(a)) if not first else 1.0
+        chin = quality["chin_boss"].depth * shrink
         hands, under_hand, deepened = self._hands(frame, quality, iod, first, following,
-                                                  lm.box)
+                                                  lm.box, shrink)
         self._since_hand = 0 if hands else self._since_hand + 1
         # the chin alone stands for a hand only where one was seen lately (or none can
         # be: no hand detector): a chin whose first frame's edges were faint reaches 15
@@ -647,7 +650,7 @@ class AnchoredTracker:
         chin_alone = chin > OCCLUSION_CHIN and (self.hand_tracker is None
                                                  or self._since_hand <= HAND_MEMORY)
         covered = self.occlusion and (
-            all(not quality[n].lost and quality[n].depth > d
+            all(not quality[n].lost and quality[n].depth * shrink > d
                 for n, d in OCCLUSION_WITNESSES.items())
             or chin_alone or self._covered and chin > OCCLUSION_HOLD)
         self._edges_covered = covered
@@ -689,17 +692,20 @@ class AnchoredTracker:
         self._offsets, self._unreferenced, self._carried = {}, set(), {}
         self._gap = self._covered = self._edges_covered = False
 
-    def _hands(self, frame, quality, iod: float, first: bool, following=None, face=None):
+    def _hands(self, frame, quality, iod: float, first: bool, following=None, face=None,
+               shrink: float = 1.0):
         """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
         the lower face's edges deepened (:data:`HAND_GATE`). ``following``: the followed
         hands' points on this frame (a list: the last frame's, kept; a future: being read
         in a thread), or None (nothing followed, or to be read here); ``face``: the face's
-        box (x0, y0, x1, y1), round which a new hand is looked for (:data:`HAND_SEARCH`)."""
+        box (x0, y0, x1, y1), round which a new hand is looked for (:data:`HAND_SEARCH`);
+        ``shrink``: the factor the edges' depths count for (a face seen smaller)."""
         if self.hand_tracker is None:
             return [], set(), False
         ref = self.tracker.ref_depth
         floor = HAND_GATE_FLOOR * ref["upper_lip"]
-        deepened = any(quality[n].depth * ref[n] / max(ref[n], floor, 1e-12) > HAND_GATE
+        deepened = any(quality[n].depth * shrink * ref[n] / max(ref[n], floor, 1e-12)
+                       > HAND_GATE
                        for n in ("lower_lip", "chin_boss"))
         hands = following.result() if hasattr(following, "result") else following
         self._since_palm += 1

@@ -12,11 +12,14 @@ Per frame and per contour the tracker reports a quality:
 
 * ``depth``: mean depth ``-P`` of the potential under the nodes, relative to the
   depth on the first frame (1 = as well anchored as at the start);
-* ``stretch``: contour length relative to the first frame;
+* ``stretch``: contour length relative to the first frame (and, where the head frame is
+  given, to the head's size: a face that comes nearer the camera does not stretch);
 * ``shape``: change of shape since the first frame (similarity-invariant residual
   over the length);
-* ``lost``: depth below ``lost_depth``, stretch outside ``stretch_range``, shape
-  change above ``max_shape_change``, or nodes that left the image. A lost contour
+* ``lost``: depth below ``lost_depth`` (divided by how much larger a given head frame is
+  than the first: an edge seen larger is spread over more pixels, its gradient shallower),
+  stretch outside ``stretch_range``, shape change above ``max_shape_change``, or nodes that
+  left the image. A lost contour
   is re-initialised from the layout (moved with the head frame) and relaxed again
   within the same frame; it stays flagged lost only if that fails too.
 
@@ -603,19 +606,24 @@ class Tracker(HeadFrameSearch, ContourFields):
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         return quality, head, r.iterations
 
-    def _quality(self, depths, outside, reinit=()):
+    def _quality(self, depths, outside, reinit=(), *, zoom: float = 1.0):
+        """Each contour's :class:`ContourQuality`; ``zoom``: the head's size over the first
+        frame's (the contours' lengths are taken relative to it)."""
         q = {}
+        # a face seen larger spreads an edge over more pixels: its gradient at the
+        # potentials' fixed scale falls up to as much (a sharp edge's keeps its depth)
+        least = self.lost_depth / max(zoom, 1.0)
         X, st = self.system.X, self.system.starts
         for k, name in enumerate(self.names):
             pts = X[st[k]:st[k + 1]]
             closed = self.layout.contours[name].closed
             depth = depths[name] / max(self.ref_depth.get(name, depths[name]), 1e-9)
             length = _polyline_length(pts, closed)
-            stretch = length / max(self.ref_length.get(name, length), 1e-9)
+            stretch = length / max(self.ref_length.get(name, length), 1e-9) / zoom
             shape = _shape_change(pts, self.ref_shape[name], closed) \
                 if name in self.ref_shape else 0.0
             lost = (self.system.frozen[k] or not np.isfinite(pts).all()
-                    or depth < self.lost_depth
+                    or depth < least
                     or not self.stretch_range[0] <= stretch <= self.stretch_range[1]
                     or shape > self.max_shape_change
                     or bool(outside[k]) or k in self._clipped)
@@ -678,6 +686,9 @@ class Tracker(HeadFrameSearch, ContourFields):
         self._fallback_head = None if first else fallback_head
         placed = self._set_targets(targets) if targets else {}
         given_head = None if first else head
+        # how much larger the face is than on the first frame, where the head is known
+        zoom = (given_head.scale / self.ref_head.scale
+                if given_head is not None and self.ref_head is not None else 1.0)
         Ps, origins, gray, gorigin = self._fields(frame)
         cap = self.first_max_iter if first else self.max_iter
 
@@ -711,7 +722,7 @@ class Tracker(HeadFrameSearch, ContourFields):
         depths = self._depths(Ps, origins)
         if first:
             self._set_references(depths, self.names)
-        quality = self._quality(depths, outside)
+        quality = self._quality(depths, outside, zoom=zoom)
         self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
         self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
         if given_head is not None:
@@ -749,7 +760,7 @@ class Tracker(HeadFrameSearch, ContourFields):
             self._refine(Ps, origins, gray, gorigin, settle=reinit)
             outside = r3.outside
             depths = self._depths(Ps, origins)
-            quality = self._quality(depths, outside, reinit)
+            quality = self._quality(depths, outside, reinit, zoom=zoom)
             self._brows_lost = quality["brow_l"].lost or quality["brow_r"].lost
             self._head_contours_lost = quality["hairline"].lost or quality["nose_tip"].lost
             head = given_head if given_head is not None else self._head(frame)

@@ -1,5 +1,6 @@
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 
@@ -579,3 +580,31 @@ def test_contours_placed_under_a_hand_are_placed_again_once_it_leaves(face_truth
     # the fingers' edges, deeper than the lips', lose the lower face by themselves
     assert all(again.quality[n].lost for n in LOWER_FACE)
     assert not again.quality["brow_l"].lost and not again.quality["brow_r"].lost
+
+
+def _framed(img, scale, size=320):
+    """``img`` scaled by ``scale`` about its centre into a ``size`` square (its border
+    colour beyond): the camera zoomed, or the face nearer or farther."""
+    h, w = img.shape[:2]
+    m = np.array([[scale, 0.0, size / 2 - scale * w / 2], [0.0, scale, size / 2 - scale * h / 2]])
+    return cv2.warpAffine(img, m, (size, size), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+
+
+@pytest.mark.parametrize("scales", [np.geomspace(0.9, 1.5, 12), np.geomspace(1.5, 0.8, 12)],
+                         ids=["nearer", "farther"])
+def test_a_face_that_comes_nearer_or_goes_farther_keeps_its_contours(face_truth, scales):
+    # a zoom (here 5 % a frame), or the subject leaning in: the contours' lengths follow
+    # the head's size, and an edge seen larger is shallower at the potentials' fixed scale
+    img, _ = face_truth
+    tracker = AnchoredTracker()
+    results = [tracker.track(_framed(img, s)) for s in scales]
+    if any(r is None for r in results):
+        pytest.skip("the mesh gave up on the scaled face")
+    last = results[-1]
+    zoom = scales[-1] / scales[0]
+    lost = [n for n, q in last.quality.items() if q.lost and n != "hairline"]
+    assert lost == []
+    stretch = [q.stretch for n, q in last.quality.items() if n != "hairline"]
+    assert 0.75 < np.median(stretch) < 1.25            # relative to the head, not the image
+    np.testing.assert_allclose(last.head.scale / results[0].head.scale, zoom, rtol=0.05)
