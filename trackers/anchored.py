@@ -52,8 +52,8 @@ from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
-__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "HAND_START", "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD",
-           "OCCLUSION_CHIN", "OCCLUSION_HOLD", "OCCLUSION_WITNESSES", "AnchoredTracker",
+__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "HAND_START", "LOWER_FACE", "MAX_DISAGREEMENT",
+           "MAX_IOD", "OCCLUSION_CHIN", "OCCLUSION_HOLD", "OCCLUSION_WITNESSES", "AnchoredTracker",
            "rigid_similarity", "rotation_angles"]
 
 #: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). Weak: on
@@ -169,16 +169,16 @@ HAND_EVERY_COVERED = 6
 #: enlarged and turned stayed the same.
 HAND_RETRY = 3
 
-#: The palm detector looks on each of the first this many frames with a face, whatever
-#: their edges: the first frame's edges are the reference that a later frame's deepening
-#: is judged against, so a hand over the face from the start does not deepen them, and the
-#: detector, which needs the palm in view, can miss a hand's fingers on one frame and find
-#: them on the next. The analysis takes a hand as covering the frames just before the one
-#: it is found on (``faceanalysis.tracking.HAND_LEAD`` = 2), so one found on the second or
-#: third frame covers the first too. ``WolfgangLanger_Pexels.mp4`` from frame 120 (fingers
-#: over the nose and mouth): not found on the first frame, found on the second; with a
-#: look on the first frame only, it was found on the fourth, and the first, under the
-#: fingers, was the analysis's neutral frame.
+#: The palm detector looks on each of the first this many frames since the contours were
+#: placed, whatever their edges: the first frame's edges are the reference that a later
+#: frame's deepening is judged against, so a hand over the face from the start does not
+#: deepen them, and the detector, which needs the palm in view, can miss a hand's fingers
+#: on one frame and find them on the next. The analysis takes a hand as covering the frames
+#: just before the one it is found on (``faceanalysis.tracking.HAND_LEAD`` = 2), so one
+#: found on the second or third frame covers the first too. ``WolfgangLanger_Pexels.mp4``
+#: from frame 120 (fingers over the nose and mouth): not found on the first frame, found on
+#: the second; with a look on the first frame only, it was found on the fourth, and the
+#: first, under the fingers, was the analysis's neutral frame.
 HAND_START = 3
 
 #: The palm detector looks for a new hand within a square this many times the face's size
@@ -424,7 +424,6 @@ class AnchoredTracker:
         self._edges_covered = False   # the last frame's edges covered the lower face
         self._hand_age = 0          # frames since a followed hand's landmarks were read
         self._since_palm = HAND_RETRY   # frames since the palm detector last found nothing
-        self._faced = 0             # frames with a face so far
         self._since_init = 0        # frames since the contours were placed
         self._restart = False       # place them afresh on the next frame with a face
         if hands:
@@ -641,8 +640,8 @@ class AnchoredTracker:
         # gradients steeper by up to as much: its depths count for that much less here
         shrink = min(1.0, abs(a)) if not first else 1.0
         chin = quality["chin_boss"].depth * shrink
-        hands, under_hand, deepened = self._hands(frame, quality, iod, first, following,
-                                                  lm.box, shrink)
+        hands, under_hand, deepened = self._hands(frame, quality, iod, following, lm.box,
+                                                  shrink)
         self._since_hand = 0 if hands else self._since_hand + 1
         # the chin alone stands for a hand only where one was seen lately (or none can
         # be: no hand detector): a chin whose first frame's edges were faint reaches 15
@@ -692,7 +691,7 @@ class AnchoredTracker:
         self._offsets, self._unreferenced, self._carried = {}, set(), {}
         self._gap = self._covered = self._edges_covered = False
 
-    def _hands(self, frame, quality, iod: float, first: bool, following=None, face=None,
+    def _hands(self, frame, quality, iod: float, following=None, face=None,
                shrink: float = 1.0):
         """This frame's hands, the contours they cover (:data:`HAND_COVER`), and whether
         the lower face's edges deepened (:data:`HAND_GATE`). ``following``: the followed
@@ -709,8 +708,7 @@ class AnchoredTracker:
                        for n in ("lower_lip", "chin_boss"))
         hands = following.result() if hasattr(following, "result") else following
         self._since_palm += 1
-        self._faced += 1
-        look = (first or self._faced <= HAND_START
+        look = (self._since_init < HAND_START
                 or deepened and self._since_palm >= HAND_RETRY)
         if hands is None or not hands and look:
             # nothing was followed, or the followed hands were lost: the palm detector

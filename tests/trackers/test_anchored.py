@@ -433,7 +433,7 @@ def test_a_hand_over_the_lips_loses_the_lower_face_and_one_on_the_chin_the_chin(
     np.testing.assert_allclose([x1 - x0, y1 - y0], HAND_SEARCH * (hi - lo).max(), rtol=1e-6)
     np.testing.assert_allclose([(x0 + x1) / 2, (y0 + y1) / 2], (lo + hi) / 2, atol=1e-6)
     # a square that misses the frame (a face box far off it) looks over the whole frame
-    tracker._hands(img, first.quality, 30.0, True, None, face=(-900, -900, -800, -800))
+    tracker._hands(img, first.quality, 30.0, None, face=(-900, -900, -800, -800))
     assert hands.regions[-1] is None
 
 
