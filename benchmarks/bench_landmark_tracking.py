@@ -304,8 +304,10 @@ def real_clips(quick=False):
         figs.append(_fig(name, rest, tr.success[other].sum(), f"of {len(other)}", True))
     talking = folder / "cap13_edit2.mp4"
     if talking.is_file():
-        figs += _fade_in(talking)
+        for over in (FADE_FRAMES, 3 * FADE_FRAMES):
+            figs += _fade_in(talking, over=over)
         figs += _zoomed(talking)
+        figs += _relit(talking)
     hand = folder / "WolfgangLanger_Pexels.mp4"
     if hand.is_file():
         figs += _hand_from_its_first_frame(hand)
@@ -317,26 +319,31 @@ def real_clips(quick=False):
 FADE_FRAMES = 20
 
 
-def _fade_in(path, frames: int = 200):
-    """The clip's first ``frames`` frames, the first :data:`FADE_FRAMES` faded in from black
-    (in memory, uncompressed): the frames lost, and the largest difference of the tracked
-    fiducials from the first full-light frame on from those of the clip tracked from there."""
+def _fade_in(path, frames: int = 200, over: int = FADE_FRAMES):
+    """The clip's first ``frames`` frames, the first ``over`` faded in from black (in memory,
+    uncompressed): the frames lost, and the largest difference of the tracked fiducials from
+    the first full-light frame on from those of the clip tracked from there, and their median
+    (a fast fade's frames are all held back, and the clip is then tracked as from that
+    frame; a slow one's end is evened out, ``AnchoredTracker(even_light=True)``)."""
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
     clip = _clip(path, frames)
-    faded = [np.clip(f * min(1.0, (i + 1) / FADE_FRAMES) + 0.5, 0, 255).astype(np.uint8)
+    faded = [np.clip(f * min(1.0, (i + 1) / over) + 0.5, 0, 255).astype(np.uint8)
              for i, f in enumerate(clip)]
     tr = track(Frames(faded, fps=25.0, channel_order="bgr"), tracker="landmarks")
-    full = FADE_FRAMES - 1
+    full = over - 1
     ref = track(Frames(clip[full:], fps=25.0, channel_order="bgr"), tracker="landmarks")
-    case = f"{path.name}, its first {len(clip)} frames faded in over {FADE_FRAMES}"
+    case = f"{path.name}, its first {len(clip)} frames faded in over {over}"
     diff = np.abs(tr.fiducials[full:] - ref.fiducials)
     return [_fig(case, "frames lost", (~tr.success).sum(), f"of {len(clip)}", False),
             _fig(case, "frames lost while the picture brightened",
                  sum(r == "fading" for r in tr.lost_reasons), "", False),
             _fig(case, f"largest fiducial difference from frame {full} on, against the clip "
                  f"tracked from there", float(np.nanmax(diff)) if np.isfinite(diff).any()
+                 else float("nan"), "px", False),
+            _fig(case, f"median fiducial difference from frame {full} on, against the clip "
+                 f"tracked from there", float(np.nanmedian(diff)) if np.isfinite(diff).any()
                  else float("nan"), "px", False)]
 
 
@@ -373,6 +380,24 @@ def _zoomed(path, frames: int = 150, over: int = 60):
         figs.append(_fig(f"{path.name}, its first {len(clip)} frames zoomed by {end:g} over "
                          f"{over}", "frames lost", (~tr.success).sum(), f"of {len(clip)}",
                          False))
+    return figs
+
+
+def _relit(path, frames: int = 300):
+    """The clip's first ``frames`` frames with the light changed by 2.2 and by 0.4 over
+    frames 60-90 (in memory): the frames lost."""
+    from faceanalysis.io.video import Frames
+    from faceanalysis.tracking import track
+
+    clip = _clip(path, frames)
+    figs = []
+    for k in (2.2, 0.4):
+        relit = [np.clip(f * (1.0 + (k - 1.0) * np.clip((i - 60) / 30, 0, 1)) + 0.5, 0, 255)
+                 .astype(np.uint8) for i, f in enumerate(clip)]
+        tr = track(Frames(relit, fps=25.0, channel_order="bgr"), tracker="landmarks")
+        figs.append(_fig(f"{path.name}, its first {len(clip)} frames, the light changed by "
+                         f"{k:g} over frames 60-90", "frames lost", (~tr.success).sum(),
+                         f"of {len(clip)}", False))
     return figs
 
 

@@ -569,7 +569,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 if frame.ok and not fading:
                     if kind == "landmarks":
                         if tracker is None:
-                            tracker = _anchored(backend, device, tracker_options)
+                            tracker = _anchored(backend, device, tracker_options,
+                                                even_light=fades)
                         ahead = (upcoming.image if upcoming is not None and upcoming.ok
                                  else None)
                         res = tracker.track(frame.image, next_frame=ahead)
@@ -822,12 +823,13 @@ def _mesh(res):
     return np.c_[pts, z].astype(np.float32)
 
 
-def _anchored(backend, device, tracker_options):
+def _anchored(backend, device, tracker_options, *, even_light: bool = False):
     from trackers.anchored import AnchoredTracker
 
     # the landmarks' thread only pays where a core is free for it: not in a batch worker
-    # given one core of many
-    options = {"prefetch": thread_budget() > 1, **(tracker_options or {})}
+    # given one core of many; the light is evened out over frames in time (a video)
+    options = {"prefetch": thread_budget() > 1, "even_light": even_light,
+               **(tracker_options or {})}
     return AnchoredTracker(channel_order="bgr", backend=backend, device=device, **options)
 
 

@@ -187,6 +187,14 @@ HAND_START = 3
 #: hand over the face fills a fifth of this square at any frame size.
 HAND_SEARCH = 3.0
 
+#: The face's brightness may change by this factor from where the contours were placed
+#: before a frame's grey levels are evened out (``even_light``); only the change beyond it
+#: is. The real clips' faces keep their light within it.
+LIGHT_TOLERANCE = 1.1
+
+#: Most that a frame's grey levels are raised or lowered by (``even_light``).
+MAX_RELIGHT = 4.0
+
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
 #: in inter-ocular distances, is lost.
 MAX_DISAGREEMENT = 0.12
@@ -215,6 +223,20 @@ MAX_GAIN = 4.0
 
 _RIGID_INDEX = np.array(RIGID_POINTS, np.intp)
 _END = object()
+
+
+def _skin_level(frame, points, channel_order: str) -> float:
+    """The median grey level of ``frame`` under the face mesh's ``points`` (468, 2): the
+    face's brightness, mostly skin (the few points in the eyes and the mouth's opening
+    barely move the median)."""
+    img = np.asarray(frame)
+    h, w = img.shape[:2]
+    xy = np.rint(np.asarray(points, dtype=float)[:, :2]).astype(np.intp)
+    px = img[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)].astype(np.float64)
+    if px.ndim == 2:
+        rgb = px[:, :3] if channel_order == "rgb" else px[:, 2::-1]
+        px = rgb @ np.array([0.299, 0.587, 0.114])
+    return float(np.median(px))
 
 
 def near_convex_polygon(points, polygon, margin: float) -> np.ndarray:
@@ -386,6 +408,15 @@ class AnchoredTracker:
         averaging) to at most this size (:data:`MAX_IOD`); None tracks every frame at
         its own size. Results are always in the input's pixels; the factor is
         :attr:`downscale`.
+    even_light : bool
+        Frames in time (a video): the snakes see each frame's face as bright as where the
+        contours were placed, within :data:`LIGHT_TOLERANCE`: where the face's brightness
+        (the median grey level under the face mesh) has changed by more than that, its grey
+        levels are multiplied by the change beyond it (at most :data:`MAX_RELIGHT`). The
+        image force, the edges' depths (which lose a contour, or call a hand) and the ends
+        found scale with the grey levels: a light turned up, a camera's exposure, the end
+        of a slow fade-in then move no contour. Off for photographs one by one (a side
+        light is no uniform change).
     **tracker_options
         Passed to :class:`~trackers.tracking.Tracker` (``tol``, ``brow_mid``...).
 
@@ -402,7 +433,8 @@ class AnchoredTracker:
                  occlusion: bool = True, hands: bool = True, eyes: bool = False,
                  head_frame: str = "landmarks",
                  runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
-                 device=None, max_iod: float | None = MAX_IOD, **tracker_options):
+                 device=None, max_iod: float | None = MAX_IOD, even_light: bool = False,
+                 **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if not np.isfinite(max_disagreement) or max_disagreement <= 0:
@@ -410,6 +442,8 @@ class AnchoredTracker:
         if max_iod is not None and not (np.isfinite(max_iod) and max_iod > 0):
             raise ValueError(f"max_iod must be positive or None, got {max_iod}")
         self.max_iod = None if max_iod is None else float(max_iod)
+        self.even_light = bool(even_light)
+        self._ref_level = 1.0      # the face's grey level where the contours were placed
         #: Whole factor the frames are shrunk by before tracking (None until a face
         #: has been seen, then fixed; 1: the input's size).
         self.downscale: int | None = None
@@ -583,6 +617,7 @@ class AnchoredTracker:
             # spring's pull toward the raw curves, which would otherwise be released
             # over the next frames as a creep
             res = self.tracker.track(frame, targets=targets, head=self.tracker.ref_head)
+            self._ref_level = _skin_level(frame, lm.points, self.channel_order)
             if self.head_frame == "landmarks" and self.backend == "numpy":
                 # the hairline served the first frame's head frame (004's); from here on
                 # the rigid landmarks carry the head frame and nothing reads the hairline,
@@ -605,10 +640,12 @@ class AnchoredTracker:
             targets = self._node_targets(curves, a)
             if self._gap:
                 self._replace(targets, head)
+            contrast = self._relight(frame, lm.points) if self.even_light else 1.0
             if self.head_frame == "landmarks":
-                res = self.tracker.track(frame, targets=targets, head=head)
+                res = self.tracker.track(frame, targets=targets, head=head, contrast=contrast)
             else:
-                res = self.tracker.track(frame, targets=targets, fallback_head=head)
+                res = self.tracker.track(frame, targets=targets, fallback_head=head,
+                                         contrast=contrast)
         self._gap = False
         quality = dict(res.quality)
         system = self.tracker.system
@@ -680,6 +717,14 @@ class AnchoredTracker:
         return self._in_input_pixels(TrackResult(index, res.contours, quality,
                                                  res.iterations, res.converged, res.head,
                                                  res.fiducials, extra))
+
+    def _relight(self, frame, points) -> float:
+        """The factor this frame's grey levels are multiplied by (``even_light``)."""
+        ratio = self._ref_level / max(_skin_level(frame, points, self.channel_order), 1e-9)
+        # only the change beyond the tolerance: a face's own light within it (a turn, a
+        # smile's teeth, the encoder) is left as it was
+        beyond = ratio / np.clip(ratio, 1.0 / LIGHT_TOLERANCE, LIGHT_TOLERANCE)
+        return float(np.clip(beyond, 1.0 / MAX_RELIGHT, MAX_RELIGHT))
 
     def _unplace(self) -> None:
         """Forget the contours and what was learnt on the frame they were placed on (the

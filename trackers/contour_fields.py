@@ -60,6 +60,10 @@ class ContourFields:
     each contour lies in, the depth of the potential under its nodes, and the
     image-force strength calibrated from them on the first frame."""
 
+    #: This frame's grey levels are multiplied by it before the potentials are computed
+    #: (:meth:`~trackers.tracking.Tracker.track`'s ``contrast``).
+    _contrast = 1.0
+
     def _fields(self, frame):
         """Per-contour potentials (each in a box around its contour) and their origins."""
         img = np.asarray(frame)
@@ -93,6 +97,8 @@ class ContourFields:
             gray = to_gray(img[Y0:Y1, X0:X1], channel_order=self.channel_order)
         except ValueError as exc:
             raise ValueError(f"frame {self.index}: {exc}") from None
+        if self._contrast != 1.0:
+            gray *= np.float32(self._contrast)
         gh, gw = gray.shape
         bx = np.empty((len(self.names), 4), np.int64)
         _boxes_nb(X, self.system.starts, float(m), int(X0), int(Y0), gw, gh, bx)

@@ -657,7 +657,8 @@ class Tracker(HeadFrameSearch, ContourFields):
                 self.ref_length[name] = _polyline_length(pts, self.layout.contours[name].closed)
                 self.ref_shape[name] = pts
 
-    def track(self, frame, *, targets=None, head=None, fallback_head=None) -> TrackResult:
+    def track(self, frame, *, targets=None, head=None, fallback_head=None,
+              contrast: float = 1.0) -> TrackResult:
         """Relax the contours on ``frame`` (starting from the last equilibrium).
 
         Parameters
@@ -675,6 +676,12 @@ class Tracker(HeadFrameSearch, ContourFields):
         fallback_head : HeadFrame, optional
             A head frame from elsewhere that stands in, on this frame, for the corner
             features and the contours' motion when the irises are not found.
+        contrast : float, keyword-only
+            Factor this frame's grey levels are multiplied by before the potentials are
+            computed, e.g. the first frame's brightness of the face over this frame's: the
+            image force, the edges' depths and the ends found are then those of the face
+            under the first frame's light (they scale with the grey levels). Ignored on the
+            first frame, which sets the references.
 
         Raises
         ------
@@ -683,6 +690,9 @@ class Tracker(HeadFrameSearch, ContourFields):
             (the message names the frame index).
         """
         first = self.index == 0
+        if not (np.isfinite(contrast) and contrast > 0):
+            raise ValueError(f"contrast must be a positive number, got {contrast!r}")
+        self._contrast = 1.0 if first else float(contrast)
         self._fallback_head = None if first else fallback_head
         placed = self._set_targets(targets) if targets else {}
         given_head = None if first else head

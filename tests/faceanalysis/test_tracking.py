@@ -146,6 +146,26 @@ def test_photographs_under_other_light_are_not_a_fade(tmp_path, rendered_face):
     assert "fading" not in tr.lost_reasons and tr.success[0]
 
 
+def test_the_light_is_evened_out_over_a_video_not_over_photographs(tmp_path, rendered_face,
+                                                                   monkeypatch):
+    # a video's light changes in time (a fade's end, a camera's exposure); a folder of
+    # photographs may each be lit from elsewhere (a side light is no uniform change)
+    from faceanalysis import tracking
+
+    made = []
+    real = tracking._anchored
+    monkeypatch.setattr(tracking, "_anchored",
+                        lambda *a, **k: made.append(k) or real(*a, **k))
+    frames = np.stack([rendered_face] * 2)
+    track(frames, fps=10, tracker="landmarks")
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i, img in enumerate(frames):
+        cv2.imwrite(str(folder / f"{i}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    track(folder, fps=1, tracker="landmarks")
+    assert [k["even_light"] for k in made] == [True, False]
+
+
 def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
         tmp_path, rendered_face):
     folder = tmp_path / "frames"
@@ -340,7 +360,7 @@ def test_a_face_under_a_hand_on_every_frame_is_reported_as_such(tmp_path, render
     real = tracking._anchored
     lower = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
     monkeypatch.setattr(tracking, "_anchored",
-                        lambda *a: _HandOver(real(*a), at=0, covered=lower))
+                        lambda *a, **k: _HandOver(real(*a, **k), at=0, covered=lower))
     with pytest.raises(ValueError, match=r"frames: the face was lost in every one of the 3 "
                                          r"frames \(3 under a hand\); nothing to analyse"):
         track(folder, fps=10, tracker="landmarks")
@@ -361,7 +381,7 @@ def test_the_frames_before_a_hand_is_found_lose_what_it_covers(tmp_path, rendere
         cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(rendered_face, cv2.COLOR_RGB2BGR))
     real = tracking._anchored
     monkeypatch.setattr(tracking, "_anchored",
-                        lambda *a: _HandAt(real(*a), at=5, covered=covered))
+                        lambda *a, **k: _HandAt(real(*a, **k), at=5, covered=covered))
     overlay = tmp_path / "overlay.mp4"
     tr = track(folder, fps=10, tracker="landmarks", overlay=overlay)
     before = list(range(5 - HAND_LEAD, 5))

@@ -608,3 +608,34 @@ def test_a_face_that_comes_nearer_or_goes_farther_keeps_its_contours(face_truth,
     stretch = [q.stretch for n, q in last.quality.items() if n != "hairline"]
     assert 0.75 < np.median(stretch) < 1.25            # relative to the head, not the image
     np.testing.assert_allclose(last.head.scale / results[0].head.scale, zoom, rtol=0.05)
+
+
+@pytest.mark.parametrize("even_light", [True, False])
+def test_a_face_whose_light_dims_keeps_its_contours_where_the_light_is_evened_out(
+        face_truth, even_light):
+    # the end of a slow fade, a camera's exposure, a light turned down: the edges' depths
+    # scale with the grey levels and fall under the depth that loses a contour
+    img, _ = face_truth
+    tracker = AnchoredTracker(even_light=even_light)
+    levels = (1.0, 0.8, 0.6, 0.45, 0.35, 0.27, 0.22)
+    results = [tracker.track(np.clip(img * k + 0.5, 0, 255).astype(np.uint8)) for k in levels]
+    if any(r is None for r in results):
+        pytest.skip("the mesh gave up on the dimmed face")
+    lost = [n for n, q in results[-1].quality.items() if q.lost and n != "hairline"]
+    if even_light:
+        assert lost == []
+    else:
+        assert lost                    # what evening the light out is for
+
+
+def test_even_light_leaves_a_face_within_its_tolerance_as_it_was(face_truth):
+    from trackers.anchored import LIGHT_TOLERANCE
+
+    img, _ = face_truth
+    frames = [np.clip(img * k + 0.5, 0, 255).astype(np.uint8)
+              for k in (1.0, 0.97, 1.0 / LIGHT_TOLERANCE + 0.01)]
+    one, other = AnchoredTracker(even_light=True), AnchoredTracker(even_light=False)
+    for f in frames:
+        a, b = one.track(f), other.track(f)
+        for n in a.contours:
+            np.testing.assert_array_equal(a.contours[n], b.contours[n])
