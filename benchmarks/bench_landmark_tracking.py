@@ -308,6 +308,7 @@ def real_clips(quick=False):
             figs += _fade_in(talking, over=over)
         figs += _zoomed(talking)
         figs += _relit(talking)
+        figs += _entering(talking)
     hand = folder / "WolfgangLanger_Pexels.mp4"
     if hand.is_file():
         figs += _hand_from_its_first_frame(hand)
@@ -324,7 +325,7 @@ def _fade_in(path, frames: int = 200, over: int = FADE_FRAMES):
     uncompressed): the frames lost, and the largest difference of the tracked fiducials from
     the first full-light frame on from those of the clip tracked from there, and their median
     (a fast fade's frames are all held back, and the clip is then tracked as from that
-    frame; a slow one's end is evened out, ``AnchoredTracker(even_light=True)``)."""
+    frame; a slow one's end is evened out, ``AnchoredTracker(video=True)``)."""
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
@@ -398,6 +399,41 @@ def _relit(path, frames: int = 300):
         figs.append(_fig(f"{path.name}, its first {len(clip)} frames, the light changed by "
                          f"{k:g} over frames 60-90", "frames lost", (~tr.success).sum(),
                          f"of {len(clip)}", False))
+    return figs
+
+
+def _entering(path, frames: int = 150, over: int = 30):
+    """The clip's first ``frames`` frames with the face coming into the picture from below
+    and from the right over the first ``over`` (shifted 150 and 170 px, in memory): the
+    frames lost, the neutral frame the analysis takes (the first tracked), and how far the
+    muscles of the frames after ``over`` lie from those of the clip as it is, analysed from
+    the same neutral frame (median over frames of the largest difference)."""
+    import cv2
+
+    from faceanalysis.analysis.pipeline import analyze
+    from faceanalysis.io.table import MUSCLES
+    from faceanalysis.io.video import Frames
+
+    clip = _clip(path, frames)
+    h, w = clip[0].shape[:2]
+    cols = list(MUSCLES)
+    figs = []
+    for side, (dx, dy) in (("below", (0, 150)), ("the right", (170, 0))):
+        moved = [cv2.warpAffine(f, np.float32([[1, 0, dx * max(0.0, 1 - i / over)],
+                                               [0, 1, dy * max(0.0, 1 - i / over)]]),
+                                (w, h), borderMode=cv2.BORDER_REPLICATE)
+                 for i, f in enumerate(clip)]
+        a = analyze(Frames(moved, fps=25.0, channel_order="bgr"))
+        k = int(a.metadata["parameters"]["neutral_frame"])
+        b = analyze(Frames(clip, fps=25.0, channel_order="bgr"), neutral=k)
+        diff = np.abs(a.table[cols].to_numpy(float) - b.table[cols].to_numpy(float))[over:]
+        case = f"{path.name}, its first {len(clip)} frames, the face coming in from {side} " \
+               f"over {over}"
+        figs += [_fig(case, "frames lost", (~a.tracks.success).sum(), f"of {len(clip)}", False),
+                 _fig(case, "neutral frame (the first tracked)", k, "", False),
+                 _fig(case, "largest muscle difference from the clip as it is, same neutral "
+                      "frame, median over the later frames", float(np.nanmedian(
+                          np.nanmax(diff, axis=1))), "", False)]
     return figs
 
 

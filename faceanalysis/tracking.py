@@ -537,7 +537,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         writer.write(_draw(frame, shown, fid_rows[r], head_rows[r] if ok[r] else None,
                            why or not ok[r], hands, eyelids))
     kind, tracker = tracker, None
-    # frames of a video, in time: a fade-in there holds the tracker back (FADE_RISE)
+    # frames of a video, in time: a fade-in there holds the tracker back (FADE_RISE), and
+    # the landmark tracker evens their light out and waits for an entering face
     fades, faced = source.kind != "images", False
     waiting = _Waiting()
     nan_pose = np.full(2, np.nan)
@@ -570,7 +571,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     if kind == "landmarks":
                         if tracker is None:
                             tracker = _anchored(backend, device, tracker_options,
-                                                even_light=fades)
+                                                video=fades)
                         ahead = (upcoming.image if upcoming is not None and upcoming.ok
                                  else None)
                         res = tracker.track(frame.image, next_frame=ahead)
@@ -783,6 +784,8 @@ def _lost_reason(decoded: bool, result) -> str:
         return "undecodable"
     if result is None:
         return "no_face"
+    if result.extra.get("edge"):
+        return "edge"
     return "hand" if result.extra.get("hands") else "contours"
 
 
@@ -823,12 +826,13 @@ def _mesh(res):
     return np.c_[pts, z].astype(np.float32)
 
 
-def _anchored(backend, device, tracker_options, *, even_light: bool = False):
+def _anchored(backend, device, tracker_options, *, video: bool = False):
     from trackers.anchored import AnchoredTracker
 
     # the landmarks' thread only pays where a core is free for it: not in a batch worker
-    # given one core of many; the light is evened out over frames in time (a video)
-    options = {"prefetch": thread_budget() > 1, "even_light": even_light,
+    # given one core of many; frames in time (a video) have their light evened out and an
+    # entering face waited for, photographs one by one not
+    options = {"prefetch": thread_budget() > 1, "video": video,
                **(tracker_options or {})}
     return AnchoredTracker(channel_order="bgr", backend=backend, device=device, **options)
 

@@ -52,9 +52,9 @@ from trackers.quality import TrackResult
 from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
-__all__ = ["DEFAULT_SPRINGS", "END_HOLD", "HAND_START", "LOWER_FACE", "MAX_DISAGREEMENT",
-           "MAX_IOD", "OCCLUSION_CHIN", "OCCLUSION_HOLD", "OCCLUSION_WITNESSES", "AnchoredTracker",
-           "rigid_similarity", "rotation_angles"]
+__all__ = ["DEFAULT_SPRINGS", "EDGE_CONTOURS", "EDGE_WAIT", "END_HOLD", "HAND_START",
+           "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD", "OCCLUSION_CHIN", "OCCLUSION_HOLD",
+           "OCCLUSION_WITNESSES", "AnchoredTracker", "rigid_similarity", "rotation_angles"]
 
 #: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). Weak: on
 #: rendered faces, whose edges the snakes find to a fraction of a pixel, stiffer springs
@@ -188,11 +188,29 @@ HAND_START = 3
 HAND_SEARCH = 3.0
 
 #: The face's brightness may change by this factor from where the contours were placed
-#: before a frame's grey levels are evened out (``even_light``); only the change beyond it
+#: before a frame's grey levels are evened out (``video``); only the change beyond it
 #: is. The real clips' faces keep their light within it.
 LIGHT_TOLERANCE = 1.1
 
-#: Most that a frame's grey levels are raised or lowered by (``even_light``).
+#: The contours whose curves must lie inside the picture where the contours are placed
+#: (:data:`EDGE_WAIT`): all but the chin boss (a close-up's chin is often cut off, and a
+#: contour lost where it is placed takes its references where it is first seen) and the
+#: hairline (carried with the head).
+EDGE_CONTOURS = ("brow_l", "brow_r", "furrow_l", "furrow_r", "nose_tip", "upper_lip",
+                 "lower_lip")
+
+#: A face whose :data:`EDGE_CONTOURS` the picture cuts off where the contours would be
+#: placed (one entering the picture; with ``video`` and the next frame given) has its frame
+#: lost (``extra['edge']``) and the contours placed on the next one, for at most this many
+#: frames: the contours take their references, and the analysis its neutral frame, from
+#: the face in full. A face the picture cuts off for longer (a close-up framed tight) is
+#: placed as it is. cap13's face coming in from below over 30 frames was placed with its
+#: mouth below the picture, and its later frames read muscles 0.91 off those of the clip as
+#: it is, from the same neutral frame (median of the largest); coming in from the right,
+#: 0.49; now 0.32 and 0.16.
+EDGE_WAIT = 30
+
+#: Most that a frame's grey levels are raised or lowered by (``video``).
 MAX_RELIGHT = 4.0
 
 #: A contour whose nodes lie farther than this from their landmark curve, on average,
@@ -223,6 +241,13 @@ MAX_GAIN = 4.0
 
 _RIGID_INDEX = np.array(RIGID_POINTS, np.intp)
 _END = object()
+
+
+def _inside(curves: dict, size, names) -> bool:
+    """Whether every point of the ``names`` curves lies inside a picture of ``size`` (w, h)."""
+    w, h = size
+    pts = np.vstack([curves[n] for n in names if n in curves])
+    return bool(((pts >= 0) & (pts <= [w - 1, h - 1])).all())
 
 
 def _skin_level(frame, points, channel_order: str) -> float:
@@ -408,15 +433,18 @@ class AnchoredTracker:
         averaging) to at most this size (:data:`MAX_IOD`); None tracks every frame at
         its own size. Results are always in the input's pixels; the factor is
         :attr:`downscale`.
-    even_light : bool
-        Frames in time (a video): the snakes see each frame's face as bright as where the
-        contours were placed, within :data:`LIGHT_TOLERANCE`: where the face's brightness
-        (the median grey level under the face mesh) has changed by more than that, its grey
-        levels are multiplied by the change beyond it (at most :data:`MAX_RELIGHT`). The
-        image force, the edges' depths (which lose a contour, or call a hand) and the ends
-        found scale with the grey levels: a light turned up, a camera's exposure, the end
-        of a slow fade-in then move no contour. Off for photographs one by one (a side
-        light is no uniform change).
+    video : bool
+        The frames are one video in time, not photographs one by one (False). Then the
+        snakes see each frame's face as bright as where the contours were placed, within
+        :data:`LIGHT_TOLERANCE`: where the face's brightness (the median grey level under
+        the face mesh) has changed by more than that, its grey levels are multiplied by the
+        change beyond it (at most :data:`MAX_RELIGHT`). The image force, the edges' depths
+        (which lose a contour, or call a hand) and the ends found scale with the grey
+        levels: a light turned up, a camera's exposure, the end of a slow fade-in then move
+        no contour (photographs may each be lit from elsewhere: a side light is no uniform
+        change). And a face the picture cuts off where the contours would be placed waits,
+        for at most :data:`EDGE_WAIT` frames, for a frame that shows it in full (a
+        photograph has none to wait for).
     **tracker_options
         Passed to :class:`~trackers.tracking.Tracker` (``tol``, ``brow_mid``...).
 
@@ -433,7 +461,7 @@ class AnchoredTracker:
                  occlusion: bool = True, hands: bool = True, eyes: bool = False,
                  head_frame: str = "landmarks",
                  runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
-                 device=None, max_iod: float | None = MAX_IOD, even_light: bool = False,
+                 device=None, max_iod: float | None = MAX_IOD, video: bool = False,
                  **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
@@ -442,7 +470,7 @@ class AnchoredTracker:
         if max_iod is not None and not (np.isfinite(max_iod) and max_iod > 0):
             raise ValueError(f"max_iod must be positive or None, got {max_iod}")
         self.max_iod = None if max_iod is None else float(max_iod)
-        self.even_light = bool(even_light)
+        self.video = bool(video)
         self._ref_level = 1.0      # the face's grey level where the contours were placed
         #: Whole factor the frames are shrunk by before tracking (None until a face
         #: has been seen, then fixed; 1: the input's size).
@@ -460,6 +488,7 @@ class AnchoredTracker:
         self._since_palm = HAND_RETRY   # frames since the palm detector last found nothing
         self._since_init = 0        # frames since the contours were placed
         self._restart = False       # place them afresh on the next frame with a face
+        self._edge_waited = 0       # frames held back with the face at the picture's edge
         if hands:
             from trackers.landmarks.hands import HandTracker
 
@@ -586,8 +615,13 @@ class AnchoredTracker:
         rigid = lm.points[_RIGID_INDEX]
         rigid3 = np.c_[rigid, lm.z[_RIGID_INDEX]]
         iod = float(np.hypot(*np.subtract(*eyes)))
+        edge = False      # the contours are placed on a face the picture cuts off
         if self.tracker is None:
             h, w = frame.shape[:2]
+            if (self.video and next_frame is not None and self._edge_waited < EDGE_WAIT
+                    and not _inside(landmark_curves(placed.points), (w, h), EDGE_CONTOURS)):
+                self._edge_waited += 1
+                edge = True
             layout = layout_from_landmarks(placed.points, (w, h))
             springs = self.springs
             if isinstance(springs, dict):
@@ -640,7 +674,7 @@ class AnchoredTracker:
             targets = self._node_targets(curves, a)
             if self._gap:
                 self._replace(targets, head)
-            contrast = self._relight(frame, lm.points) if self.even_light else 1.0
+            contrast = self._relight(frame, lm.points) if self.video else 1.0
             if self.head_frame == "landmarks":
                 res = self.tracker.track(frame, targets=targets, head=head, contrast=contrast)
             else:
@@ -699,15 +733,17 @@ class AnchoredTracker:
         # the first frame's references (its edges' depths, the contours' offsets from
         # their curves) may lie under it, and would then hide the hand from every later
         # frame's edges; the contours are placed afresh on the next frame
-        self._restart = bool(hands and occluded and self._since_init < HAND_START)
-        for name in occluded:
+        self._restart = edge or bool(hands and occluded and self._since_init < HAND_START)
+        # a face entering the picture: its features there are not yet where the contours
+        # would take their references (and the analysis its neutral frame) from
+        for name in quality if edge else occluded:
             quality[name] = replace(quality[name], lost=True)
         pitch, yaw = rotation_angles(self._ref_rigid3, rigid3)
         source = "landmarks" if self.head_frame == "landmarks" else res.extra["head_source"]
         extra = dict(res.extra, head_source=source, presence=float(lm.presence),
                      head_pitch=pitch, head_yaw=yaw, landmarks=lm.points, landmarks_z=lm.z,
                      detected=bool(placed.detected), hands=hands,
-                     occluded=tuple(sorted(occluded)))
+                     occluded=tuple(sorted(occluded)), edge=edge)
         if self.eyes:
             from trackers.landmarks.eyes import lid_gaps
 
@@ -719,7 +755,7 @@ class AnchoredTracker:
                                                  res.fiducials, extra))
 
     def _relight(self, frame, points) -> float:
-        """The factor this frame's grey levels are multiplied by (``even_light``)."""
+        """The factor this frame's grey levels are multiplied by (``video``)."""
         ratio = self._ref_level / max(_skin_level(frame, points, self.channel_order), 1e-9)
         # only the change beyond the tolerance: a face's own light within it (a turn, a
         # smile's teeth, the encoder) is left as it was
@@ -728,9 +764,12 @@ class AnchoredTracker:
 
     def _unplace(self) -> None:
         """Forget the contours and what was learnt on the frame they were placed on (the
-        working size, brightness, landmarks and hands are kept): the next frame with a face
-        places them as a first frame does."""
+        working size, brightness and hands are kept): the next frame with a face places
+        them as a first frame does, from the face detector's read of it."""
         self._restart = False
+        reset = getattr(self.landmarks, "reset", None)
+        if reset is not None:
+            reset()
         self.tracker = None
         self._ref_rigid = self._ref_rigid3 = None
         self._offsets, self._unreferenced, self._carried = {}, set(), {}

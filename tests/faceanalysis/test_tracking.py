@@ -146,7 +146,7 @@ def test_photographs_under_other_light_are_not_a_fade(tmp_path, rendered_face):
     assert "fading" not in tr.lost_reasons and tr.success[0]
 
 
-def test_the_light_is_evened_out_over_a_video_not_over_photographs(tmp_path, rendered_face,
+def test_the_tracker_is_told_a_video_from_photographs(tmp_path, rendered_face,
                                                                    monkeypatch):
     # a video's light changes in time (a fade's end, a camera's exposure); a folder of
     # photographs may each be lit from elsewhere (a side light is no uniform change)
@@ -163,7 +163,7 @@ def test_the_light_is_evened_out_over_a_video_not_over_photographs(tmp_path, ren
     for i, img in enumerate(frames):
         cv2.imwrite(str(folder / f"{i}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     track(folder, fps=1, tracker="landmarks")
-    assert [k["even_light"] for k in made] == [True, False]
+    assert [k["video"] for k in made] == [True, False]
 
 
 def test_landmark_tracker_starts_on_the_first_face_and_loses_frames_without_one(
