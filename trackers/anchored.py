@@ -207,7 +207,7 @@ EDGE_CONTOURS = ("brow_l", "brow_r", "furrow_l", "furrow_r", "nose_tip", "upper_
 #: placed as it is. cap13's face coming in from below over 30 frames was placed with its
 #: mouth below the picture, and its later frames read muscles 0.91 off those of the clip as
 #: it is, from the same neutral frame (median of the largest); coming in from the right,
-#: 0.49; now 0.32 and 0.16.
+#: 0.49; now 0.32 and 0.12.
 EDGE_WAIT = 30
 
 #: Most that a frame's grey levels are raised or lowered by (``video``).
