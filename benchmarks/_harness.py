@@ -101,6 +101,24 @@ ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey",
 FAR = "halved, in a 1920x1080 frame"
 
 
+def read_frames(path, limit: int | None = None) -> list:
+    """The first ``limit`` frames of the video ``path`` (all of them: None), as OpenCV
+    decodes them (BGR)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    try:
+        while limit is None or len(frames) < limit:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frames.append(frame)
+    finally:
+        cap.release()
+    return frames
+
+
 def altered_copies(path, folder, labels=ALTERATIONS):
     """Yield ``(label, copy)``: the video ``path`` enlarged 3 times (bicubic), halved (area
     mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right,

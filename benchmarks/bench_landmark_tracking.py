@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _harness import Figure, emit  # noqa: E402
+from _harness import Figure, emit, read_frames  # noqa: E402
 
 DATA = Path(os.environ.get("FACEANALYSIS_REAL_DATA",
                            Path(__file__).resolve().parents[2] / "shared" / "data" / "real")).parent
@@ -329,7 +329,7 @@ def _fade_in(path, frames: int = 200, over: int = FADE_FRAMES):
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
-    clip = _clip(path, frames)
+    clip = read_frames(path, frames)
     faded = [np.clip(f * min(1.0, (i + 1) / over) + 0.5, 0, 255).astype(np.uint8)
              for i, f in enumerate(clip)]
     tr = track(Frames(faded, fps=25.0, channel_order="bgr"), tracker="landmarks")
@@ -348,19 +348,6 @@ def _fade_in(path, frames: int = 200, over: int = FADE_FRAMES):
                  else float("nan"), "px", False)]
 
 
-def _clip(path, frames: int) -> list:
-    import cv2
-
-    cap = cv2.VideoCapture(str(path))
-    out = []
-    while len(out) < frames:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        out.append(frame)
-    return out
-
-
 def _zoomed(path, frames: int = 150, over: int = 60):
     """The clip's first ``frames`` frames zoomed about the frame's centre, by 2 and by 0.6
     over the first ``over`` (in memory): a camera's zoom, a subject leaning in or back. The
@@ -370,7 +357,7 @@ def _zoomed(path, frames: int = 150, over: int = 60):
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
-    clip = _clip(path, frames)
+    clip = read_frames(path, frames)
     h, w = clip[0].shape[:2]
     figs = []
     for end in (2.0, 0.6):
@@ -390,7 +377,7 @@ def _relit(path, frames: int = 300):
     from faceanalysis.io.video import Frames
     from faceanalysis.tracking import track
 
-    clip = _clip(path, frames)
+    clip = read_frames(path, frames)
     figs = []
     for k in (2.2, 0.4):
         relit = [np.clip(f * (1.0 + (k - 1.0) * np.clip((i - 60) / 30, 0, 1)) + 0.5, 0, 255)
@@ -414,7 +401,7 @@ def _entering(path, frames: int = 150, over: int = 30):
     from faceanalysis.io.table import MUSCLES
     from faceanalysis.io.video import Frames
 
-    clip = _clip(path, frames)
+    clip = read_frames(path, frames)
     h, w = clip[0].shape[:2]
     cols = list(MUSCLES)
     figs = []

@@ -32,24 +32,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _harness import Figure  # noqa: E402
+from _harness import Figure, read_frames  # noqa: E402
 
 REAL = Path(os.environ.get("FACEANALYSIS_REAL_DATA",
                            Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
-
-
-def _frames(n):
-    import cv2
-
-    cap = cv2.VideoCapture(str(REAL / "WolfgangLanger_Pexels.mp4"))
-    out = []
-    while len(out) < n:
-        ok, f = cap.read()
-        if not ok:
-            break
-        out.append(f)
-    cap.release()
-    return out
 
 
 def _track(frames, **options):
@@ -85,7 +71,7 @@ def run(quick: bool = False) -> list[Figure]:
         print(f"# {REAL / 'WolfgangLanger_Pexels.mp4'} is absent: resolution figures skipped")
         return []
     cv2.setNumThreads(1)
-    small = _frames(120 if quick else 240)
+    small = read_frames(REAL / "WolfgangLanger_Pexels.mp4", 120 if quick else 240)
     big = [cv2.resize(f, (1920, 1080), interpolation=cv2.INTER_CUBIC) for f in small]
     # the same frames through MJPEG at their own size: how much tracking moves when the
     # image changes by a compression's worth

@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from _harness import Figure  # noqa: E402
+from _harness import Figure, read_frames  # noqa: E402
 
 from trackers import FIDUCIAL_NAMES, Tracker, detect_layout, layout_from_eyes  # noqa: E402
 from trackers.layout import TEMPLATE  # noqa: E402
@@ -146,16 +146,8 @@ def _track_fps(frames, layout, repeat):
 
 
 def _real_frames(path, n):
-    cap = cv2.VideoCapture(str(path))
-    frames = []
-    while len(frames) < n:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(cv2.cvtColor(cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA),
-                                   cv2.COLOR_BGR2RGB))
-    cap.release()
-    return frames
+    return [cv2.cvtColor(cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA),
+                         cv2.COLOR_BGR2RGB) for f in read_frames(path, n)]
 
 
 def run(quick: bool = False) -> list[Figure]:
