@@ -96,7 +96,8 @@ def emit(name: str, figures: list[Figure]) -> None:
 
 #: Copies of a clip as other cameras would give it (``altered_copies``).
 ALTERATIONS = ("enlarged 3x", "halved", "turned 20 degrees", "mirrored", "grey",
-               "in a 1920x1080 frame", "a quarter of the light")
+               "in a 1920x1080 frame", "a quarter of the light", "sensor noise",
+               "coarse JPEG")
 #: A face far from the camera in a wide shot: the clip halved, in a 1920x1080 frame.
 FAR = "halved, in a 1920x1080 frame"
 
@@ -123,12 +124,16 @@ def altered_copies(path, folder, labels=ALTERATIONS):
     """Yield ``(label, copy)``: the video ``path`` enlarged 3 times (bicubic), halved (area
     mean), turned by 20 degrees about its centre (borders reflected), mirrored left to right,
     in grey, as it is or halved inside a 1920x1080 frame (right of and below its centre, its
-    edges drawn out: a wide shot), or with every level a quarter (a dim room), each written
+    edges drawn out: a wide shot), with every level a quarter (a dim room), with Gaussian
+    noise of 4 grey levels added to each channel of each frame (a dim room's sensor; the
+    same noise on every run), or each frame coded as a JPEG of quality 30 (a low bit rate's
+    blocks), each written
     in turn to ``folder/altered.avi`` (MJPEG: one copy on disk at a time, overwritten by the
     next)."""
     from pathlib import Path
 
     import cv2
+    import numpy as np
 
     def turned(f):
         h, w = f.shape[:2]
@@ -143,7 +148,14 @@ def altered_copies(path, folder, labels=ALTERATIONS):
         return cv2.copyMakeBorder(f, y0, 1080 - h - y0, x0, 1920 - w - x0,
                                   cv2.BORDER_REPLICATE)
 
-    alter = {"in a 1920x1080 frame": framed,
+    def noisy(f):
+        return np.clip(f + rng.normal(0.0, 4.0, f.shape), 0, 255).astype(np.uint8)
+
+    def coarse(f):
+        return cv2.imdecode(cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 30])[1],
+                            cv2.IMREAD_COLOR)
+
+    alter = {"in a 1920x1080 frame": framed, "sensor noise": noisy, "coarse JPEG": coarse,
              "a quarter of the light": lambda f: cv2.convertScaleAbs(f, alpha=0.25),
              FAR: lambda f: framed(cv2.resize(f, None, fx=0.5, fy=0.5,
                                               interpolation=cv2.INTER_AREA)),
@@ -156,6 +168,7 @@ def altered_copies(path, folder, labels=ALTERATIONS):
                                             cv2.COLOR_GRAY2BGR)}
     dst = Path(folder) / "altered.avi"
     for label in labels:
+        rng = np.random.default_rng(0)     # the same noise for every copy and run
         cap = cv2.VideoCapture(str(path))
         fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
         out = None

@@ -29,7 +29,7 @@ landmark tracker (``../shared/data``; each part skips cleanly when its data is a
   of |c(t) - (c(t-1) + c(t+1)) / 2|), beside the same fit with every frame on its own
   (``temporal=0``) as the peer.
 * cap12 as given against copies as other cameras would give it (enlarged, halved, turned,
-  mirrored, grey): how far the muscles' series move (:func:`altered`); and on each clip,
+  mirrored, grey, framed wide, dim, noisy, coarsely coded): how far the muscles' series move (:func:`altered`); and on each clip,
   the controls a mirrored copy does not reproduce, against what the analysis's mirror
   check (``mirror_check=True``) flags (:func:`_mirror_reproduction`). The IMM pairs of
   types 5 and 2 are analysed with the mirror check too: how many side-lit neutrals have
@@ -354,8 +354,8 @@ def _agreement(given, table, cols, mirrored: bool):
 def altered(quick: bool = False) -> list[Figure]:
     """cap12 analysed as given and as copies other cameras would give (enlarged 3 times,
     halved, turned by 20 degrees, mirrored, in grey, inside a 1920x1080 frame: its face
-    then 5.7 % of the frame's width, found by the full-range detector, and at a quarter of
-    the light): how far each
+    then 5.7 % of the frame's width, found by the full-range detector, at a quarter of
+    the light, with sensor noise, and coded as JPEGs of quality 30): how far each
     muscle's series moves, over the frames tracked in both (the mirrored copy's left
     muscles against the clip's right). Per copy: the median over the muscles of the mean
     |difference|, and the median Pearson r over the muscles that move (standard deviation
