@@ -29,7 +29,8 @@ landmark tracker (``../shared/data``; each part skips cleanly when its data is a
   of |c(t) - (c(t-1) + c(t+1)) / 2|), beside the same fit with every frame on its own
   (``temporal=0``) as the peer.
 * cap12 as given against copies as other cameras would give it (enlarged, halved, turned,
-  mirrored, grey, framed wide, dim, noisy, coarsely coded): how far the muscles' series move (:func:`altered`); and on each clip,
+  mirrored, grey, framed wide, dim, noisy, coarsely coded): how far the muscles' series
+  move (:func:`altered`); and on each clip,
   the controls a mirrored copy does not reproduce, against what the analysis's mirror
   check (``mirror_check=True``) flags (:func:`_mirror_reproduction`). The IMM pairs of
   types 5 and 2 are analysed with the mirror check too: how many side-lit neutrals have
