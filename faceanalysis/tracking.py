@@ -630,12 +630,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             draw(*held)
         if frames and not any(ok) and layout is None:
             # before the overlay is finished: a failed run leaves no file behind
-            counts = lost_reason_counts(reasons)
-            if set(counts) - {"no_face", "undecodable"}:
+            if set(lost_reason_counts(reasons)) - {"no_face", "undecodable"}:
                 # a face was found, and lost for what covered it or the contours it lost
-                raise ValueError(f"{video}: the face was lost in every one of the "
-                                 f"{len(frames)} frames ({lost_reasons_text(counts)}); "
-                                 "nothing to analyse")
+                raise ValueError(lost_everywhere(video, reasons))
             hint = ""
             if kind == "landmarks" and getattr(getattr(tracker, "landmarks", None),
                                                "full_range", True) is False:
@@ -742,6 +739,23 @@ def lost_reason_counts(reasons) -> dict[str, int]:
     """
     counts = {code: sum(r == code for r in reasons) for code in LOST_REASONS}
     return {code: n for code, n in counts.items() if n}
+
+
+def lost_everywhere(video, reasons) -> str:
+    """The message for a video whose every frame was lost, each for its reason (codes of
+    :data:`~faceanalysis.io.report.LOST_REASONS`), with how many were lost for which.
+
+    Examples
+    --------
+    >>> print(lost_everywhere("clip.mp4", ["hand", "hand", "no_face"]))
+    ... # doctest: +NORMALIZE_WHITESPACE
+    clip.mp4: the face was lost in every one of the 3 frames (1 without a face,
+    2 under a hand); nothing to analyse
+    """
+    counts = lost_reason_counts(reasons)
+    why = f" ({lost_reasons_text(counts)})" if counts else ""
+    return f"{video}: the face was lost in every one of the {len(reasons)} frames{why}; " \
+           "nothing to analyse"
 
 
 #: Lost-frame reasons (:data:`~faceanalysis.io.report.LOST_REASONS`) that leave nothing of

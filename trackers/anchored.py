@@ -637,8 +637,9 @@ class AnchoredTracker:
         edge = False      # the contours are placed on a face the picture cuts off
         if self.tracker is None:
             h, w = frame.shape[:2]
+            placed_curves = landmark_curves(placed.points)
             if (self.video and next_frame is not None and self._edge_waited < EDGE_WAIT
-                    and not _inside(landmark_curves(placed.points), (w, h), EDGE_CONTOURS)):
+                    and not _inside(placed_curves, (w, h), EDGE_CONTOURS)):
                 self._edge_waited += 1
                 edge = True
             layout = layout_from_landmarks(placed.points, (w, h))
@@ -655,7 +656,7 @@ class AnchoredTracker:
                                         springs=springs, redetect=False,
                                         **self.tracker_options)
             # no offsets learnt yet
-            targets = self._node_targets(landmark_curves(placed.points), 1 + 0j)
+            targets = self._node_targets(placed_curves, 1 + 0j)
             # the chin boss is held where it was placed (the mesh has no outline of it)
             targets["chin_boss"] = self.tracker.system.contour_points(
                 self.tracker.names.index("chin_boss")).copy()

@@ -45,7 +45,6 @@ from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import (
     analysis_metadata,
     frame_ranges,
-    lost_reasons_text,
     quality_summary,
 )
 from faceanalysis.io.table import (
@@ -65,6 +64,7 @@ from faceanalysis.tracking import (
     Tracks,
     faded_furrow_ends,
     hidden_frames,
+    lost_everywhere,
     lost_reason_counts,
     resolve_tracker,
     track,
@@ -323,10 +323,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
               video, len(tracks), int((~tracks.success).sum()), tracks.tracker, t_track,
               1e3 * t_track / len(tracks))
     if not tracks.success.any():
-        counts = lost_reason_counts(tracks.lost_reasons)
-        why = f" ({lost_reasons_text(counts)})" if counts else ""
-        raise FaceAnalysisError(f"{video}: the face was lost in every one of the {len(tracks)} "
-                                f"frames{why}; nothing to analyse")
+        raise FaceAnalysisError(lost_everywhere(video, tracks.lost_reasons))
     if len(tracks) == 1:
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)

@@ -51,7 +51,7 @@ LOST_REASONS: dict[str, tuple[str, str]] = {
                  "too few points held (contours lost: an occluder, or off their features)"),
     "edge": ("with the face at the picture's edge",
              "the face cut off by the picture's edge before the contours were placed (they "
-             "wait for it to come in, at most 30 frames)"),
+             "wait a limited number of frames for it to come in)"),
     "fading": ("while the picture brightened",
                "before the face was first found, the next frame brighter (a fade-in, a "
                "camera's exposure settling): the contours wait for the light to settle"),
