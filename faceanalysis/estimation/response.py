@@ -129,6 +129,76 @@ class FiducialResponse:
                     slope[:, j] += (u[:, partners] / self.upper[j]) @ rows
         return jac
 
+    def best_of(self, trials: np.ndarray, target: np.ndarray, sw: np.ndarray,
+                penalty: np.ndarray, best: np.ndarray,
+                res: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A weighted fit's line search: per frame, the trial that lowers the objective most.
+
+        The objective of controls ``c`` on a frame is ``|target - sw * p(c)|^2 + penalty``,
+        ``p`` the response's prediction (flattened to ``F*2``); each trial's is formed
+        point by point without building its prediction for all frames, the pass over the
+        points that dominates a fit's step.
+
+        Parameters
+        ----------
+        trials : ndarray, shape (S, T, M)
+            Candidate controls (finite), ``S`` per frame.
+        target : ndarray, shape (T, F*2)
+            Weighted measured displacements (``sw`` times them).
+        sw : ndarray, shape (T, F*2)
+            Per-frame row weights (square roots of the least-squares weights).
+        penalty : ndarray, shape (S, T)
+            Each trial's objective beyond the residual (priors).
+        best : ndarray, shape (T,)
+            The objective to beat (the current point's).
+        res : ndarray, shape (T, F*2)
+            The current point's weighted residuals.
+
+        Returns
+        -------
+        best : ndarray, shape (T,)
+            The lowest objective, the trial's where one beat ``best`` (the first of equals).
+        res : ndarray, shape (T, F*2)
+            Its weighted residuals.
+        choice : ndarray of int, shape (T,)
+            The trial kept, -1 where none beat ``best``.
+
+        Examples
+        --------
+        >>> levels = np.linspace(0, 1, 3)
+        >>> disp = np.zeros((1, 3, 1, 2))
+        >>> disp[0, :, 0, 1] = levels          # one control lifts one point
+        >>> resp = FiducialResponse(("a",), ("p",), np.zeros((1, 2)), disp, np.ones(1),
+        ...                         levels)
+        >>> trials = np.array([[[0.25]], [[0.5]], [[1.0]]])
+        >>> best, res, choice = resp.best_of(trials, np.array([[0.0, 0.5]]), np.ones((1, 2)),
+        ...                                  np.zeros((3, 1)), np.array([0.25]),
+        ...                                  np.array([[0.0, 0.5]]))
+        >>> best.tolist(), res.tolist(), choice.tolist()
+        ([0.0], [[0.0, 0.0]], [1])
+        """
+        n_m, n_k = len(self.muscles), 2 * len(self.fiducials)
+        trials = np.ascontiguousarray(trials, dtype=float)
+        if trials.ndim != 3 or trials.shape[2] != n_m:
+            raise ValueError(f"trials must have shape (S, T, {n_m}), got {trials.shape}")
+        n_s, n_t = trials.shape[:2]
+        target, sw, res = (np.array(a, dtype=float, order="C") for a in (target, sw, res))
+        best = np.array(best, dtype=float)
+        penalty = np.ascontiguousarray(penalty, dtype=float)
+        if (target.shape != (n_t, n_k) or sw.shape != target.shape or res.shape != target.shape
+                or penalty.shape != (n_s, n_t) or best.shape != (n_t,)):
+            raise ValueError(f"target, sw and res must have shape ({n_t}, {n_k}), penalty "
+                             f"({n_s}, {n_t}) and best ({n_t},); got {target.shape}, "
+                             f"{sw.shape}, {res.shape}, {penalty.shape} and {best.shape}")
+        if not np.isfinite(trials).all():
+            raise ValueError("trials must be finite")
+        choice = np.empty(n_t, dtype=np.intp)
+        pairs, inter = self._pair_table
+        _best_of_nb(trials, self.upper,
+                    self.displacement.reshape(n_m, self.n_levels, -1), pairs, inter,
+                    target, sw, penalty, best, res, choice)
+        return best, res, choice
+
     def normal_equations(self, c: np.ndarray, sw: np.ndarray,
                          r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gauss-Newton normal equations of a weighted fit at ``c``: ``(J'J, J'r)``.
@@ -231,29 +301,58 @@ class FiducialResponse:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _piecewise_nb(c, upper, disp, pairs, inter, out):
+def _predict_row_nb(c, upper, disp, pairs, inter, out):
     # disp (M, L, K): the response at each tabulated level; inter (P, K) the pair terms;
-    # out (T, K). A control at rest adds nothing, nor does any pair it belongs to: in a
-    # sparse fit, most of them
-    n_t, n_m = c.shape
+    # c (M,), out (K,). A control at rest adds nothing, nor does any pair it belongs to: in
+    # a sparse fit, most of them
+    n_m = c.shape[0]
     n_l, n_k = disp.shape[1], disp.shape[2]
-    for t in range(n_t):
+    for k in range(n_k):
+        out[k] = 0.0
+    for m in range(n_m):
+        s = min(max(c[m] / upper[m], 0.0), 1.0) * (n_l - 1)
+        if s == 0.0:
+            continue
+        i = min(int(np.floor(s)), n_l - 2)
+        f = s - i
+        g = 1.0 - f
         for k in range(n_k):
-            out[t, k] = 0.0
-        for m in range(n_m):
-            s = min(max(c[t, m] / upper[m], 0.0), 1.0) * (n_l - 1)
-            if s == 0.0:
-                continue
-            i = min(int(np.floor(s)), n_l - 2)
-            f = s - i
-            g = 1.0 - f
+            out[k] += g * disp[m, i, k] + f * disp[m, i + 1, k]
+    for p in range(pairs.shape[0]):
+        w = (c[pairs[p, 0]] / upper[pairs[p, 0]]) * (c[pairs[p, 1]] / upper[pairs[p, 1]])
+        if w != 0.0:
             for k in range(n_k):
-                out[t, k] += g * disp[m, i, k] + f * disp[m, i + 1, k]
-        for p in range(pairs.shape[0]):
-            w = (c[t, pairs[p, 0]] / upper[pairs[p, 0]]) * (c[t, pairs[p, 1]] / upper[pairs[p, 1]])
-            if w != 0.0:
+                out[k] += w * inter[p, k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _piecewise_nb(c, upper, disp, pairs, inter, out):
+    # out (T, K): one frame at a time
+    for t in range(c.shape[0]):
+        _predict_row_nb(c[t], upper, disp, pairs, inter, out[t])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _best_of_nb(trials, upper, disp, pairs, inter, target, sw, penalty, best, res, choice):
+    # trials (S, T, M), penalty (S, T); target, sw, res (T, K); best, choice (T,): per frame,
+    # each trial's weighted residual summed as it is formed, and kept where it is the best
+    # yet (res and best updated in place)
+    n_s, n_t = trials.shape[0], trials.shape[1]
+    n_k = target.shape[1]
+    pred = np.empty(n_k)
+    for t in range(n_t):
+        choice[t] = -1
+        for s in range(n_s):
+            _predict_row_nb(trials[s, t], upper, disp, pairs, inter, pred)
+            total = penalty[s, t]
+            for k in range(n_k):
+                r = target[t, k] - pred[k] * sw[t, k]
+                total += r * r
+            if total < best[t]:
+                best[t] = total
+                choice[t] = s
                 for k in range(n_k):
-                    out[t, k] += w * inter[p, k]
+                    res[t, k] = target[t, k] - pred[k] * sw[t, k]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")

@@ -253,6 +253,51 @@ def test_box_qp_reaches_the_optimum_of_badly_scaled_problems(rng):
     assert np.abs((plain - best) * scales).max() > 0.05
 
 
+def test_box_qp_newton_steps_land_on_the_optimum(rng):
+    # the projected Newton steps find the optimum's held set and then land on the
+    # optimum: a few dozen steps give what a reference bounded least squares gives
+    from scipy.optimize import lsq_linear
+
+    from faceanalysis.estimation.estimators import box_qp
+
+    n_t, m = 20, 26
+    scales = np.geomspace(1.0, 300.0, m)
+    a = rng.normal(size=(n_t, 60, m)) * scales
+    hess = np.matmul(a.transpose(0, 2, 1), a)
+    truth = rng.uniform(-0.5, 1.5, size=(n_t, m)) / scales
+    grad0 = np.einsum("tij,tj->ti", hess, truth)
+    lo, hi = np.zeros((n_t, m)), np.ones((n_t, m)) / scales
+    best = np.stack([lsq_linear(a[t], a[t] @ truth[t], bounds=(lo[t], hi[t]), tol=1e-14,
+                                method="bvls").x for t in range(n_t)])
+    x = box_qp(hess, grad0, lo, hi, iterations=30)
+    np.testing.assert_allclose(x * scales, best * scales, atol=1e-9)
+
+
+def test_box_qp_handles_singular_hessians(rng):
+    # a control no point moves (a zero row and column) goes to the bound its linear term
+    # favours, or stays at 0 without one; two controls that move the points alike (equal
+    # columns) share the optimum's value between them
+    from faceanalysis.estimation.estimators import box_qp
+
+    a = rng.normal(size=(30, 4))
+    a[:, 3] = a[:, 2]
+    b = rng.normal(size=30)
+    hess = np.zeros((3, 5, 5))
+    hess[:, :4, :4] = a.T @ a
+    grad0 = np.tile(np.append(a.T @ b, 0.0), (3, 1))
+    grad0[0, 4], grad0[1, 4] = 2.0, -2.0
+    lo, hi = -np.ones((3, 5)), np.ones((3, 5))
+    x = box_qp(hess, grad0, lo, hi)
+    np.testing.assert_allclose(x[:, 4], [1.0, -1.0, 0.0], atol=1e-12)
+
+    def objective(v):
+        return 0.5 * np.einsum("ti,tij,tj->t", v, hess, v) - (grad0 * v).sum(axis=1)
+
+    fine = box_qp(hess, grad0, lo, hi, iterations=50_000, tol=1e-14, precondition=False)
+    assert np.all(objective(x) <= objective(fine) + 1e-9)
+    assert np.all(x >= lo) and np.all(x <= hi)
+
+
 def test_response_predicts_piecewise_linear_plus_interactions(rng):
     resp = _response(rng)
     pairs = np.array([[0, 1], [2, 3]])
