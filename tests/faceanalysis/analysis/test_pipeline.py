@@ -718,9 +718,14 @@ def test_the_mirror_check_flags_the_values_the_mirrored_video_does_not_read(surp
     assert a.timings["mirror_check_s"] > 0
     # 24 frames: too few for the series, so value by value
     assert (mirror["rule"], mirror["frames"]) == ("frames", 24)
-    # the surprise's brows come back on the mirrored video
+    # the surprise's brows come back on the mirrored video while they rise and hold (frames
+    # 2-18); as they fall (19-21) a side's value may lag its mirrored partner's past the
+    # check's limit (frame 19: left 0.115, the mirrored right 0.23, the truth 0.50), and the
+    # check then flags it, as it should
+    raised = set(range(2, 19))
     for c in ("frontalis_major_l", "frontalis_major_r"):
-        assert ident["controls"][c]["mirror_reproduced"] and ident["controls"][c]["identifiable"]
+        assert ident["controls"][c]["identifiable"]
+        assert not raised & set(mirror.get("frames_not_reproduced", {}).get(c, [])), c
     table = a.table
     held = a.metadata["parameters"]["controls_held"]
     for c, frames in mirror["frames_not_reproduced"].items():
