@@ -349,6 +349,42 @@ def test_normal_equations_are_those_of_the_weighted_jacobian(rng, n_controls):
         resp.normal_equations(c, sw[:, :6], r)
 
 
+def test_best_of_keeps_each_frames_lowest_objective(rng):
+    # the fit's line search: per frame, the trial whose weighted residual plus penalty is
+    # lowest, if it beats the current one; its residuals come back with it
+    levels = np.linspace(0, 1, 5)
+    disp = rng.normal(size=(3, 5, 6, 2))
+    disp[:, 0] = 0.0
+    pairs = np.array([[0, 1], [1, 2]], dtype=np.intp)
+    resp = FiducialResponse(("a", "b", "c"), tuple(f"p{i}" for i in range(6)),
+                            np.zeros((6, 2)), disp, np.ones(3), levels, pairs,
+                            rng.normal(size=(2, 6, 2)) * 0.1)
+    trials = rng.uniform(0, 1, size=(3, 30, 3))
+    trials[:, :5] = trials[:1, :5]                 # equal trials: the first is kept
+    sw = rng.uniform(0, 2, size=(30, 12))
+    target = rng.normal(size=(30, 12)) * sw
+    penalty = rng.uniform(0, 0.5, size=(3, 30))
+    penalty[:, :5] = penalty[:1, :5]
+    res0 = rng.normal(size=(30, 12))
+    resid = np.stack([target - resp.predict(t).reshape(30, 12) * sw for t in trials])
+    value = (resid**2).sum(axis=2) + penalty                                # (3, T)
+    current = np.median(value, axis=0)
+    current[:5] = value[0, :5] + 1.0
+    current[5:8] = value.min(axis=0)[5:8] - 1.0      # nothing beats these
+    best, res, choice = resp.best_of(trials, target, sw, penalty, current, res0)
+    beaten = value.min(axis=0) < current
+    np.testing.assert_array_equal(choice, np.where(beaten, value.argmin(axis=0), -1))
+    assert np.all(choice[:5] == 0)
+    np.testing.assert_allclose(best, np.where(beaten, value.min(axis=0), current), rtol=1e-12)
+    kept = np.where(beaten[:, None], resid[np.maximum(choice, 0), np.arange(30)], res0)
+    np.testing.assert_allclose(res, kept, rtol=1e-12, atol=1e-14)
+    assert not np.shares_memory(res, res0)          # the caller's arrays are left as given
+    with pytest.raises(ValueError, match="shape"):
+        resp.best_of(trials[:, :, :2], target, sw, penalty, current, res0)
+    with pytest.raises(ValueError, match="finite"):
+        resp.best_of(np.full_like(trials, np.nan), target, sw, penalty, current, res0)
+
+
 def test_joint_fit_leaves_the_blas_thread_setting_alone(rng):
     from threadpoolctl import threadpool_info
 
