@@ -229,22 +229,28 @@ def test_box_qp_solves_each_problem_of_a_batch_on_its_own(rng):
         box_qp(hess[:, :4], grad0, lo, hi)
 
 
-def test_box_qp_reaches_the_optimum_of_badly_scaled_problems(rng):
-    # variables on scales 300 times apart (a jaw moving hundreds of points, a muscle a
-    # few): condition numbers of 5e4-2e5, as the controls' Hessians have
+def _badly_scaled_problems(rng, n_t, m, rows):
+    """Bounded least squares with variables on scales 300 times apart (a jaw moving hundreds
+    of points, a muscle a few), as the controls' Hessians have: (hess, grad0, lo, hi, the
+    reference optimum, the scales)."""
     from scipy.optimize import lsq_linear
 
-    from faceanalysis.estimation.estimators import box_qp
-
-    n_t, m = 5, 8
     scales = np.geomspace(1.0, 300.0, m)
-    a = rng.normal(size=(n_t, 40, m)) * scales
+    a = rng.normal(size=(n_t, rows, m)) * scales
     hess = np.matmul(a.transpose(0, 2, 1), a)
     truth = rng.uniform(-0.5, 1.5, size=(n_t, m)) / scales      # some outside the box
     grad0 = np.einsum("tij,tj->ti", hess, truth)
     lo, hi = np.zeros((n_t, m)), np.ones((n_t, m)) / scales
     best = np.stack([lsq_linear(a[t], a[t] @ truth[t], bounds=(lo[t], hi[t]), tol=1e-14,
                                 method="bvls").x for t in range(n_t)])
+    return hess, grad0, lo, hi, best, scales
+
+
+def test_box_qp_reaches_the_optimum_of_badly_scaled_problems(rng):
+    # condition numbers of 5e4-2e5
+    from faceanalysis.estimation.estimators import box_qp
+
+    hess, grad0, lo, hi, best, scales = _badly_scaled_problems(rng, 5, 8, 40)
     x = box_qp(hess, grad0, lo, hi, iterations=400)
     np.testing.assert_allclose(x * scales, best * scales, atol=1e-6)
     assert np.all(x >= lo) and np.all(x <= hi)
@@ -256,19 +262,9 @@ def test_box_qp_reaches_the_optimum_of_badly_scaled_problems(rng):
 def test_box_qp_newton_steps_land_on_the_optimum(rng):
     # the projected Newton steps find the optimum's held set and then land on the
     # optimum: a few dozen steps give what a reference bounded least squares gives
-    from scipy.optimize import lsq_linear
-
     from faceanalysis.estimation.estimators import box_qp
 
-    n_t, m = 20, 26
-    scales = np.geomspace(1.0, 300.0, m)
-    a = rng.normal(size=(n_t, 60, m)) * scales
-    hess = np.matmul(a.transpose(0, 2, 1), a)
-    truth = rng.uniform(-0.5, 1.5, size=(n_t, m)) / scales
-    grad0 = np.einsum("tij,tj->ti", hess, truth)
-    lo, hi = np.zeros((n_t, m)), np.ones((n_t, m)) / scales
-    best = np.stack([lsq_linear(a[t], a[t] @ truth[t], bounds=(lo[t], hi[t]), tol=1e-14,
-                                method="bvls").x for t in range(n_t)])
+    hess, grad0, lo, hi, best, scales = _badly_scaled_problems(rng, 20, 26, 60)
     x = box_qp(hess, grad0, lo, hi, iterations=30)
     np.testing.assert_allclose(x * scales, best * scales, atol=1e-9)
 
