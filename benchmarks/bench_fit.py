@@ -66,10 +66,9 @@ def _collect(video, end):
 
 def _fista(hess, grad0, lo, hi, iterations):
     """FISTA on the Jacobi-scaled problems, as ``box_qp`` solved them before its Newton steps."""
-    from faceanalysis.estimation.estimators import _fista_nb
+    from faceanalysis.estimation.estimators import _fista_nb, _jacobi_scales
 
-    d = np.sqrt(np.maximum(np.einsum("tii->ti", hess), 0.0))
-    d = np.where(d > 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300), d, 1.0)
+    d = _jacobi_scales(hess)
     scaled = np.ascontiguousarray(hess / d[:, :, None] / d[:, None, :])
     lipschitz = np.maximum(np.sqrt(np.einsum("tij,tij->t", scaled, scaled)), 1e-300)
     y = np.zeros_like(grad0)

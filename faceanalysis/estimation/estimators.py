@@ -585,14 +585,18 @@ def box_qp(hess: np.ndarray, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
         _fista_nb(hess, grad0, lo, hi, lipschitz, int(iterations), np.full(len(y), float(tol)),
                   y)
         return y
-    # x = y / d: the scaled Hessian has a unit diagonal; a variable no point moves (a zero
-    # diagonal) keeps its scale
-    d = np.sqrt(np.maximum(np.einsum("tii->ti", hess), 0.0))
-    floor = 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300)
-    d = np.where(d > floor, d, 1.0)
+    d = _jacobi_scales(hess)
     _newton_box_nb(hess / d[:, :, None] / d[:, None, :], grad0 / d, lo * d, hi * d,
                    int(iterations), float(tol), y)
     return np.clip(y / d, lo, hi)          # (lo * d) / d is lo only to rounding
+
+
+def _jacobi_scales(hess: np.ndarray) -> np.ndarray:
+    """Per problem and variable, ``d`` with ``x = y / d`` giving the scaled Hessian a unit
+    diagonal; a variable no point moves (a zero diagonal) keeps its scale."""
+    d = np.sqrt(np.maximum(np.einsum("tii->ti", hess), 0.0))
+    floor = 1e-12 * np.maximum(d.max(axis=1, keepdims=True), 1e-300)
+    return np.where(d > floor, d, 1.0)
 
 
 @numba.njit(cache=True, fastmath=True, nogil=True)

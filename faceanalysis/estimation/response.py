@@ -182,7 +182,9 @@ class FiducialResponse:
         if trials.ndim != 3 or trials.shape[2] != n_m:
             raise ValueError(f"trials must have shape (S, T, {n_m}), got {trials.shape}")
         n_s, n_t = trials.shape[:2]
-        target, sw, res = (np.array(a, dtype=float, order="C") for a in (target, sw, res))
+        # read only; the kernel writes its results over copies of the current point's
+        target, sw = (np.ascontiguousarray(a, dtype=float) for a in (target, sw))
+        res = np.array(res, dtype=float, order="C")
         best = np.array(best, dtype=float)
         penalty = np.ascontiguousarray(penalty, dtype=float)
         if (target.shape != (n_t, n_k) or sw.shape != target.shape or res.shape != target.shape
