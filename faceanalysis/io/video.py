@@ -53,6 +53,7 @@ __all__ = [
     "as_video",
     "open_video",
     "read_ahead",
+    "read_image",
 ]
 
 log = logging.getLogger(__name__)
@@ -370,7 +371,7 @@ class VideoSource:
         width, height = self.size
         for index in range(self.start, stop):
             name = files[index]
-            image = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
+            image = read_image(name)
             timestamp = index / self.fps
             if image is None:
                 log.warning("%s: cannot decode image; frame %d marked lost", name, index)
@@ -471,6 +472,56 @@ class VideoSource:
         return t if t > previous else fallback
 
 
+#: EXIF orientation (tag 274) -> how the stored pixels are turned upright, as numpy ops on
+#: an (H, W[, C]) array: 2 mirrored, 3 turned half round, 4 upside down, 5 transposed,
+#: 6 to be turned a quarter clockwise, 7 transversed, 8 a quarter anticlockwise.
+_UPRIGHT = {
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1],
+    5: lambda a: a.swapaxes(0, 1),
+    6: lambda a: np.rot90(a, -1),
+    7: lambda a: np.rot90(a, 2).swapaxes(0, 1),
+    8: lambda a: np.rot90(a, 1),
+}
+_ORIENTATION_TAG = 0x0112
+
+
+def read_image(path) -> np.ndarray | None:
+    """An image file as OpenCV decodes it, unchanged (grey, BGR or BGRA; 8 or 16 bits), and
+    upright: turned by its EXIF orientation as a photo viewer shows it (a phone stores a
+    portrait photograph on its side with a tag saying so; OpenCV applies the tag only when
+    it converts the pixels, not to an image read unchanged). None where it cannot be decoded.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from PIL import Image
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     exif = Image.Exif()
+    ...     exif[0x0112] = 6                     # stored on its side: turn a quarter clockwise
+    ...     Image.new("RGB", (40, 30)).save(f"{tmp}/p.jpg", exif=exif.tobytes())
+    ...     read_image(f"{tmp}/p.jpg").shape
+    (40, 30, 3)
+    """
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return None
+    turn = _UPRIGHT.get(_exif_orientation(path))
+    return image if turn is None else np.ascontiguousarray(turn(image))
+
+
+def _exif_orientation(path) -> int:
+    """The EXIF orientation tag of an image file (1, upright, where it has none)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:          # reads the header, not the pixels
+            return int(im.getexif().get(_ORIENTATION_TAG, 1))
+    except (OSError, UnidentifiedImageError, ValueError, TypeError):
+        return 1
+
+
 def _open_images(path: Path, fps: float | None) -> dict:
     if path.is_dir():
         files = sorted((p for p in path.iterdir()
@@ -483,7 +534,7 @@ def _open_images(path: Path, fps: float | None) -> dict:
         files = [path]
     first = None
     for name in files:
-        first = cv2.imread(str(name), cv2.IMREAD_UNCHANGED)
+        first = read_image(name)
         if first is not None:
             break
     if first is None:

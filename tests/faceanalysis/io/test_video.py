@@ -20,6 +20,7 @@ from faceanalysis.io.video import (
     as_video,
     open_video,
     read_ahead,
+    read_image,
 )
 
 W, H = 96, 64
@@ -332,6 +333,54 @@ def test_folder_with_a_different_size_image_marks_it_lost(tmp_path):
     images = [np.zeros((H, W), np.uint8)] * 2 + [np.zeros((H + 2, W), np.uint8)]
     frames = list(open_video(write_folder(tmp_path / "seq", images)))
     assert [f.ok for f in frames] == [True, True, False]
+
+
+def _photo_with_orientation(path, orientation, *, mode="RGB"):
+    """An asymmetric picture saved with an EXIF orientation tag (stored 48 wide, 32 high)."""
+    from PIL import Image
+
+    pixels = np.zeros((32, 48, 4), np.uint8)
+    pixels[..., 3] = 255
+    pixels[:8, :16, 0] = 250          # a red block in the stored top-left corner
+    pixels[24:, 40:, 1] = 200         # a green one bottom right
+    pixels[:, 20:24, 2] = np.arange(32, dtype=np.uint8)[:, None] * 8     # a blue ramp down
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(pixels if mode == "RGBA" else pixels[..., :3], mode).save(
+        path, exif=exif.tobytes(), **({"quality": 95} if path.suffix == ".jpg" else {}))
+    return path
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_photograph_is_read_upright_by_its_exif_orientation(tmp_path, orientation):
+    # OpenCV turns a photograph by its tag when it converts the pixels: the reference
+    path = _photo_with_orientation(tmp_path / "p.jpg", orientation)
+    upright = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    assert upright.shape[:2] == ((48, 32) if orientation >= 5 else (32, 48))
+    np.testing.assert_array_equal(read_image(path), upright)
+    with open_video(path) as src:
+        assert src.size == upright.shape[1::-1]
+        np.testing.assert_array_equal(next(iter(src)).image, upright)
+
+
+def test_orientation_keeps_alpha_and_a_folder_of_mixed_tags_is_one_size(tmp_path):
+    # a portrait photograph stored on its side with its tag, then the same picture stored
+    # as it is shown: one size, one picture (read unturned, the second was another size)
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    upright = read_image(_photo_with_orientation(folder / "a.png", 6, mode="RGBA"))
+    assert upright.shape == (48, 32, 4) and (upright[..., 3] == 255).all()
+    cv2.imwrite(str(folder / "b.png"), upright)
+    frames = list(open_video(folder))
+    assert [f.ok for f in frames] == [True, True]
+    np.testing.assert_array_equal(frames[0].image, frames[1].image)
+
+
+def test_unreadable_exif_reads_as_upright(tmp_path):
+    path = tmp_path / "p.png"
+    cv2.imwrite(str(path), np.zeros((10, 20, 3), np.uint8))
+    assert read_image(path).shape == (10, 20, 3)
+    assert read_image(tmp_path / "missing.png") is None
 
 
 def test_empty_folder(tmp_path):
