@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 DEFAULT_FPS = 30.0
 
 #: File name suffixes read from an image folder (compared case-insensitively).
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 # Reads tried when opening a video before deciding it has no decodable frame.
 _FIRST_FRAME_ATTEMPTS = 250
@@ -223,6 +223,22 @@ def _looks_like_container(path: Path) -> bool:
     if head[:1] == b"\x47" and path.suffix.lower() in (".ts", ".m2ts", ".mts"):
         return True
     return any(head[offset:offset + len(magic)] == magic for offset, magic in _CONTAINER_MAGIC)
+
+
+def _audio_format(path: Path) -> str | None:
+    """The name of an audio-only format that ``path``'s first bytes announce, else None
+    (a video container may hold sound too: only formats that hold no picture count)."""
+    with open(path, "rb") as fh:
+        head = fh.read(12)
+    if head[:4] == b"RIFF" and head[8:12] == b"WAVE":
+        return "WAVE"
+    if head[:3] == b"ID3":            # an MP3's tag (a bare frame sync is too weak a sign)
+        return "MP3"
+    if head[:4] == b"fLaC":
+        return "FLAC"
+    if head[4:8] == b"ftyp" and head[8:12] in (b"M4A ", b"M4B ", b"M4P ", b"F4A "):
+        return "MPEG-4 audio"
+    return None
 
 
 def _check_fps(fps) -> float:
@@ -564,6 +580,9 @@ def _open_file(path: Path, fps: float | None) -> dict:
     capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
+            audio = _audio_format(path)
+            if audio is not None:
+                raise ValueError(f"{path}: an audio file ({audio}): it holds no video")
             if _looks_like_container(path):
                 raise ValueError(f"{path}: video has no decodable frames "
                                  "(empty, truncated or damaged)")
@@ -698,10 +717,11 @@ def open_video(path: str | os.PathLike | Frames, *, fps: float | None = None,
     ----------
     path : path-like, Frames or array_like
         A video file that OpenCV (FFmpeg) can read, a folder of images
-        (``.png``, ``.jpg``, ``.tif``, ``.bmp``; sorted naturally, so ``f2`` comes
-        before ``f10``) or a single image (one frame). Images are read unchanged:
-        grey and 16-bit stay so. Or frames in memory: :class:`Frames`, or what it takes
-        (an array ``(T, H, W[, C])`` or a sequence of arrays, RGB); they come out in
+        (``.png``, ``.jpg``, ``.tif``, ``.bmp``, ``.webp``; sorted naturally, so ``f2`` comes
+        before ``f10``) or a single image (one frame). Images are read unchanged (grey
+        and 16-bit stay so) and turned upright by their EXIF orientation. Or frames in
+        memory: :class:`Frames`, or what it takes (an array ``(T, H, W[, C])`` or a
+        sequence of arrays, RGB); they come out in
         OpenCV's layout (BGR), as a decoder's do.
     fps : float, optional
         Frame rate. Overrides the container's, and then timestamps are

@@ -136,7 +136,7 @@ def photo_face(photo, *, size=None, model=None, fill: float = 0.75,
     Parameters
     ----------
     photo : path-like
-        An image file (png, jpg, tif, bmp) with one face, frontal, at rest.
+        An image file (png, jpg, tif, bmp, webp) with one face, frontal, at rest.
     size : int or (width, height), optional
         Output size: the face is framed like the procedural faces (the hairline-to-chin
         height fills ``fill`` of the image, centred). Default: the photograph itself, at

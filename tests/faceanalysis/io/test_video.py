@@ -140,6 +140,22 @@ def test_zero_frame_video(tmp_path):
         open_video(path)
 
 
+def test_audio_file_is_named_as_one(tmp_path):
+    import wave
+
+    with wave.open(str(tmp_path / "voice.wav"), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(8000)
+        w.writeframes(b"\x00\x00" * 800)
+    with pytest.raises(ValueError, match=r"voice\.wav: an audio file \(WAVE\): it holds no video"):
+        open_video(tmp_path / "voice.wav")
+    # an MP3 (its ID3 header), named as a video
+    (tmp_path / "song.mp4").write_bytes(b"ID3\x04\x00\x00\x00\x00\x00\x00" + bytes(64))
+    with pytest.raises(ValueError, match=r"song\.mp4: an audio file \(MP3\)"):
+        open_video(tmp_path / "song.mp4")
+
+
 def test_truncated_mp4_without_index(tmp_path, video):
     data = video.read_bytes()
     cut = tmp_path / "cut.mp4"
@@ -477,6 +493,17 @@ def test_writer_falls_back_to_mjpg_avi(tmp_path, monkeypatch, caplog):
 def test_writer_validates(tmp_path, args, match):
     with pytest.raises(ValueError, match=match):
         VideoWriter(tmp_path / "o.mp4", args["fps"], args["size"])
+
+
+def test_folder_of_webp_images(tmp_path):
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"f{i}.webp"), frame_image(i), [cv2.IMWRITE_WEBP_QUALITY, 101])
+    src = open_video(folder)
+    frames = list(src)
+    assert src.kind == "images" and [f.ok for f in frames] == [True] * 3
+    np.testing.assert_array_equal(frames[2].image, frame_image(2))     # quality 101: lossless
 
 
 def test_single_image_is_one_frame(tmp_path):
