@@ -27,9 +27,10 @@ from faceanalysis.io.outputs import (
 __all__ = ["MARKER", "VIDEO_EXTENSIONS", "completion_problem", "discover_inputs",
            "expected_outputs", "is_complete", "output_names"]
 
-#: File name suffixes taken as videos when a folder or a glob pattern is expanded.
+#: File name suffixes taken as videos when a folder or a glob pattern is expanded
+#: (camcorders write MPEG transport streams, .mts and .m2ts; older phones .3gp).
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv",
-                    ".flv")
+                    ".flv", ".mts", ".m2ts", ".ts", ".3gp", ".ogv")
 #: The finished marker, written last into each video's output folder.
 MARKER = "_finished.json"
 MARKER_FORMAT = 1

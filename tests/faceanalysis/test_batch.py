@@ -136,6 +136,13 @@ def test_discover_files_folders_and_globs(corpus):
         "subject7.avi"]
 
 
+def test_discover_takes_camcorder_and_phone_suffixes(tmp_path):
+    for name in ("clip.MTS", "clip2.m2ts", "old.3gp", "notes.txt", "voice.wav"):
+        (tmp_path / name).write_bytes(b"x")
+    assert [p.name for p in discover_inputs([tmp_path])] == ["clip.MTS", "clip2.m2ts",
+                                                             "old.3gp"]
+
+
 def test_discover_errors_name_the_pattern(tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing.mp4: no such file"):
         discover_inputs([tmp_path / "nothing.mp4"])
