@@ -225,19 +225,24 @@ def _looks_like_container(path: Path) -> bool:
     return any(head[offset:offset + len(magic)] == magic for offset, magic in _CONTAINER_MAGIC)
 
 
-def _audio_format(path: Path) -> str | None:
-    """The name of an audio-only format that ``path``'s first bytes announce, else None
-    (a video container may hold sound too: only formats that hold no picture count)."""
+def _not_a_video(path: Path) -> str | None:
+    """What ``path`` is where its first bytes announce a format that holds no video OpenCV
+    reads (a video container may hold sound too: only formats without pictures count, and
+    the still-image containers of phones), else None."""
     with open(path, "rb") as fh:
         head = fh.read(12)
-    if head[:4] == b"RIFF" and head[8:12] == b"WAVE":
-        return "WAVE"
-    if head[:3] == b"ID3":            # an MP3's tag (a bare frame sync is too weak a sign)
-        return "MP3"
-    if head[:4] == b"fLaC":
-        return "FLAC"
-    if head[4:8] == b"ftyp" and head[8:12] in (b"M4A ", b"M4B ", b"M4P ", b"F4A "):
-        return "MPEG-4 audio"
+    brand = head[8:12] if head[4:8] == b"ftyp" else b""
+    audio = ("WAVE" if head[:4] == b"RIFF" and head[8:12] == b"WAVE"
+             else "MP3" if head[:3] == b"ID3"       # its tag (a bare frame sync is too weak)
+             else "FLAC" if head[:4] == b"fLaC"
+             else "MPEG-4 audio" if brand in (b"M4A ", b"M4B ", b"M4P ", b"F4A ")
+             else None)
+    if audio is not None:
+        return f"an audio file ({audio}): it holds no video"
+    if brand in (b"heic", b"heix", b"heim", b"heis", b"hevc", b"mif1", b"msf1", b"avif",
+                 b"avis"):
+        return (f"a HEIF/AVIF image ({brand.decode()}, as phones take photographs), which "
+                "OpenCV cannot read: convert it to JPEG or PNG")
     return None
 
 
@@ -580,9 +585,9 @@ def _open_file(path: Path, fps: float | None) -> dict:
     capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
-            audio = _audio_format(path)
-            if audio is not None:
-                raise ValueError(f"{path}: an audio file ({audio}): it holds no video")
+            what = _not_a_video(path)
+            if what is not None:
+                raise ValueError(f"{path}: {what}")
             if _looks_like_container(path):
                 raise ValueError(f"{path}: video has no decodable frames "
                                  "(empty, truncated or damaged)")

@@ -140,7 +140,7 @@ def test_zero_frame_video(tmp_path):
         open_video(path)
 
 
-def test_audio_file_is_named_as_one(tmp_path):
+def test_audio_file_and_phone_photograph_are_named_as_such(tmp_path):
     import wave
 
     with wave.open(str(tmp_path / "voice.wav"), "wb") as w:
@@ -154,6 +154,11 @@ def test_audio_file_is_named_as_one(tmp_path):
     (tmp_path / "song.mp4").write_bytes(b"ID3\x04\x00\x00\x00\x00\x00\x00" + bytes(64))
     with pytest.raises(ValueError, match=r"song\.mp4: an audio file \(MP3\)"):
         open_video(tmp_path / "song.mp4")
+    # a phone's HEIF photograph (its ftyp box), which reads like a damaged MPEG-4 otherwise
+    (tmp_path / "IMG_0001.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic" + bytes(64))
+    with pytest.raises(ValueError, match=r"IMG_0001\.HEIC: a HEIF/AVIF image \(heic.*"
+                                         r"convert it to JPEG or PNG"):
+        open_video(tmp_path / "IMG_0001.HEIC")
 
 
 def test_truncated_mp4_without_index(tmp_path, video):
