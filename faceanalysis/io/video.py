@@ -550,7 +550,12 @@ def _open_images(path: Path, fps: float | None) -> dict:
                         and p.suffix.lower() in IMAGE_SUFFIXES),
                        key=lambda p: _natural_key(p.name))
         if not files:
-            raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})")
+            heif = [p.name for p in path.iterdir()
+                    if p.suffix.lower() in (".heic", ".heif", ".avif")]
+            raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})"
+                             + (f"; its {len(heif)} HEIF/AVIF photographs ({heif[0]}, ...), "
+                                "as phones take them, cannot be read: convert them to JPEG or "
+                                "PNG" if heif else ""))
     else:  # a single image is a one-frame sequence
         files = [path]
     first = None

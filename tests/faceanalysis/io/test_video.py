@@ -408,6 +408,10 @@ def test_empty_folder(tmp_path):
     (tmp_path / "nothing").mkdir()
     with pytest.raises(ValueError, match=r"nothing: folder holds no images"):
         open_video(tmp_path / "nothing")
+    (tmp_path / "nothing" / "IMG_0001.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic")
+    with pytest.raises(ValueError, match=r"folder holds no images .*its 1 HEIF/AVIF "
+                                         r"photographs \(IMG_0001\.HEIC, \.\.\.\)"):
+        open_video(tmp_path / "nothing")
 
 
 def test_folder_start_beyond_end(tmp_path):
