@@ -104,7 +104,9 @@ def run(args: argparse.Namespace) -> int:
     f = res.report.get("fiducial_agreement")
     if f:
         print(f"fiducials vs tracked: {f['mean_px']:.2f} px mean, {f['median_px']:.2f} median, "
-              f"{f['max_px']:.2f} max (frame {f['worst_frame']}) over {f['frames']} frames")
+              f"{f['max_px']:.2f} max (frame {f['worst_frame']}) over {f['frames']} frames"
+              + ("" if args.subject is not None else
+                 " (the generic face's features, not the subject's: --subject personalises it)"))
     a = res.report.get("flow_agreement")
     if a and "skipped" in a:
         print(f"flow vs input: not measured ({a['skipped']})")

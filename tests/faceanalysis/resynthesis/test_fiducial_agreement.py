@@ -45,3 +45,9 @@ def test_the_command_prints_the_fiducial_agreement_not_the_personalisation(subje
                              analysis, "--size", "96", "-q")
     assert code == 0, err
     assert "fiducials vs tracked" in out and "landmark error" not in out
+    assert "generic face" not in out
+    # without a subject the generic face's features are compared, and the line says so
+    code, out, err = run_cli("resynth", analysis, "-o", tmp_path / "g.mp4", "--size", "96",
+                             "-q")
+    assert code == 0, err
+    assert "fiducials vs tracked" in out and "--subject personalises it" in out
