@@ -534,12 +534,19 @@ def read_image(path) -> np.ndarray | None:
 
 def _exif_orientation(path) -> int:
     """The EXIF orientation tag of an image file (1, upright, where it has none)."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as im:          # reads the header, not the pixels
-            return int(im.getexif().get(_ORIENTATION_TAG, 1))
-    except (OSError, UnidentifiedImageError, ValueError, TypeError):
+        # Pillow guards its own decoding against huge images; only the header is read here
+        # (OpenCV decodes the pixels), so its size warning and error do not apply
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                return int(im.getexif().get(_ORIENTATION_TAG, 1))
+    except (OSError, UnidentifiedImageError, ValueError, TypeError,
+            Image.DecompressionBombError):
         return 1
 
 

@@ -397,11 +397,24 @@ def test_orientation_keeps_alpha_and_a_folder_of_mixed_tags_is_one_size(tmp_path
     np.testing.assert_array_equal(frames[0].image, frames[1].image)
 
 
-def test_unreadable_exif_reads_as_upright(tmp_path):
+def test_unreadable_exif_reads_as_upright(tmp_path, monkeypatch):
     path = tmp_path / "p.png"
     cv2.imwrite(str(path), np.zeros((10, 20, 3), np.uint8))
     assert read_image(path).shape == (10, 20, 3)
     assert read_image(tmp_path / "missing.png") is None
+    # a picture larger than Pillow decodes by default (a scan, a stitched panorama): its
+    # header is read all the same, quietly
+    from PIL import Image
+
+    tagged = _photo_with_orientation(tmp_path / "big.jpg", 6)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)     # 48 x 32 is over it
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_image(tagged).shape == (48, 32, 3)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 500)      # past twice it: an error
+    assert read_image(tagged).shape == (32, 48, 3)          # read as stored, not refused
 
 
 def test_empty_folder(tmp_path):
