@@ -509,9 +509,12 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     under_hand: list[set] = []           # per row, the contours a hand covers there
     fid_contour = [POINT_CONTOUR[n] for n in FIDUCIALS]
     pending: list = []                   # overlay frames held back HAND_LEAD frames
+    late_cover: dict[int, set] = {}      # rows a hand found later covers (drawn as lost)
 
     def cover(r: int, covered: set) -> None:
         """Row ``r`` with the contours ``covered`` by a hand found a frame or two later."""
+        if overlay is not None:
+            late_cover[r] = covered
         pts = pt_rows[r].copy()
         pts[[j for j, c in enumerate(point_contours) if c in covered]] = np.nan
         if np.isfinite(pts).all(axis=1).sum() >= MIN_POINTS:
@@ -534,8 +537,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         hands = None if res is None else res.extra.get("hands")
         eyelids = None if not ok[r] else res.extra.get("eyelids")
         why = reasons[r] and LOST_REASONS[reasons[r]][0]
+        muted = set() if res is None else {n for n, q in res.quality.items() if q.lost}
+        muted |= late_cover.pop(r, set())
         writer.write(_draw(frame, shown, fid_rows[r], head_rows[r] if ok[r] else None,
-                           why or not ok[r], hands, eyelids))
+                           why or not ok[r], hands, eyelids, muted))
     kind, tracker = tracker, None
     # frames of a video, in time: a fade-in there holds the tracker back (FADE_RISE), and
     # the landmark tracker evens their light out and waits for an entering face
@@ -945,10 +950,10 @@ def _track_frame(tracker, frame, video, layout, size, redetect, backend, device,
     return tracker, res
 
 
-def _draw(frame, contours, fids, head, lost, hands=None, eyelids=None):
+def _draw(frame, contours, fids, head, lost, hands=None, eyelids=None, lost_contours=()):
     from faceanalysis.viz.overlay import draw_overlay
 
     return draw_overlay(frame.image, contours=contours,
                         fiducials=dict(zip(FIDUCIALS, fids.tolist())), head=head, lost=lost,
                         label=f"frame {frame.index}  {frame.timestamp:.2f} s", hands=hands,
-                        eyelids=eyelids)
+                        eyelids=eyelids, lost_contours=lost_contours)

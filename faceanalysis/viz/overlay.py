@@ -8,7 +8,7 @@ drawn with sub-pixel precision and anti-aliasing.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -23,6 +23,7 @@ _ONE = 1 << _SHIFT
 
 # BGR colours: contours yellow, subject's left green, right magenta, midline cyan, head white.
 _CONTOUR = (0, 220, 255)
+_CONTOUR_LOST = (150, 150, 150)   # grey: a contour the tracker does not hold on this frame
 _LEFT = (60, 200, 60)
 _RIGHT = (220, 60, 220)
 _MIDLINE = (255, 200, 0)
@@ -75,7 +76,8 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
                  head: Sequence[float] | None = None, lost: bool | str = False,
                  label: str | None = None,
                  hands: Sequence[np.ndarray] | None = None,
-                 eyelids: Sequence[np.ndarray] | None = None) -> np.ndarray:
+                 eyelids: Sequence[np.ndarray] | None = None,
+                 lost_contours: Iterable[str] = ()) -> np.ndarray:
     """Draw tracking results on a copy of a frame.
 
     Parameters
@@ -103,6 +105,11 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     hands : sequence of (21, 2) arrays, optional
         Hands over the face (``TrackResult.extra['hands']``), each drawn as the outline of
         its points' convex hull.
+    lost_contours : iterable of str, optional
+        Names (keys of a ``contours`` mapping) of contours the tracker reports lost on
+        this frame (``TrackResult.quality[name].lost``: off their feature, under a hand,
+        or carried with the head rather than held by the image); drawn thin and grey, so
+        that what the measurements read is told apart from what they leave out.
     eyelids : sequence of (16, 2) arrays, optional
         Each eye's lid contour (``TrackResult.extra['eyelids']``, ``--eyes``; the order of
         :func:`trackers.landmarks.eyes.eyelid_contours`), drawn as a closed outline.
@@ -133,15 +140,19 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
         radius = min(radius, max(2, round(face / 25)))
 
     if contours is not None:
-        items = contours.values() if isinstance(contours, Mapping) else contours
-        for curve in items:
+        items = (contours.items() if isinstance(contours, Mapping)
+                 else ((None, c) for c in contours))
+        muted = set(lost_contours)
+        for name, curve in items:
             points = np.asarray(curve, dtype=float)
             if points.ndim != 2 or points.shape[1] != 2:
                 raise ValueError(f"contours must be (K, 2) arrays of (x, y), got shape "
                                  f"{points.shape}")
+            colour, width = ((_CONTOUR_LOST, max(1, thick // 2)) if name in muted
+                             else (_CONTOUR, thick))
             for segment in _segments(points):
                 if len(segment) >= 2:
-                    cv2.polylines(canvas, [_fixed(segment)], False, _CONTOUR, thick,
+                    cv2.polylines(canvas, [_fixed(segment)], False, colour, width,
                                   cv2.LINE_AA, _SHIFT)
 
     for hand in hands or ():

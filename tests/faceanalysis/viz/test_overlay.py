@@ -54,6 +54,22 @@ def test_lost_and_label():
     assert text_start(why) < text_start(plain) - 50
 
 
+def test_lost_contours_are_drawn_grey():
+    contours = {"brow_l": np.array([[20.0, 30.0], [140.0, 30.0]]),
+                "hairline": np.array([[20.0, 80.0], [140.0, 80.0]])}
+    out = draw_overlay(np.zeros((120, 160, 3), np.uint8), contours=contours,
+                       lost_contours={"hairline"})
+    held, lost = out[30, 40:120].astype(int), out[80, 40:120].astype(int)
+    assert held.any(axis=1).all() and lost.any(axis=1).all()      # both are drawn
+    # the held one yellow (red and green over blue), the lost one grey (channels alike)
+    assert (held[:, 1] - held[:, 0]).min() > 100
+    assert np.abs(lost - lost.mean(axis=1, keepdims=True)).max() <= 2
+    # a sequence of contours has no names: all drawn as held
+    seq = draw_overlay(np.zeros((120, 160, 3), np.uint8), contours=list(contours.values()),
+                       lost_contours={"hairline"})
+    assert (seq[80, 40:120, 1].astype(int) - seq[80, 40:120, 0]).min() > 100
+
+
 def test_bad_contour_shape():
     with pytest.raises(ValueError, match=r"\(K, 2\)"):
         draw_overlay(np.zeros((10, 10)), contours=[np.zeros((3, 3))])
