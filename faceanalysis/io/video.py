@@ -557,12 +557,14 @@ def _open_images(path: Path, fps: float | None) -> dict:
                         and p.suffix.lower() in IMAGE_SUFFIXES),
                        key=lambda p: _natural_key(p.name))
         if not files:
-            heif = [p.name for p in path.iterdir()
-                    if p.suffix.lower() in (".heic", ".heif", ".avif")]
-            raise ValueError(f"{path}: folder holds no images ({', '.join(IMAGE_SUFFIXES)})"
-                             + (f"; its {len(heif)} HEIF/AVIF photographs ({heif[0]}, ...), "
-                                "as phones take them, cannot be read: convert them to JPEG or "
-                                "PNG" if heif else ""))
+            heif = sorted(p.name for p in path.iterdir()
+                          if p.suffix.lower() in (".heic", ".heif", ".avif"))
+            hint = "" if not heif else (
+                f"; its {len(heif)} HEIF/AVIF photograph{'s' if len(heif) > 1 else ''} "
+                f"({heif[0]}{', ...' if len(heif) > 1 else ''}), as phones take them, cannot "
+                "be read: convert them to JPEG or PNG")
+            raise ValueError(f"{path}: folder holds no images "
+                             f"({', '.join(IMAGE_SUFFIXES)}){hint}")
     else:  # a single image is a one-frame sequence
         files = [path]
     first = None
@@ -734,12 +736,12 @@ def open_video(path: str | os.PathLike | Frames, *, fps: float | None = None,
     ----------
     path : path-like, Frames or array_like
         A video file that OpenCV (FFmpeg) can read, a folder of images
-        (``.png``, ``.jpg``, ``.tif``, ``.bmp``, ``.webp``; sorted naturally, so ``f2`` comes
-        before ``f10``) or a single image (one frame). Images are read unchanged (grey
-        and 16-bit stay so) and turned upright by their EXIF orientation. Or frames in
-        memory: :class:`Frames`, or what it takes (an array ``(T, H, W[, C])`` or a
-        sequence of arrays, RGB); they come out in
-        OpenCV's layout (BGR), as a decoder's do.
+        (``.png``, ``.jpg``, ``.tif``, ``.bmp``, ``.webp``; sorted naturally, so ``f2``
+        comes before ``f10``) or a single image (one frame). Images are read unchanged
+        (grey and 16-bit stay so) and turned upright by their EXIF orientation. Or frames
+        in memory: :class:`Frames`, or what it takes (an array ``(T, H, W[, C])`` or a
+        sequence of arrays, RGB); they come out in OpenCV's layout (BGR), as a decoder's
+        do.
     fps : float, optional
         Frame rate. Overrides the container's, and then timestamps are
         ``index / fps``. Image folders default to :data:`DEFAULT_FPS`.

@@ -105,14 +105,14 @@ def draw_overlay(image, *, contours: Mapping[str, np.ndarray] | Sequence[np.ndar
     hands : sequence of (21, 2) arrays, optional
         Hands over the face (``TrackResult.extra['hands']``), each drawn as the outline of
         its points' convex hull.
+    eyelids : sequence of (16, 2) arrays, optional
+        Each eye's lid contour (``TrackResult.extra['eyelids']``, ``--eyes``; the order of
+        :func:`trackers.landmarks.eyes.eyelid_contours`), drawn as a closed outline.
     lost_contours : iterable of str, optional
         Names (keys of a ``contours`` mapping) of contours the tracker reports lost on
         this frame (``TrackResult.quality[name].lost``: off their feature, under a hand,
         or carried with the head rather than held by the image); drawn thin and grey, so
         that what the measurements read is told apart from what they leave out.
-    eyelids : sequence of (16, 2) arrays, optional
-        Each eye's lid contour (``TrackResult.extra['eyelids']``, ``--eyes``; the order of
-        :func:`trackers.landmarks.eyes.eyelid_contours`), drawn as a closed outline.
 
     Returns
     -------

@@ -423,7 +423,11 @@ def test_empty_folder(tmp_path):
         open_video(tmp_path / "nothing")
     (tmp_path / "nothing" / "IMG_0001.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic")
     with pytest.raises(ValueError, match=r"folder holds no images .*its 1 HEIF/AVIF "
-                                         r"photographs \(IMG_0001\.HEIC, \.\.\.\)"):
+                                         r"photograph \(IMG_0001\.HEIC\), as phones"):
+        open_video(tmp_path / "nothing")
+    (tmp_path / "nothing" / "IMG_0002.heif").write_bytes(b"\x00\x00\x00\x18ftypheic")
+    with pytest.raises(ValueError, match=r"its 2 HEIF/AVIF photographs "
+                                         r"\(IMG_0001\.HEIC, \.\.\.\)"):
         open_video(tmp_path / "nothing")
 
 
