@@ -238,8 +238,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         (``joint``, ``mesh`` and ``fused``; default
         :data:`~faceanalysis.estimation.registry.TEMPORAL`, see
         :func:`~faceanalysis.estimation.estimators.estimate_joint`); 0 fits every frame on
-        its own, for frames that are not a sequence (a folder of unrelated photographs).
-        Recorded in ``analysis.json`` (``parameters.temporal``).
+        its own, for frames that are not a sequence. A folder of images analysed without
+        ``fps`` is taken as photographs and gets 0 unless ``temporal`` is given; with
+        ``fps``, as the frames of a video. Recorded in ``analysis.json``
+        (``parameters.temporal``).
     mirror_check : bool, keyword-only
         Track and estimate the video a second time mirrored left to right, and flag what
         does not come back on it
@@ -327,6 +329,15 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     if len(tracks) == 1:
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)
+    if (temporal is None and "temporal" in est_options and len(tracks) >= 3
+            and isinstance(tracks.input, dict) and tracks.input.get("kind") == "images"
+            and tracks.input.get("fps_origin") == "default"):
+        # a folder of images without a frame rate is taken as photographs, as the tracker
+        # takes it: each is fitted on its own, not drawn toward its neighbours' fits
+        est_options["temporal"] = 0.0
+        log.info("%s: a folder of images without a frame rate is taken as photographs, each "
+                 "fitted on its own; for the frames of a video give --fps (or --temporal)",
+                 video)
     k = _neutral_row(tracks, neutral)
     calib_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
                      "options": {"fps": fps, "start": start, "end": end}}

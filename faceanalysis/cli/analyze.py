@@ -62,7 +62,8 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "contractions toward its neighbours' (default 0.01), so that "
                             "muscles the points barely tell apart do not trade places from "
                             "frame to frame; 0 fits every frame on its own (frames that are "
-                            "not a sequence, e.g. a folder of unrelated photographs)")
+                            "not a sequence; the default for a folder of images given "
+                            "without --fps, taken as photographs)")
     group.add_argument("--mirror-check", action="store_true",
                        help="analyse the video mirrored too and flag (0 in "
                             "<control>_identifiable) what does not come back on it: on a "

@@ -954,3 +954,29 @@ def test_a_coarsely_coded_neutral_frame_is_warned_about(tmp_path, caplog, surpri
         plain = analyze(surprise["video"])
     assert plain.metadata["calibration"]["neutral_blockiness"] < BLOCKY_NEUTRAL
     assert "coarsely coded" not in caplog.text
+
+
+def test_a_folder_without_a_frame_rate_is_fitted_photograph_by_photograph(tmp_path, caplog):
+    from faceanalysis.estimation.registry import TEMPORAL
+    from synth.model import FaceModel
+    from synth.render.camera import default_camera
+    from synth.render.renderer import Renderer
+    from synth.render.texture import paint_skin_texture
+
+    model = FaceModel.default()
+    renderer = Renderer(model.mesh, texture=paint_skin_texture(model.mesh, 0, size=512),
+                        camera=default_camera(256, 256))
+    image = cv2.cvtColor(renderer.render(np.asarray(model.mesh.vertices, float)).image,
+                         cv2.COLOR_RGB2BGR)
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), image)
+    with caplog.at_level("INFO", logger="faceanalysis.analysis.pipeline"):
+        photos = analyze(tmp_path)
+    # photographs are not a sequence: no prior toward the neighbours' fits, and it says so
+    assert photos.metadata["parameters"]["temporal"] == 0.0
+    assert "taken as photographs" in caplog.text
+    # a frame rate makes them the frames of a video; an explicit weight is kept either way
+    assert analyze(tmp_path, fps=25.0).metadata["parameters"]["temporal"] == TEMPORAL
+    assert analyze(tmp_path, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
+    # re-estimating keeps what the analysis used
+    assert reestimate(photos, "joint").metadata["parameters"]["temporal"] == 0.0
