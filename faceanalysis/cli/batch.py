@@ -32,8 +32,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "  faceanalysis batch 'corpus/**/*.mp4' extra.avi -o results --workers 4\n"
         "  faceanalysis batch 'corpus/**/*.mp4' -o results --scheduler tcp://head:8786")
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
-                        help="video file, folder (its videos) or quoted glob pattern "
-                             "('**' spans subfolders)")
+                        help="video file, folder (its videos; a folder of images and no "
+                             "video is one input, its images the frames) or quoted glob "
+                             "pattern ('**' spans subfolders; folders of images it matches "
+                             "are inputs too)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
                         help="output root: one folder per video plus summary.csv")
     parser.add_argument("--overwrite", action="store_true",

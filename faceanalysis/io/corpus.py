@@ -23,6 +23,7 @@ from faceanalysis.io.outputs import (
     OVERLAY_MP4,
     SUMMARY_CSV,
 )
+from faceanalysis.io.video import IMAGE_SUFFIXES
 
 __all__ = ["MARKER", "VIDEO_EXTENSIONS", "completion_problem", "discover_inputs",
            "expected_outputs", "is_complete", "output_names"]
@@ -41,15 +42,18 @@ _GLOB_CHARS = set("*?[")
 
 def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *,
                     extensions: Sequence[str] = VIDEO_EXTENSIONS) -> list[Path]:
-    """Expand files, folders and glob patterns into a list of video files.
+    """Expand files, folders and glob patterns into a list of inputs: video files, and
+    folders of images (a sequence each, as :func:`faceanalysis.io.video.open_video` reads
+    one).
 
     Parameters
     ----------
     patterns : path-like or iterable of path-like
         Each item is a file (taken as given, whatever its suffix), a folder (the files
         directly inside it whose suffix is in ``extensions``; use ``"DIR/**/*.mp4"`` for
-        subfolders) or a glob pattern (``*``, ``?``, ``[...]``; ``**`` spans folders),
-        whose matches are filtered by ``extensions``.
+        subfolders; a folder with no such file but with images is itself one input) or a
+        glob pattern (``*``, ``?``, ``[...]``; ``**`` spans folders), whose matches are
+        filtered by ``extensions`` (a folder of images among them is kept).
     extensions : sequence of str, keyword-only
         Suffixes, with the dot, that count as videos when expanding folders and patterns
         (compared case-insensitively).
@@ -89,6 +93,11 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
     def is_video(p: Path) -> bool:
         return p.is_file() and p.suffix.lower() in suffixes
 
+    def is_sequence(p: Path) -> bool:
+        """A folder of images and no video: one input, its images the frames."""
+        return p.is_dir() and not any(is_video(f) for f in p.iterdir()) and any(
+            f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES for f in p.iterdir())
+
     found: list[Path] = []
     seen: set[Path] = set()
     for item in patterns:
@@ -97,17 +106,19 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
         if path.is_file():
             matches = [path]
         elif path.is_dir():
-            matches = sorted(p for p in path.iterdir() if is_video(p))
+            matches = ([path] if is_sequence(path)
+                       else sorted(p for p in path.iterdir() if is_video(p)))
             if not matches:
                 raise FileNotFoundError(
-                    f"{text}: folder holds no video file ({', '.join(suffixes)}); "
-                    f"use '{Path(text) / '**' / '*.mp4'}' to search its subfolders")
+                    f"{text}: folder holds no video file ({', '.join(suffixes)}) and no "
+                    f"images; use '{Path(text) / '**' / '*.mp4'}' to search its subfolders, "
+                    f"'{Path(text) / '*'}' for its folders of images")
         elif _GLOB_CHARS & set(text):
             hits = sorted(Path(p) for p in glob.glob(os.path.expanduser(text), recursive=True))
-            matches = [p for p in hits if is_video(p)]
+            matches = [p for p in hits if is_video(p) or is_sequence(p)]
             if not matches:
-                what = (f"matches {len(hits)} path(s) but no video file ({', '.join(suffixes)})"
-                        if hits else "matches no file")
+                what = (f"matches {len(hits)} path(s) but no video file ({', '.join(suffixes)}) "
+                        "or folder of images" if hits else "matches no file")
                 raise FileNotFoundError(f"pattern {text!r} {what}")
         else:
             raise FileNotFoundError(f"{text}: no such file or folder")
@@ -202,8 +213,16 @@ def canonical_options(options: Mapping | None) -> dict:
 
 
 def input_signature(path: Path) -> dict:
+    """Size and modification time of an input; of a folder of images, the bytes of its
+    images and the latest time among them and the folder (an image added, removed or
+    changed in place all show)."""
     st = path.stat()
-    return {"size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+    if not path.is_dir():
+        return {"size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+    images = [f.stat() for f in path.iterdir()
+              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES]
+    return {"size": sum(int(i.st_size) for i in images),
+            "mtime_ns": max([int(st.st_mtime_ns), *(int(i.st_mtime_ns) for i in images)])}
 
 
 def completion_problem(out_dir: str | os.PathLike, input_path: str | os.PathLike, *,

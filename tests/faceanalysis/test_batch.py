@@ -143,6 +143,29 @@ def test_discover_takes_camcorder_and_phone_suffixes(tmp_path):
                                                              "old.3gp"]
 
 
+def test_discover_takes_a_folder_of_images_as_one_input(tmp_path):
+    from faceanalysis.io.corpus import input_signature
+
+    for subject in ("s1", "s2"):
+        (tmp_path / subject).mkdir()
+        for i in range(3):
+            cv2.imwrite(str(tmp_path / subject / f"{i}.png"), np.full((8, 8), 40 * i, np.uint8))
+    assert discover_inputs([tmp_path / "s1"]) == [(tmp_path / "s1").absolute()]
+    # a pattern's folders of images are inputs beside its videos
+    write_video(tmp_path / "clip.avi", n_frames=3)
+    assert [p.name for p in discover_inputs([str(tmp_path / "*")])] == ["clip.avi", "s1", "s2"]
+    # a folder with a video is a folder of videos, as before
+    assert [p.name for p in discover_inputs([tmp_path])] == ["clip.avi"]
+    # the folder's signature changes with an image changed in place, added or removed
+    before = input_signature(tmp_path / "s1")
+    cv2.imwrite(str(tmp_path / "s1" / "1.png"), np.full((8, 8), 200, np.uint8))
+    os.utime(tmp_path / "s1" / "1.png", ns=(time.time_ns() + 10**9,) * 2)
+    assert input_signature(tmp_path / "s1") != before
+    before = input_signature(tmp_path / "s1")
+    (tmp_path / "s1" / "2.png").unlink()
+    assert input_signature(tmp_path / "s1") != before
+
+
 def test_discover_errors_name_the_pattern(tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing.mp4: no such file"):
         discover_inputs([tmp_path / "nothing.mp4"])
@@ -151,7 +174,7 @@ def test_discover_errors_name_the_pattern(tmp_path):
     (tmp_path / "a.txt").write_text("x")
     with pytest.raises(FileNotFoundError, match="matches 1 path.*no video"):
         discover_inputs([str(tmp_path / "*.txt")])
-    with pytest.raises(FileNotFoundError, match="folder holds no video"):
+    with pytest.raises(FileNotFoundError, match="folder holds no video file .* and no images"):
         discover_inputs([tmp_path])
     with pytest.raises(ValueError, match="no inputs"):
         discover_inputs([])
