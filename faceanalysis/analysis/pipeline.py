@@ -45,6 +45,7 @@ from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import (
     analysis_metadata,
     frame_ranges,
+    is_photographs,
     quality_summary,
 )
 from faceanalysis.io.table import (
@@ -330,8 +331,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)
     if (temporal is None and "temporal" in est_options and len(tracks) >= 3
-            and isinstance(tracks.input, dict) and tracks.input.get("kind") == "images"
-            and tracks.input.get("fps_origin") == "default"):
+            and is_photographs(tracks.input)):
         # a folder of images without a frame rate is taken as photographs, as the tracker
         # takes it: each is fitted on its own, not drawn toward its neighbours' fits
         est_options["temporal"] = 0.0

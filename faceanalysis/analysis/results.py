@@ -34,7 +34,7 @@ from faceanalysis.io.outputs import (
     prepare_output_dir,
     remove_new_folders,
 )
-from faceanalysis.io.report import write_analysis
+from faceanalysis.io.report import is_photographs, write_analysis
 from faceanalysis.io.table import (
     FIDUCIALS,
     JAW,
@@ -130,6 +130,7 @@ class Analysis:
         quality = self.metadata.get("quality") or {}
         kwargs.setdefault("lost_reasons", quality.get("lost_reasons"))
         kwargs.setdefault("cuts", quality.get("shot_cuts") or ())
+        kwargs.setdefault("photographs", is_photographs(self.metadata.get("input")))
         return plot_contractions(self.table, path, **kwargs)
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
@@ -250,7 +251,8 @@ class OutputFolder:
                                     lost_reasons=(metadata.get("quality") or {}).get(
                                         "lost_reasons"),
                                     cuts=(metadata.get("quality") or {}).get("shot_cuts")
-                                    or ())
+                                    or (),
+                                    photographs=is_photographs(metadata.get("input")))
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)

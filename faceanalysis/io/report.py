@@ -32,6 +32,7 @@ __all__ = [
     "frame_ranges",
     "hidden_frames_of",
     "input_metadata",
+    "is_photographs",
     "lost_reasons_text",
     "quality_summary",
     "read_analysis",
@@ -236,6 +237,24 @@ def input_metadata(source) -> dict:
         "frames_undecodable": getattr(source, "n_failed", 0),
         "missing_tail": getattr(source, "missing_tail", 0),
     }
+
+
+def is_photographs(input_meta) -> bool:
+    """Whether an input (:func:`input_metadata`) is taken as photographs rather than a
+    video's frames: a folder of several images given without a frame rate. The analysis
+    then fits each on its own (no temporal prior) and the plot shows one mark per
+    photograph instead of a time series.
+
+    Examples
+    --------
+    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 3})
+    True
+    >>> is_photographs({"kind": "images", "fps_origin": "user", "frame_count": 3})
+    False
+    """
+    return (isinstance(input_meta, Mapping) and input_meta.get("kind") == "images"
+            and input_meta.get("fps_origin") == "default"
+            and (input_meta.get("frame_count") or 0) > 1)
 
 
 #: module -> its distribution on PyPI (None: the module is imported for its version, as

@@ -119,7 +119,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                       not_identifiable: Sequence[str] = (),
                       turned: Sequence[bool] | np.ndarray | None = None,
                       lost_reasons: dict | None = None,
-                      cuts: Sequence[int] = ()) -> Figure:
+                      cuts: Sequence[int] = (),
+                      photographs: bool = False) -> Figure:
     """Plot muscle contractions over time, one line per muscle.
 
     Left and right muscles of a pair share a colour: solid for the subject's
@@ -166,6 +167,11 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         Frame numbers where a new shot begins (``analysis.json`` ``quality.shot_cuts``):
         a vertical line each, so that a reader sees where the face may be another
         person's or seen from another camera. Frames ``df`` does not hold are left out.
+    photographs : bool, keyword-only
+        The rows are photographs, not a video's frames
+        (:func:`faceanalysis.io.report.is_photographs`): one mark per photograph and
+        muscle over the frame numbers, with no line between photographs, which would
+        read as motion between them.
 
     Returns
     -------
@@ -202,10 +208,16 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
 
     timestamps = (pd.to_numeric(df["timestamp"], errors="coerce").to_numpy(float)
                   if "timestamp" in df else None)
-    if timestamps is not None and len(timestamps) and np.isfinite(timestamps).all():
+    if photographs and "frame" in df:
+        x, xlabel = pd.to_numeric(df["frame"]).to_numpy(float), "photograph (frame)"
+    elif timestamps is not None and len(timestamps) and np.isfinite(timestamps).all():
         x, xlabel = timestamps, "time (s)"
     else:
         x, xlabel = pd.to_numeric(df["frame"]).to_numpy(float), "frame"
+    photographs = photographs and xlabel.startswith("photograph")
+    # a photograph's marks: left filled, right hollow (lines would join unrelated pictures)
+    style = {"l": dict(ls="none", marker="o", ms=6), "r": dict(ls="none", marker="o", ms=6,
+                                                              mfc="white")}
 
     bases: list[str] = []
     for m in chosen:
@@ -248,7 +260,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         ax = muscle_axes[base]
         colour = _COLOURS.get(base, "#333333")
         ax.plot(x, values, color=colour, lw=1.4 if stacked else 1.6,
-                ls="--" if side == "r" else "-", label=m,
+                **(style["r" if side == "r" else "l"] if photographs
+                   else dict(ls="--" if side == "r" else "-")), label=m,
                 alpha=_FADED if m in faded else 1.0)
         if np.isfinite(values).any():
             top[id(ax)] = max(top.get(id(ax), 0.0), float(np.nanmax(values)))
@@ -281,7 +294,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
 
     if jaw is not None:
         jax = axes[-1] if stacked else main.twinx()
-        jax.plot(x, jaw, color="black", lw=1.3, ls=":")
+        jax.plot(x, jaw, color="black", lw=1.3,
+                 **(dict(ls="none", marker="x", ms=6) if photographs else dict(ls=":")))
         jax.set_ylabel("jaw (deg)" if stacked else "jaw rotation (degrees)",
                        **(dict(rotation=0, ha="right", va="center", fontsize=8) if stacked
                           else {}))
@@ -289,7 +303,8 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         jax.set_ylim(min(0.0, float(np.nanmin(jaw)) * 1.1), span * 1.1)
         if stacked:
             jax.tick_params(labelsize=7)
-        handles.append(Line2D([], [], color="black", lw=1.3, ls=":",
+        handles.append(Line2D([], [], color="black", lw=1.3,
+                              **(dict(ls="none", marker="x") if photographs else dict(ls=":")),
                               label="jaw rotation (deg)"))
 
     tracked = np.ones(len(df), bool)
@@ -324,14 +339,21 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         ax.set_axisbelow(True)
         if len(x):
             lo, hi = float(np.nanmin(x)), float(np.nanmax(x))
-            ax.set_xlim(lo, hi if hi > lo else lo + 1)
+            if photographs:
+                ax.set_xlim(lo - 0.5, hi + 0.5)
+                if len(x) <= 40:
+                    ax.set_xticks(x)
+            else:
+                ax.set_xlim(lo, hi if hi > lo else lo + 1)
     axes[-1].set_xlabel(xlabel)
     if faded & set(chosen):
         handles.append(Line2D([], [], color="#555555", lw=1.6, alpha=_FADED,
                               label="faded: not identifiable"))
     if chosen:
-        handles.append(Line2D([], [], color="#555555", lw=1.6, label="left (_l)"))
-        handles.append(Line2D([], [], color="#555555", lw=1.6, ls="--", label="right (_r)"))
+        handles.append(Line2D([], [], color="#555555", lw=1.6, label="left (_l)",
+                              **(style["l"] if photographs else {})))
+        handles.append(Line2D([], [], color="#555555", lw=1.6, label="right (_r)",
+                              **(style["r"] if photographs else dict(ls="--"))))
     if handles:
         fig.legend(handles=handles, loc="outside right upper", frameon=False, fontsize=9)
     main_title = title if title is not None else "Estimated muscle contractions"

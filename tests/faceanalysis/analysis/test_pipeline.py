@@ -956,7 +956,7 @@ def test_a_coarsely_coded_neutral_frame_is_warned_about(tmp_path, caplog, surpri
     assert "coarsely coded" not in caplog.text
 
 
-def test_a_folder_without_a_frame_rate_is_fitted_photograph_by_photograph(tmp_path, caplog):
+def test_a_folder_without_a_frame_rate_is_taken_photograph_by_photograph(tmp_path, caplog):
     from faceanalysis.estimation.registry import TEMPORAL
     from synth.model import FaceModel
     from synth.render.camera import default_camera
@@ -975,8 +975,12 @@ def test_a_folder_without_a_frame_rate_is_fitted_photograph_by_photograph(tmp_pa
     # photographs are not a sequence: no prior toward the neighbours' fits, and it says so
     assert photos.metadata["parameters"]["temporal"] == 0.0
     assert "taken as photographs" in caplog.text
+    # and plotted as photographs, not a time series (the saved plot too)
+    assert photos.plot().axes[0].get_xlabel() == "photograph (frame)"
     # a frame rate makes them the frames of a video; an explicit weight is kept either way
-    assert analyze(tmp_path, fps=25.0).metadata["parameters"]["temporal"] == TEMPORAL
+    frames = analyze(tmp_path, fps=25.0)
+    assert frames.metadata["parameters"]["temporal"] == TEMPORAL
+    assert frames.plot().axes[0].get_xlabel() == "time (s)"
     assert analyze(tmp_path, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
     # re-estimating keeps what the analysis used
     assert reestimate(photos, "joint").metadata["parameters"]["temporal"] == 0.0

@@ -179,3 +179,27 @@ def test_shot_cuts_are_drawn_where_they_are(table):
     assert "shot cut (1)" in legend
     assert not any("shot cut" in t.get_text()
                    for t in plot_contractions(table).legends[0].get_texts())
+
+
+def test_photographs_are_marks_not_a_time_series():
+    t = empty_table(4, timestamps=np.arange(4) / 30)
+    t["success"] = [1, 1, 0, 1]
+    t[list(MUSCLES)] = 0.0
+    t["zygomaticus_major_l"] = [0.0, 0.5, np.nan, 0.1]
+    t["zygomaticus_major_r"] = [0.0, 0.4, np.nan, 0.2]
+    fig = plot_contractions(t, photographs=True, layout="single")
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "photograph (frame)"
+    assert list(ax.get_xticks()) == [0, 1, 2, 3] and ax.get_xlim() == (-0.5, 3.5)
+    left, right = ax.lines[:2]
+    # no line joins two photographs; left filled, right hollow
+    assert left.get_linestyle() == right.get_linestyle() == "None"
+    assert left.get_marker() == right.get_marker() == "o"
+    assert right.get_markerfacecolor() == "white" != left.get_markerfacecolor()
+    # the lost photograph is shaded over its own place
+    (bar,) = [c for c in ax.collections if len(c.get_paths())]
+    x0, x1 = bar.get_paths()[0].get_extents().intervalx
+    assert (x0, x1) == pytest.approx((1.5, 2.5))
+    # as a video, the same table is a time series
+    video = plot_contractions(t, layout="single").axes[0]
+    assert video.get_xlabel() == "time (s)" and video.lines[0].get_linestyle() == "-"
