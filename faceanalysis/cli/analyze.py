@@ -172,8 +172,11 @@ def closing_line(metadata: dict, rows: int) -> str:
     >>> closing_line({"quality": {"frames_total": 9, "frames_lost": 0},
     ...               "parameters": {"neutral_frame": 4}}, 9)
     'analysed 9 frames (0 lost; neutral frame 4; all 0 controls measured)'
+    >>> closing_line({"quality": {"frames_total": 3, "frames_lost": 0},
+    ...               "input": {"kind": "images", "fps_origin": "default", "frame_count": 3}}, 3)
+    'analysed 3 photographs (0 lost; all 0 controls measured)'
     """
-    from faceanalysis.io.report import lost_reasons_text
+    from faceanalysis.io.report import is_photographs, lost_reasons_text
 
     q = metadata.get("quality") or {}
     ident = metadata.get("identifiability") or {}
@@ -195,4 +198,5 @@ def closing_line(metadata: dict, rows: int) -> str:
     neutral = (metadata.get("parameters") or {}).get("neutral_frame")
     if neutral is not None:
         lost += f"; neutral frame {neutral}"
-    return f"analysed {total} frame{'' if total == 1 else 's'} ({lost}; {measured})"
+    unit = "photograph" if is_photographs(metadata.get("input")) else "frame"
+    return f"analysed {total} {unit}{'' if total == 1 else 's'} ({lost}; {measured})"
