@@ -26,7 +26,12 @@ import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.cuts import frame_changes, shot_cuts
-from faceanalysis.io.report import LOST_REASONS, input_metadata, lost_reasons_text
+from faceanalysis.io.report import (
+    LOST_REASONS,
+    input_metadata,
+    is_photographs,
+    lost_reasons_text,
+)
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
@@ -532,7 +537,9 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
         if writer is None:
             from synth.render.video import VideoWriter
 
-            writer = VideoWriter(overlay, source.fps, source.size, channel_order="bgr")
+            # photographs are shown a second each, not at the frame rate assumed for them
+            rate = 1.0 if is_photographs(input_metadata(source)) else source.fps
+            writer = VideoWriter(overlay, rate, source.size, channel_order="bgr")
         shown = None if res is None else res.contours
         hands = None if res is None else res.extra.get("hands")
         eyelids = None if not ok[r] else res.extra.get("eyelids")

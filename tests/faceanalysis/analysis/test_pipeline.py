@@ -968,19 +968,23 @@ def test_a_folder_without_a_frame_rate_is_taken_photograph_by_photograph(tmp_pat
                         camera=default_camera(256, 256))
     image = cv2.cvtColor(renderer.render(np.asarray(model.mesh.vertices, float)).image,
                          cv2.COLOR_RGB2BGR)
+    folder = tmp_path / "photos"
+    folder.mkdir()
     for i in range(3):
-        cv2.imwrite(str(tmp_path / f"{i}.png"), image)
+        cv2.imwrite(str(folder / f"{i}.png"), image)
     with caplog.at_level("INFO", logger="faceanalysis.analysis.pipeline"):
-        photos = analyze(tmp_path)
+        photos = analyze(folder, overlay=tmp_path / "overlay.mp4")
     # photographs are not a sequence: no prior toward the neighbours' fits, and it says so
     assert photos.metadata["parameters"]["temporal"] == 0.0
     assert "taken as photographs" in caplog.text
     # and plotted as photographs, not a time series (the saved plot too)
     assert photos.plot().axes[0].get_xlabel() == "photograph (frame)"
+    # the overlay shows each photograph for a second, not for a thirtieth
+    assert cv2.VideoCapture(str(tmp_path / "overlay.mp4")).get(cv2.CAP_PROP_FPS) == 1.0
     # a frame rate makes them the frames of a video; an explicit weight is kept either way
-    frames = analyze(tmp_path, fps=25.0)
+    frames = analyze(folder, fps=25.0)
     assert frames.metadata["parameters"]["temporal"] == TEMPORAL
     assert frames.plot().axes[0].get_xlabel() == "time (s)"
-    assert analyze(tmp_path, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
+    assert analyze(folder, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
     # re-estimating keeps what the analysis used
     assert reestimate(photos, "joint").metadata["parameters"]["temporal"] == 0.0
