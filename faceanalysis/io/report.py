@@ -241,20 +241,23 @@ def input_metadata(source) -> dict:
 
 def is_photographs(input_meta) -> bool:
     """Whether an input (:func:`input_metadata`) is taken as photographs rather than a
-    video's frames: a folder of several images given without a frame rate. The analysis
-    then fits each on its own (no temporal prior) and the plot shows one mark per
-    photograph instead of a time series.
+    video's frames: an image, or a folder of images, given without a frame rate. The
+    analysis then fits each on its own (no temporal prior), the plot shows one mark per
+    photograph instead of a time series, and the overlay shows each for a second.
 
     Examples
     --------
     >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 3})
     True
+    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 1})
+    True
     >>> is_photographs({"kind": "images", "fps_origin": "user", "frame_count": 3})
+    False
+    >>> is_photographs({"kind": "video", "fps_origin": "container", "frame_count": 3})
     False
     """
     return (isinstance(input_meta, Mapping) and input_meta.get("kind") == "images"
-            and input_meta.get("fps_origin") == "default"
-            and (input_meta.get("frame_count") or 0) > 1)
+            and input_meta.get("fps_origin") == "default")
 
 
 #: module -> its distribution on PyPI (None: the module is imported for its version, as
