@@ -125,13 +125,8 @@ class Analysis:
     def plot(self, path: str | os.PathLike | None = None, **kwargs):
         """The time-series plot (like Fig. 8 of 004); saved to ``path`` if given. Controls
         the points cannot tell apart are drawn faded."""
-        kwargs.setdefault("not_identifiable", _not_identifiable(self.metadata))
-        kwargs.setdefault("turned", _turned(self.table, self.metadata))
-        quality = self.metadata.get("quality") or {}
-        kwargs.setdefault("lost_reasons", quality.get("lost_reasons"))
-        kwargs.setdefault("cuts", quality.get("shot_cuts") or ())
-        kwargs.setdefault("photographs", is_photographs(self.metadata.get("input")))
-        return plot_contractions(self.table, path, **kwargs)
+        return plot_contractions(self.table, path,
+                                 **{**_plot_options(self.table, self.metadata), **kwargs})
 
     def save(self, output: str | os.PathLike, *, overwrite: bool = False) -> dict[str, Path]:
         """Write ``contractions.csv``, ``analysis.json`` and ``contractions.png`` to ``output``."""
@@ -246,13 +241,7 @@ class OutputFolder:
         paths = {"contractions": write_contractions(table, self.contractions_csv)}
         if plot:
             fig = plot_contractions(table, self.contractions_png, title=title,
-                                    not_identifiable=_not_identifiable(metadata),
-                                    turned=_turned(table, metadata),
-                                    lost_reasons=(metadata.get("quality") or {}).get(
-                                        "lost_reasons"),
-                                    cuts=(metadata.get("quality") or {}).get("shot_cuts")
-                                    or (),
-                                    photographs=is_photographs(metadata.get("input")))
+                                    **_plot_options(table, metadata))
             fig.clear()
             paths["plot"] = self.contractions_png
         paths["analysis"] = write_analysis(metadata, self.analysis_json)
@@ -268,6 +257,18 @@ def _identity(path: Path) -> tuple | None:
     if not stat.S_ISREG(st.st_mode):
         return None                  # a link or a folder of the user's: never removed
     return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _plot_options(table: pd.DataFrame, metadata: Mapping) -> dict:
+    """What ``analysis.json`` tells :func:`~faceanalysis.viz.plots.plot_contractions`: the
+    controls to fade, the turned heads to hatch, why frames were lost, the shot cuts, and
+    whether the rows are photographs."""
+    meta = metadata if isinstance(metadata, Mapping) else {}
+    quality = meta.get("quality") or {}
+    return {"not_identifiable": _not_identifiable(meta), "turned": _turned(table, meta),
+            "lost_reasons": quality.get("lost_reasons"),
+            "cuts": quality.get("shot_cuts") or (),
+            "photographs": is_photographs(meta.get("input"))}
 
 
 def _turned(table: pd.DataFrame, metadata: Mapping) -> np.ndarray | None:

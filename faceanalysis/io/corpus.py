@@ -95,8 +95,11 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
 
     def is_sequence(p: Path) -> bool:
         """A folder of images and no video: one input, its images the frames."""
-        return p.is_dir() and not any(is_video(f) for f in p.iterdir()) and any(
-            f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES for f in p.iterdir())
+        if not p.is_dir():
+            return False
+        files = [f for f in p.iterdir() if f.is_file()]
+        return (not any(is_video(f) for f in files)
+                and any(f.suffix.lower() in IMAGE_SUFFIXES for f in files))
 
     found: list[Path] = []
     seen: set[Path] = set()

@@ -208,16 +208,19 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
 
     timestamps = (pd.to_numeric(df["timestamp"], errors="coerce").to_numpy(float)
                   if "timestamp" in df else None)
-    if photographs and "frame" in df:
+    photographs = photographs and "frame" in df
+    if photographs:
         x, xlabel = pd.to_numeric(df["frame"]).to_numpy(float), "photograph (frame)"
     elif timestamps is not None and len(timestamps) and np.isfinite(timestamps).all():
         x, xlabel = timestamps, "time (s)"
     else:
         x, xlabel = pd.to_numeric(df["frame"]).to_numpy(float), "frame"
-    photographs = photographs and xlabel.startswith("photograph")
-    # a photograph's marks: left filled, right hollow (lines would join unrelated pictures)
-    style = {"l": dict(ls="none", marker="o", ms=6), "r": dict(ls="none", marker="o", ms=6,
-                                                              mfc="white")}
+    # how the left and right muscles and the jaw are drawn: lines over time, or for
+    # photographs marks (left filled, right hollow), which no line joins
+    style = ({"l": dict(ls="none", marker="o", ms=6),
+              "r": dict(ls="none", marker="o", ms=6, mfc="white"),
+              "jaw": dict(ls="none", marker="x", ms=6)} if photographs
+             else {"l": dict(ls="-"), "r": dict(ls="--"), "jaw": dict(ls=":")})
 
     bases: list[str] = []
     for m in chosen:
@@ -260,8 +263,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         ax = muscle_axes[base]
         colour = _COLOURS.get(base, "#333333")
         ax.plot(x, values, color=colour, lw=1.4 if stacked else 1.6,
-                **(style["r" if side == "r" else "l"] if photographs
-                   else dict(ls="--" if side == "r" else "-")), label=m,
+                **style["r" if side == "r" else "l"], label=m,
                 alpha=_FADED if m in faded else 1.0)
         if np.isfinite(values).any():
             top[id(ax)] = max(top.get(id(ax), 0.0), float(np.nanmax(values)))
@@ -294,8 +296,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
 
     if jaw is not None:
         jax = axes[-1] if stacked else main.twinx()
-        jax.plot(x, jaw, color="black", lw=1.3,
-                 **(dict(ls="none", marker="x", ms=6) if photographs else dict(ls=":")))
+        jax.plot(x, jaw, color="black", lw=1.3, **style["jaw"])
         jax.set_ylabel("jaw (deg)" if stacked else "jaw rotation (degrees)",
                        **(dict(rotation=0, ha="right", va="center", fontsize=8) if stacked
                           else {}))
@@ -303,8 +304,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         jax.set_ylim(min(0.0, float(np.nanmin(jaw)) * 1.1), span * 1.1)
         if stacked:
             jax.tick_params(labelsize=7)
-        handles.append(Line2D([], [], color="black", lw=1.3,
-                              **(dict(ls="none", marker="x") if photographs else dict(ls=":")),
+        handles.append(Line2D([], [], color="black", lw=1.3, **style["jaw"],
                               label="jaw rotation (deg)"))
 
     tracked = np.ones(len(df), bool)
@@ -351,9 +351,9 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
                               label="faded: not identifiable"))
     if chosen:
         handles.append(Line2D([], [], color="#555555", lw=1.6, label="left (_l)",
-                              **(style["l"] if photographs else {})))
+                              **style["l"]))
         handles.append(Line2D([], [], color="#555555", lw=1.6, label="right (_r)",
-                              **(style["r"] if photographs else dict(ls="--"))))
+                              **style["r"]))
     if handles:
         fig.legend(handles=handles, loc="outside right upper", frameon=False, fontsize=9)
     main_title = title if title is not None else "Estimated muscle contractions"
