@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["to_bgr_uint8", "to_gray_float", "to_uint8"]
+__all__ = ["check_float_range", "to_bgr_uint8", "to_gray_float", "to_uint8"]
 
 
 def _scale_of(dtype: np.dtype) -> float | None:
@@ -133,6 +133,13 @@ def to_uint8(image) -> np.ndarray:
     ndarray
         ``uint8`` array of the same shape (``image`` itself when it is already ``uint8``).
 
+    Raises
+    ------
+    ValueError
+        For floats that are not finite or lie outside [0, 1] (beyond a rounding slack of
+        1e-3): a float frame in 0..255 would otherwise be clipped to white, and every
+        frame then read as faceless.
+
     Examples
     --------
     >>> import numpy as np
@@ -148,6 +155,32 @@ def to_uint8(image) -> np.ndarray:
         # round(v / 257) in integers: 257 is odd, so there are no ties
         return ((image.astype(np.uint32) + 128) // 257).astype(np.uint8)
     scale = _scale_of(image.dtype)
+    if scale is None:
+        check_float_range(image)
     values = image.astype(np.float64)
     values = values * (255.0 / scale) if scale is not None else values * 255.0
     return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+def check_float_range(image, *, hint: str = "divide by 255 or pass uint8") -> None:
+    """Raise ValueError unless the float ``image`` is finite and within [0, 1] (1e-3 slack);
+    ``hint`` ends the message with what to do.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> check_float_range(np.array([0.0, 1.0]))
+    >>> check_float_range(np.array([0.0, 255.0]))
+    Traceback (most recent call last):
+    ...
+    ValueError: float pixels must lie in [0, 1], got values in [0, 255]: divide by 255 or pass uint8
+    """
+    image = np.asarray(image)
+    if image.size == 0:
+        return
+    lo, hi = float(np.min(image)), float(np.max(image))
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise ValueError("float pixels must be finite, got NaN or infinite values")
+    if lo < -1e-3 or hi > 1.0 + 1e-3:
+        raise ValueError(f"float pixels must lie in [0, 1], got values in [{lo:.4g}, {hi:.4g}]: "
+                         f"{hint}")

@@ -41,7 +41,7 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from faceanalysis.io.frames import to_uint8  # noqa: E402
+from faceanalysis.io.frames import check_float_range, to_uint8  # noqa: E402
 
 __all__ = [
     "DEFAULT_FPS",
@@ -170,6 +170,13 @@ class Frames:
         if not (first.dtype in (np.uint8, np.uint16) or first.dtype.kind == "f"):
             raise ValueError(f"frames must be uint8, uint16 or floats in [0, 1], got "
                              f"{first.dtype}")
+        if first.dtype.kind == "f":
+            # the first frame now, so that floats in 0..255 fail at the call; the others
+            # are checked as they are read
+            try:
+                check_float_range(first)
+            except ValueError as error:
+                raise ValueError(f"frames: frame 0: {error}") from None
         self._items = items
         self.channel_order = channel_order
         self.fps = None if fps is None else _check_fps(fps)
@@ -379,12 +386,26 @@ class VideoSource:
             return self._iter_frames()
         return self._iter_video()
 
+    def _pixels(self, image: np.ndarray, index: int, file: Path | None = None) -> np.ndarray:
+        """``image`` as the frames are delivered; a ValueError names the input and frame."""
+        if not self.eight_bit:
+            return image
+        if image.dtype.kind == "f":
+            hint = ("divide by 255 or pass uint8" if file is None else
+                    "a float image is read as 0..1; save it with 8- or 16-bit integer pixels")
+            try:
+                check_float_range(image, hint=hint)
+            except ValueError as error:
+                where = (f"{file} (frame {index})" if file is not None
+                         else f"{self.name}: frame {index}")
+                raise ValueError(f"{where}: {error}") from None
+        return to_uint8(image)
+
     def _iter_frames(self) -> Iterator[Frame]:
         stop = len(self._frames) if self.end is None else self.end
         for index in range(self.start, stop):
             image = self._frames.image(index)
-            yield Frame(index, index / self.fps, to_uint8(image) if self.eight_bit else image,
-                        True)
+            yield Frame(index, index / self.fps, self._pixels(image, index), True)
 
     def _iter_images(self) -> Iterator[Frame]:
         files = self._files or []
@@ -404,7 +425,7 @@ class VideoSource:
                 self.n_failed += 1
                 yield Frame(index, timestamp, None, False)
             else:
-                yield Frame(index, timestamp, to_uint8(image) if self.eight_bit else image, True)
+                yield Frame(index, timestamp, self._pixels(image, index, name), True)
 
     def _max_failed_run(self) -> int:
         # Damage can take out a whole group of pictures (up to ~10 s in common encodings).
@@ -460,8 +481,7 @@ class VideoSource:
                     continue
                 timestamp = self._timestamp(capture, index, previous, use_container_time)
                 n_yielded += 1
-                yield Frame(index, timestamp, to_uint8(image) if self.eight_bit else image,
-                            True)
+                yield Frame(index, timestamp, self._pixels(image, index), True)
                 previous = timestamp
                 index += 1
         finally:

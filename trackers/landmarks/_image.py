@@ -13,15 +13,24 @@ def check_image(image, channel_order: str) -> np.ndarray:
     """A uint8 (H, W) or (H, W, 3) view or copy of ``image``; channels are fixed after sampling.
 
     Floats must lie in [0, 1]; they are rounded to uint8 because the networks were trained on
-    8-bit pictures and OpenCV samples uint8 fastest.
+    8-bit pictures and OpenCV samples uint8 fastest. Alpha is dropped ((H, W, 4) colour,
+    (H, W, 2) grey), as the rest of the toolkit drops it: a PNG with an alpha channel is a
+    picture like any other.
     """
     if channel_order not in CHANNEL_ORDERS:
         raise ValueError(f"channel_order={channel_order!r} is not one of 'rgb', 'bgr'")
     image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] in (1, 2):
+        image = image[:, :, 0]
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = image[:, :, :3]
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)) or min(
             image.shape[:2]) < 2:
         raise ValueError(f"image of shape {image.shape} is not a grey (H, W) or colour "
-                         "(H, W, 3) frame")
+                         "(H, W, 3|4) frame")
+    if not image.flags.c_contiguous:
+        # OpenCV's warps read a contiguous buffer; a frame without its alpha is a strided view
+        image = np.ascontiguousarray(image)
     if image.dtype == np.uint8:
         return image
     if image.dtype.kind != "f":

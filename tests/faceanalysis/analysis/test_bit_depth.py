@@ -3,6 +3,7 @@
 import cv2
 import numpy as np
 import pandas as pd
+import pytest
 
 from faceanalysis.analysis.pipeline import analyze
 
@@ -37,3 +38,42 @@ def test_sixteen_bit_frames_give_the_same_analysis_as_their_eight_bit_originals(
     assert eight.table["success"].sum() > 0
     pd.testing.assert_frame_equal(eight.table, sixteen.table)
     np.testing.assert_array_equal(eight.fiducials, sixteen.fiducials)
+
+
+def test_alpha_and_float_pictures_give_the_analysis_of_their_eight_bit_colour(tmp_path):
+    """PNGs with an alpha channel (screenshots, exported frames) and float TIFFs in [0, 1]
+    are the same pictures: the default (landmark) tracker reads them as their RGB; a float
+    TIFF in 0..255 is refused by name, where it would have read as white frames."""
+    from PIL import Image
+
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "render", expression="happiness", frames=4, size=128,
+                            seed=7, flow=False)
+    capture = cv2.VideoCapture(str(files["video"]))
+    frames = []
+    while (read := capture.read())[0]:
+        frames.append(read[1])
+    capture.release()
+    folders = {k: tmp_path / k for k in ("bgr", "bgra", "grey", "grey_alpha", "float", "float255")}
+    for folder in folders.values():
+        folder.mkdir()
+    for n, frame in enumerate(frames):
+        grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        opaque = np.full(grey.shape, 255, np.uint8)
+        cv2.imwrite(str(folders["bgr"] / f"f{n}.png"), frame)
+        cv2.imwrite(str(folders["bgra"] / f"f{n}.png"), np.dstack([frame, opaque]))
+        cv2.imwrite(str(folders["grey"] / f"f{n}.png"), grey)
+        Image.fromarray(np.dstack([grey, opaque]), "LA").save(folders["grey_alpha"] / f"f{n}.png")
+        cv2.imwrite(str(folders["float"] / f"f{n}.tif"), frame.astype(np.float32) / 255)
+        cv2.imwrite(str(folders["float255"] / f"f{n}.tif"), frame.astype(np.float32))
+    assert cv2.imread(str(folders["bgra"] / "f0.png"), cv2.IMREAD_UNCHANGED).shape[2] == 4
+    colour = analyze(folders["bgr"])
+    assert colour.table["success"].all()
+    for name in ("bgra", "float"):
+        pd.testing.assert_frame_equal(analyze(folders[name]).table, colour.table)
+    pd.testing.assert_frame_equal(analyze(folders["grey_alpha"]).table,
+                                  analyze(folders["grey"]).table)
+    with pytest.raises(ValueError, match=r"f0\.tif \(frame 0\): float pixels must lie in "
+                                         r"\[0, 1\], got values in \[\d+, 2\d\d\]"):
+        analyze(folders["float255"])

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from faceanalysis.io.frames import to_bgr_uint8, to_gray_float
+from faceanalysis.io.frames import to_bgr_uint8, to_gray_float, to_uint8
 
 
 @pytest.mark.parametrize(("image", "expected"), [
@@ -43,3 +43,15 @@ def test_to_bgr_uint8():
     bgra[..., 0] = 9
     assert to_bgr_uint8(bgra).shape == (2, 2, 3)
     assert to_bgr_uint8(np.full((1, 1), 2.0))[0, 0, 0] == 255  # floats are clipped
+
+
+def test_to_uint8_refuses_floats_it_would_clip():
+    # within the rounding slack a float frame is taken; beyond it, a float frame in 0..255
+    # would be clipped to white and every frame read as faceless
+    assert to_uint8(np.array([[-1e-4, 0.5, 1.0 + 1e-4]])).tolist() == [[0, 128, 255]]
+    for bad, match in [(np.array([[0.0, 255.0]]), r"\[0, 255\]: divide by 255"),
+                       (np.array([[0.0, -0.2]]), r"\[-0.2, 0\]"),
+                       (np.array([[0.5, np.nan]]), "finite"),
+                       (np.array([[0.5, np.inf]], np.float32), "finite")]:
+        with pytest.raises(ValueError, match=match):
+            to_uint8(bad)

@@ -649,5 +649,15 @@ def test_frames_in_memory_are_named_in_messages_and_checked():
             Frames(bad)
     with pytest.raises(ValueError, match="fps"):
         Frames(np.zeros((2, H, W)), fps=0)
+    # floats in 0..255: the first frame at the call, a later one as it is read, by number
+    with pytest.raises(ValueError, match=r"frames: frame 0: float pixels must lie in \[0, 1\]"):
+        Frames(np.full((2, H, W, 3), 255.0))
+    later = np.zeros((3, H, W), np.float32)
+    later[2] = 255
+    with (pytest.raises(ValueError, match=r"<frames: 3 frames of 96x64>: frame 2: float pixels "
+                                          r"must lie in \[0, 1\], got values in \[255, 255\]: "
+                                          "divide by 255"),
+          open_video(later, eight_bit=True) as video):
+        list(video)
     with pytest.raises(ValueError, match="'rgb' or 'bgr'"):
         Frames(np.zeros((2, H, W)), channel_order="BGR")
