@@ -53,12 +53,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pandas as pd
 
     from faceanalysis.flow.recognition import CLASSES, classify_video
     from faceanalysis.flow.templates import FlowTemplates
     from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
     from faceanalysis.io.report import hidden_frames_of, read_analysis
+    from faceanalysis.io.table import read_csv_table
 
     if not args.video.exists():
         raise FileNotFoundError(f"{args.video}: no such file or folder")
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         csv = args.analysis / CONTRACTIONS_CSV
         if not csv.is_file():
             raise FileNotFoundError(f"{csv}: no contractions.csv in the analysis folder")
-        table = pd.read_csv(csv)
+        table = read_csv_table(csv)
         meta = args.analysis / ANALYSIS_JSON
         if meta.is_file():
             hidden = hidden_frames_of(read_analysis(meta))

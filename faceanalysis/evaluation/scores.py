@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
-from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES
+from faceanalysis.io.table import FIDUCIALS, JAW, MUSCLES, read_csv_table
 
 __all__ = ["compare", "evaluate", "format_table", "pool", "public"]
 
@@ -34,7 +34,7 @@ def _load_table(source, name: str) -> pd.DataFrame:
         path = path / name
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    return pd.read_csv(path)
+    return read_csv_table(path)
 
 
 def _frames_text(frames: np.ndarray) -> str:

@@ -58,6 +58,7 @@ __all__ = [
     "au_intensities",
     "contraction_columns",
     "empty_table",
+    "read_csv_table",
     "head_turn",
     "measured_values",
     "read_contractions",
@@ -606,13 +607,71 @@ def _validate(df: pd.DataFrame, path) -> pd.DataFrame:
     return pd.DataFrame(numeric, index=df.index)
 
 
+def _delimiter(path) -> str:
+    """The header line's delimiter: ',' as written, ';' or a tab as a spreadsheet may re-save."""
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as file:
+            header = file.readline()
+    except OSError:
+        return ","
+    if "," in header:
+        return ","
+    return ";" if ";" in header else "\t" if "\t" in header else ","
+
+
+def read_csv_table(path: str | os.PathLike, *, nrows: int | None = None) -> pd.DataFrame:
+    """Read a CSV table as written, or as a spreadsheet re-saved it.
+
+    Comma-separated tables are read as they are. A table whose header is separated by
+    semicolons is read with decimal commas too (``0,25``), as spreadsheets save "CSV" where
+    the comma is the decimal separator, and one separated by tabs as such. Empty cells
+    are NaN; a column any of whose cells is not a number stays text, for the validation to
+    name the cell.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    nrows : int, optional, keyword-only
+        Read only this many rows (0: the header).
+
+    Returns
+    -------
+    DataFrame
+
+    Raises
+    ------
+    pandas.errors.EmptyDataError, pandas.errors.ParserError, UnicodeDecodeError
+        As :func:`pandas.read_csv`.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = path.write_text("frame;zygomaticus_major_l\\n0;0,25\\n1;\\n")
+    >>> read_csv_table(path).to_dict("list")
+    {'frame': [0, 1], 'zygomaticus_major_l': [0.25, nan]}
+    """
+    sep = _delimiter(path)
+    options = dict(keep_default_na=False, na_values=[""], low_memory=False, nrows=nrows)
+    if sep != ";":
+        return pd.read_csv(path, sep=sep, **options)
+    raw = pd.read_csv(path, sep=sep, dtype=str, **options)
+    columns = {}
+    for column in raw.columns:
+        text = raw[column].str.replace(",", ".", regex=False)
+        values = pd.to_numeric(text, errors="coerce")
+        columns[column] = values if values.notna().sum() == text.notna().sum() else raw[column]
+    return pd.DataFrame(columns, index=raw.index)
+
+
 def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
     """Read and validate a ``contractions.csv`` file.
 
     Parameters
     ----------
     path : path-like
-        The file.
+        The file: as written, or re-saved by a spreadsheet (see :func:`read_csv_table`).
 
     Returns
     -------
@@ -639,7 +698,7 @@ def read_contractions(path: str | os.PathLike) -> pd.DataFrame:
     try:
         # Numeric columns parse in C; a column holding any non-number stays text and
         # is checked cell by cell in _validate, which names the offending cell.
-        raw = pd.read_csv(path, keep_default_na=False, na_values=[""], low_memory=False)
+        raw = read_csv_table(path)
     except pd.errors.EmptyDataError:
         raise ValueError(f"{path}: file is empty") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:

@@ -140,6 +140,12 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
     present = [m for m in MUSCLES if m in df.columns]
     if not present and JAW not in df.columns:
         raise ValueError(f"{where}: no muscle columns (e.g. {MUSCLES[0]}) and no {JAW} column")
+    if "success" not in df.columns:
+        # a table cut down to a few columns: a row with every control empty is a lost frame,
+        # as contractions.csv writes one; a row with some filled is tracked
+        given = np.stack([numeric_column(df, c, where) for c in (*present, JAW)
+                          if c in df.columns], axis=1)
+        success = ~np.isnan(given).all(axis=1)
     missing = tuple(m for m in MUSCLES if m not in df.columns)
     controls = np.zeros((n, len(MUSCLES)))
     jaw = np.zeros(n)
@@ -153,7 +159,9 @@ def series_from_table(df: pd.DataFrame, where: str, metadata: dict | None = None
             bad = ~lost_nan & (~np.isfinite(v) | (v < 0.0) | (v > hi))
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
-            problem = ("an empty cell in a tracked frame (success == 1)" if np.isnan(v[r])
+            tracked = ("success == 1" if "success" in df.columns
+                       else "other controls are given on that line")
+            problem = (f"an empty cell in a tracked frame ({tracked})" if np.isnan(v[r])
                        else f"{v[r]:g} is outside [0, {hi:g}]")
             raise ValueError(f"{where}: {_label(frames, r)}, column {name}: {problem}")
         if name == JAW:
@@ -220,20 +228,20 @@ def load_series(source) -> Series:
         raise FileNotFoundError(f"{csv}: no such file (expected an analysis folder or a "
                                 "contractions.csv)")
     meta = _read_metadata(folder / ANALYSIS_JSON)
+    from faceanalysis.io.table import read_contractions, read_csv_table, required_columns
+
     try:
-        head = pd.read_csv(csv, nrows=0)
+        head = read_csv_table(csv, nrows=0)
     except pd.errors.EmptyDataError:
         raise ValueError(f"{csv}: file is empty") from None
     except (pd.errors.ParserError, UnicodeDecodeError, ValueError):
         raise ValueError(f"{csv}: not a CSV table (expected contractions.csv or an analysis "
                          "folder)") from None
-    from faceanalysis.io.table import read_contractions, required_columns
-
     if all(c in [str(h).strip() for h in head.columns] for c in required_columns()):
         df = read_contractions(csv)            # full table: validated, names row and column
     else:
         try:
-            df = pd.read_csv(csv, keep_default_na=False, na_values=[""], low_memory=False)
+            df = read_csv_table(csv)
         except pd.errors.EmptyDataError:
             raise ValueError(f"{csv}: file is empty") from None
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:

@@ -326,3 +326,34 @@ def test_measured_values_empty_what_the_flags_do_not_vouch_for():
     pd.testing.assert_frame_equal(t, before)
     with pytest.raises(ValueError, match="no column"):
         measured_values(t.drop(columns="success"))
+
+
+@pytest.mark.parametrize("resave", ["semicolon_decimal_comma", "semicolon", "tab", "bom_crlf"])
+def test_a_table_re_saved_by_a_spreadsheet_reads_as_written(tmp_path, resave):
+    """Spreadsheets where the comma is the decimal separator save "CSV" with semicolons and
+    decimal commas; others save tabs, or a byte-order mark and CRLF line ends."""
+    from faceanalysis.evaluation.scores import evaluate
+
+    path = write_contractions(filled_table(), tmp_path / "contractions.csv")
+    written = read_contractions(path)
+    table = pd.read_csv(path)
+    again = tmp_path / "again.csv"
+    if resave == "bom_crlf":
+        again.write_bytes(b"\xef\xbb\xbf" + path.read_bytes().replace(b"\n", b"\r\n"))
+    else:
+        sep = "\t" if resave == "tab" else ";"
+        table.to_csv(again, index=False, sep=sep,
+                     decimal="," if resave == "semicolon_decimal_comma" else ".")
+    pd.testing.assert_frame_equal(read_contractions(again), written)
+    scores = evaluate(path, again)        # the file scored against itself as written
+    assert scores["frames_compared"] == 5 and scores["fiducial_error_px"] == 0
+
+
+def test_a_bad_cell_in_a_semicolon_table_is_named(tmp_path):
+    path = write_contractions(filled_table(), tmp_path / "contractions.csv")
+    table = pd.read_csv(path).astype({"zygomaticus_major_l": object})
+    table.loc[3, "zygomaticus_major_l"] = "0,3x"
+    table.to_csv(tmp_path / "bad.csv", index=False, sep=";", decimal=",")
+    with pytest.raises(ValueError, match=r"line 5 \(frame 13\), column zygomaticus_major_l: "
+                                         "'0,3x' is not a number"):
+        read_contractions(tmp_path / "bad.csv")

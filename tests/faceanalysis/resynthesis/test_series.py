@@ -63,3 +63,25 @@ def test_a_misspelt_muscle_column_is_named_unknown(tmp_path):
     with pytest.raises(ValueError, match="unknown column 'zygomaticus_majr_l' "
                                          r"\(did you mean 'zygomaticus_major_l'\?\)"):
         series_from_table(df, "drive.csv")
+
+
+def test_a_cut_down_table_without_success_holds_its_empty_rows(tmp_path):
+    """A table cut down to a few columns (frame, a muscle pair) loses its success column:
+    a row with every control empty is a lost frame, as contractions.csv writes one, and an
+    empty cell beside filled ones is still refused."""
+    from faceanalysis.resynthesis.series import load_series
+
+    df = _drive(5).astype(object)
+    df.insert(0, "frame", range(5))
+    df.loc[2, [*SMILE, "jaw_rotation"]] = ""
+    csv = tmp_path / "cut.csv"
+    df.to_csv(csv, index=False)
+    series = load_series(csv)
+    assert series.success.tolist() == [True, True, False, True, True]
+    np.testing.assert_allclose(series.controls[2], series.controls[1])
+    df.loc[2, SMILE[0]] = 0.5
+    df.to_csv(csv, index=False)
+    with pytest.raises(ValueError, match=r"line 4 \(frame 2\), column zygomaticus_major_r: an "
+                                         r"empty cell in a tracked frame \(other controls are "
+                                         "given on that line\\)"):
+        load_series(csv)
