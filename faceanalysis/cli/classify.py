@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.flow.recognition import CLASSES, classify_video
     from faceanalysis.flow.templates import FlowTemplates
     from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
-    from faceanalysis.io.report import hidden_frames_of, read_analysis
+    from faceanalysis.io.report import check_analysed_input, hidden_frames_of, read_analysis
     from faceanalysis.io.table import read_csv_table
 
     if not args.video.exists():
@@ -70,7 +70,9 @@ def run(args: argparse.Namespace) -> int:
         table = read_csv_table(csv)
         meta = args.analysis / ANALYSIS_JSON
         if meta.is_file():
-            hidden = hidden_frames_of(read_analysis(meta))
+            recorded = read_analysis(meta)
+            check_analysed_input(args.video, recorded.get("input"), analysis=args.analysis)
+            hidden = hidden_frames_of(recorded)
     templates = FlowTemplates.load(args.templates) if args.templates is not None else None
     lookback = {} if args.rest_lookback is None else {"rest_lookback": args.rest_lookback}
     rec = classify_video(args.video, templates=templates, table=table, neutral=args.neutral,

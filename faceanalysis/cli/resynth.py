@@ -102,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
     # figures that can fail; the personalisation's own (zero by construction on the
     # neutral frame) stay in the report
     f = res.report.get("fiducial_agreement")
-    if f:
+    if f and "skipped" in f:
+        print(f"fiducials vs tracked: not compared ({f['skipped']})")
+    elif f:
         print(f"fiducials vs tracked: {f['mean_px']:.2f} px mean, {f['median_px']:.2f} median, "
               f"{f['max_px']:.2f} max (frame {f['worst_frame']}) over {f['frames']} frames"
               + ("" if args.subject is not None else

@@ -142,7 +142,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     -------
     ValidationResult
     """
-    from faceanalysis.io.report import hidden_frames_of
+    from faceanalysis.io.report import check_analysed_input, hidden_frames_of
     from faceanalysis.io.table import heads_from_table, read_contractions
 
     folder = Path(analysis)
@@ -152,6 +152,7 @@ def validate(video: str | os.PathLike, analysis: str | os.PathLike, *,
     table = read_contractions(csv)
     meta_path = folder / ANALYSIS_JSON
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    check_analysed_input(video, meta.get("input"), analysis=folder)
     neutral = meta.get("parameters", {}).get("neutral_frame")
     heads = heads_from_table(table)
     ok = np.isfinite(heads).all(axis=1)

@@ -29,6 +29,7 @@ __all__ = [
     "FORMAT",
     "LOST_REASONS",
     "analysis_metadata",
+    "check_analysed_input",
     "frame_ranges",
     "hidden_frames_of",
     "input_metadata",
@@ -237,6 +238,46 @@ def input_metadata(source) -> dict:
         "frames_undecodable": getattr(source, "n_failed", 0),
         "missing_tail": getattr(source, "missing_tail", 0),
     }
+
+
+def check_analysed_input(video, recorded, *, analysis) -> None:
+    """Raise ValueError when ``video`` is not the input an analysis was made from.
+
+    Commands that read a video beside its analysis (``validate``, ``classify --analysis``,
+    ``resynth --input``) apply the analysis's frames to the video's: another video would be
+    compared frame by frame with values measured on a different face. The video must have
+    the size and, where both are known, the frame count that ``recorded`` (the ``input`` of
+    ``analysis.json``) gives; a copy or a moved file passes. Nothing is checked when
+    nothing was recorded (an analysis of frames in memory, a table on its own).
+
+    Parameters
+    ----------
+    video : path-like
+        The video given with the analysis.
+    recorded : mapping or None
+        ``analysis.json``'s ``input``.
+    analysis : str
+        What messages call the analysis (its folder).
+    """
+    if not isinstance(recorded, Mapping) or recorded.get("kind") not in ("video", "images"):
+        return
+    size, count = recorded.get("size"), recorded.get("frame_count")
+    if size is None:
+        return
+    from faceanalysis.io.video import open_video
+
+    with open_video(video) as source:
+        got_size, got_count = list(source.size), source.frame_count
+    if got_size == list(size) and (count is None or got_count is None or got_count == count):
+        return
+
+    def described(size, count) -> str:
+        return f"{size[0]}x{size[1]}" + ("" if count is None else f", {count} frames")
+
+    made_from = Path(str(recorded.get("path") or "")).name or "another input"
+    raise ValueError(f"{video} ({described(got_size, got_count)}) is not the input the "
+                     f"analysis in {analysis} was made from ({made_from}, "
+                     f"{described(size, count)}): give the analysed video")
 
 
 def is_photographs(input_meta) -> bool:

@@ -16,6 +16,11 @@ from faceanalysis.resynthesis.series import Series, load_series, series_from_tab
 
 log = logging.getLogger(__name__)
 
+#: fewest of the 11 fiducials the neutral frame must show for the landmark warp: a contour
+#: lost there (a furrow, a brow under hair) leaves its point to the model, but the warp
+#: must still span the face
+MIN_FIDUCIALS = 8
+
 
 # ----------------------------------------------------------------------------- subject
 @dataclass
@@ -32,7 +37,7 @@ class SubjectInfo:
     image : (H, W, 3) uint8 RGB
         The neutral frame (the texture).
     fiducials : (11, 2)
-        Neutral fiducials (input px).
+        Neutral fiducials (input px); NaN for one not seen there.
     neutral_frame : int
     reference : tuple
         ``(origin_cm, scale_cm)`` of the generic model's head frame.
@@ -108,14 +113,23 @@ def personalize_series(series: Series, video, *, model=None, kernel: str = "line
         model = FaceModel.default()
     k = series.neutral_row
     fid = series.fiducials[k]
-    if not np.isfinite(fid).all():
-        raise ValueError(f"the subject's neutral frame {series.frames[k]} has no fiducials")
+    seen = np.isfinite(fid).all(axis=1)
+    if seen.sum() < MIN_FIDUCIALS:
+        raise ValueError(f"the subject's neutral frame {series.frames[k]} has {int(seen.sum())} "
+                         f"of its {len(FIDUCIALS)} fiducials (the warp needs "
+                         f"{MIN_FIDUCIALS}): give another --neutral frame to the analysis")
+    if not seen.all():
+        # a contour lost on the neutral frame: the warp carries the model's own point there
+        log.info("personalisation: %s not seen on the neutral frame %d; the warp carries the "
+                 "face model's own", ", ".join(np.array(FIDUCIALS)[~seen]),
+                 int(series.frames[k]))
     if video is None or not Path(video).exists():
         raise ValueError(f"the subject's video {video} cannot be found (needed for the "
                          "texture); pass the video itself as the subject")
     origin_cm, scale_cm = head_reference(model.mesh)
     framing = framing_from_head(series.heads[k], origin_cm, scale_cm)
-    personal, warp = fit_to_points(model, framing, dict(zip(FIDUCIALS, fid)), kernel=kernel)
+    points = {name: xy for name, xy, ok in zip(FIDUCIALS, fid, seen) if ok}
+    personal, warp = fit_to_points(model, framing, points, kernel=kernel)
     image = _read_frame(Path(video), int(series.frames[k]))
     return SubjectInfo(model=personal, warp=warp, framing=framing, image=image,
                        fiducials=fid, neutral_frame=int(series.frames[k]),

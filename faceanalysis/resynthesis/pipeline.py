@@ -126,6 +126,13 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     if output is not None and Path(output).exists() and not overwrite:
         raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
     series = load_series(source)
+    if input_video is not None:
+        if not Path(input_video).exists():
+            raise FileNotFoundError(f"{input_video}: no such file or folder")
+        from faceanalysis.io.report import check_analysed_input
+
+        check_analysed_input(input_video, series.metadata.get("input"),
+                             analysis=series.folder or "the table")
     if series.missing and len(series.missing) < len(MUSCLES):
         log.warning("muscles missing from the table, driven at 0: %s", ", ".join(series.missing))
     elif series.missing:

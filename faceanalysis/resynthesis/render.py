@@ -346,8 +346,10 @@ class Resynthesis:
         m.reset()
         return {
             "neutral_frame": subj.neutral_frame,
-            "landmark_error_px": {"mean": float(err.mean()), "max": float(err.max()),
-                                  "by_point": {n: float(e) for n, e in zip(FIDUCIALS, err)}},
+            # (a fiducial not seen on the neutral frame has no error: null)
+            "landmark_error_px": {"mean": float(np.nanmean(err)), "max": float(np.nanmax(err)),
+                                  "by_point": {n: float(e) if np.isfinite(e) else None
+                                               for n, e in zip(FIDUCIALS, err)}},
             "photometric": {"mask_pixels": int(mask.sum()),
                             "mae_grey": float(np.abs(a - b).mean()) if a.size else None,
                             "rmse_grey": float(np.sqrt(np.mean((a - b) ** 2))) if a.size
@@ -382,7 +384,7 @@ class Resynthesis:
                    and self._framings is not None)
         # the tracked fiducials in the output's pixel frame (input px scaled like the framing)
         tracked = None
-        if self._framings is not None and s.fiducials is not None:
+        if self._framings is not None and s.fiducials is not None and self._own_subject():
             tracked = s.fiducials * (self.size[0] / self.input_size[0])
         try:
             for i in range(len(s.frames)):
@@ -484,11 +486,30 @@ class Resynthesis:
                 "max_mae_grey": float(np.max(maes))}
         if fid_errors:
             self.report["fiducial_agreement"] = fiducial_agreement(fid_errors)
+        elif not self._own_subject():
+            self.report["fiducial_agreement"] = {
+                "skipped": "the subject is another video than the analysed one: its face's "
+                           "features are not the tracked ones"}
         self.report["timing"] = {"frames": len(times), "total_s": time.perf_counter() - t0,
                                  "median_frame_s": float(np.median(times)) if times else None,
                                  "frames_per_second": float(1.0 / np.median(times))
                                  if times else None}
         return self.path
+
+
+    def _own_subject(self) -> bool:
+        """Whether the model is the analysed face's own (generic, or personalised to the
+        analysed video): only then do its fiducials answer to the tracked ones. A subject
+        from another video plays the series on another face (expression transfer)."""
+        if self.subject is None or not self.subject.source:
+            return True
+        analysed = self.series.input_path
+        if analysed is None:
+            return True
+        try:
+            return Path(self.subject.source).resolve() == Path(analysed).resolve()
+        except OSError:
+            return False
 
 
 def _masked_mae(a: np.ndarray, b: np.ndarray, mask) -> float | None:

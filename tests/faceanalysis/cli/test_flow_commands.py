@@ -25,6 +25,27 @@ def test_validate_and_classify_report_user_mistakes(run_cli, tmp_path):
     assert code == 2
 
 
+def test_validate_and_classify_refuse_a_video_that_is_not_the_analysed_one(subject, run_cli,
+                                                                            tmp_path):
+    import cv2
+
+    root, _ = subject
+    other = tmp_path / "other.avi"
+    writer = cv2.VideoWriter(str(other), cv2.VideoWriter_fourcc(*"MJPG"), 10, (128, 96))
+    for _ in range(3):
+        writer.write(np.zeros((96, 128, 3), np.uint8))
+    writer.release()
+    before = (root / "analysis" / "analysis.json").read_bytes()
+    for command in ("validate", "classify"):
+        code, out, err = run_cli(command, other, "--analysis", root / "analysis")
+        assert code == 1 and out == ""
+        assert err.strip().endswith("is not the input the analysis in "
+                                    f"{root / 'analysis'} was made from (video.mp4, 256x256, "
+                                    "12 frames): give the analysed video"), err
+    assert (root / "analysis" / "analysis.json").read_bytes() == before
+    assert not (root / "analysis" / "validation.csv").exists()
+
+
 @pytest.mark.slow
 def test_templates_command_writes_npz_and_previews(run_cli, tmp_path):
     out = tmp_path / "tpl"

@@ -13,6 +13,8 @@ import pytest
 from faceanalysis.io.report import (
     FORMAT,
     analysis_metadata,
+    check_analysed_input,
+    input_metadata,
     quality_summary,
     read_analysis,
     write_analysis,
@@ -154,3 +156,32 @@ def test_interrupted_write_leaves_previous_file(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert path.read_text() == '{"old": true}'
     assert list(tmp_path.iterdir()) == [path]
+
+
+def _clip(path, size, n):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, size)
+    for i in range(n):
+        writer.write(np.full((size[1], size[0], 3), 20 * i, np.uint8))
+    writer.release()
+    return path
+
+
+def test_a_video_given_with_an_analysis_must_be_the_analysed_one(tmp_path):
+    analysed = _clip(tmp_path / "a.avi", (64, 48), 5)
+    with open_video(analysed) as source:
+        recorded = input_metadata(source)
+    check_analysed_input(analysed, recorded, analysis="out")
+    # a copy elsewhere is the same input
+    copy = tmp_path / "moved.avi"
+    copy.write_bytes(analysed.read_bytes())
+    check_analysed_input(copy, recorded, analysis="out")
+    for other, described in [(_clip(tmp_path / "b.avi", (80, 48), 5), "80x48, 5 frames"),
+                             (_clip(tmp_path / "c.avi", (64, 48), 7), "64x48, 7 frames")]:
+        with pytest.raises(ValueError, match=rf"{other.name} \({described}\) is not the input "
+                                             r"the analysis in out was made from \(a\.avi, "
+                                             r"64x48, 5 frames\): give the analysed video"):
+            check_analysed_input(other, recorded, analysis="out")
+    # nothing recorded to hold it to: frames in memory, a table on its own
+    other = tmp_path / "b.avi"
+    for nothing in (None, {}, {**recorded, "kind": "frames"}, {"kind": "video"}):
+        check_analysed_input(other, nothing, analysis="out")

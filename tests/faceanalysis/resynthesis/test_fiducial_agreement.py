@@ -51,3 +51,39 @@ def test_the_command_prints_the_fiducial_agreement_not_the_personalisation(subje
                              "-q")
     assert code == 0, err
     assert "fiducials vs tracked" in out and "--subject personalises it" in out
+
+
+def test_another_face_is_not_compared_with_the_tracked_features(subject, tmp_path, run_cli):
+    """A subject from another video (expression transfer) has other features than the
+    analysed face: the comparison is left out and the command says why, where it printed
+    hundreds of pixels as if the resynthesis had failed."""
+    root, files = subject
+    source = tmp_path / "source"
+    shutil.copytree(root / "analysis", source)
+    other = tmp_path / "other.mp4"
+    other.write_bytes(files["video"].read_bytes())
+    meta = json.loads((source / "analysis.json").read_text())
+    meta["input"]["path"] = str(other)                    # analysed from another video
+    (source / "analysis.json").write_text(json.dumps(meta))
+    code, out, err = run_cli("resynth", source, "-o", tmp_path / "r.mp4", "--subject",
+                             root / "analysis", "--size", "96", "-q")
+    assert code == 0, err
+    assert "fiducials vs tracked: not compared (the subject is another video" in out
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert set(report["fiducial_agreement"]) == {"skipped"}
+
+
+def test_the_input_video_must_be_the_analysed_one(subject, tmp_path):
+    import cv2
+    import pytest
+
+    root, _ = subject
+    other = tmp_path / "other.avi"
+    writer = cv2.VideoWriter(str(other), cv2.VideoWriter_fourcc(*"MJPG"), 10, (128, 96))
+    for _ in range(3):
+        writer.write(np.zeros((96, 128, 3), np.uint8))
+    writer.release()
+    with pytest.raises(ValueError, match=r"other\.avi \(128x96, 3 frames\) is not the input "
+                                         "the analysis in .*analysis was made from"):
+        resynthesize(root / "analysis", input_video=other, output=tmp_path / "r.mp4")
+    assert not (tmp_path / "r.mp4").exists()

@@ -107,3 +107,30 @@ def test_expression_transfer_to_another_subject(subject, tmp_path):
     # and the expression moves it (at its apex: the surprise is over by the last frame)
     apex = len(states) // 2
     assert np.abs(states[apex].vertices - states[k].vertices).max() > 0.1
+
+
+@pytest.mark.slow
+def test_a_fiducial_lost_on_the_neutral_frame_is_left_to_the_model(subject, tmp_path):
+    """A contour lost on the neutral frame (a furrow, a brow under hair) leaves its point to
+    the face model: the subject is still personalised, where it was refused; too few seen
+    points are refused by count."""
+    import shutil
+
+    from faceanalysis.resynthesis.personalize import personalize
+
+    root, _ = subject
+    lost = tmp_path / "lost"
+    shutil.copytree(root / "analysis", lost)
+    table = pd.read_csv(lost / "contractions.csv")
+    table.loc[0, ["fid_furrow_top_r_x", "fid_furrow_top_r_y"]] = np.nan
+    write_contractions(table, lost / "contractions.csv")
+    info = personalize(lost)
+    assert np.isnan(info.fiducials).any(axis=1).sum() == 1
+    res = resynthesize(lost, subject=info, shading="wireframe")
+    error = res.report["personalisation"]["landmark_error_px"]
+    assert error["by_point"]["furrow_top_r"] is None and error["max"] < 1.0
+    table.loc[0, [f"fid_{n}_{a}" for n in ("brow_inner_l", "brow_mid_l", "brow_outer_l")
+                  for a in "xy"]] = np.nan
+    write_contractions(table, lost / "contractions.csv")
+    with pytest.raises(ValueError, match="neutral frame 0 has 7 of its 11 fiducials"):
+        personalize(lost)

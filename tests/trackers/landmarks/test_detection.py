@@ -37,13 +37,19 @@ def test_no_face_on_blank_or_noise(models):
 
 def test_bad_inputs_are_refused(models):
     with pytest.raises(ValueError, match="shape"):
-        detect_faces(np.zeros((10, 10, 4), np.uint8))
+        detect_faces(np.zeros((10, 10, 5), np.uint8))
     with pytest.raises(ValueError, match="'rgb', 'bgr'"):
         detect_faces(np.zeros((10, 10, 3), np.uint8), channel_order="hsv")
     with pytest.raises(ValueError, match="within"):
         detect_faces(np.full((10, 10), 2.0))
     with pytest.raises(ValueError, match="min_score"):
         detect_faces(np.zeros((10, 10), np.uint8), min_score=1.5)
+
+
+def test_alpha_is_dropped(face):
+    img, _ = face
+    rgba = np.dstack([img, np.zeros(img.shape[:2], np.uint8)])     # fully transparent too
+    assert [d.box for d in detect_faces(rgba)] == [d.box for d in detect_faces(img)] != []
 
 
 @pytest.mark.skipif(not litert_available(), reason="the full-range detector needs LiteRT")
