@@ -1105,6 +1105,12 @@ def analyze_to_folder(video: str | os.PathLike, output: str | os.PathLike, *,
     (see :class:`~faceanalysis.analysis.results.OutputFolder`).
     """
     video = as_video(video)
+    if (not isinstance(video, Frames) and Path(video).is_dir()
+            and Path(output).resolve() == Path(video).resolve()):
+        # the plot written there would be read as one more picture by the next analysis
+        raise ValueError(f"{output} is the folder of images being analysed: write the "
+                         "results to another folder (its contractions.png would be read as "
+                         "a picture)")
     with OutputFolder(output, overwrite=overwrite) as folder:
         result = analyze(video, overlay=folder.overlay_mp4 if overlay else None,
                          progress=not quiet, **options)

@@ -114,6 +114,23 @@ def test_refusal_names_what_the_folder_holds(face, tmp_path, run_cli):
                            f"contractions.csv); pass --overwrite to replace its results")
 
 
+def test_results_are_not_written_among_the_images_they_come_from(tmp_path, run_cli):
+    """The plot written into a folder of images would be read as one more picture by the
+    next analysis of it; --overwrite does not change that."""
+    import cv2
+
+    images = tmp_path / "photos"
+    images.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(images / f"{i}.png"), np.full((48, 64, 3), 90 * i, np.uint8))
+    for extra in ([], ["--overwrite"]):
+        code, out, err = run_cli("analyze", images, "-o", tmp_path / "photos" / ".", "-q",
+                                 *extra)
+        assert code == 1 and out == ""
+        assert "is the folder of images being analysed: write the results to another" in err
+        assert sorted(p.name for p in images.iterdir()) == ["0.png", "1.png"]
+
+
 def test_overwrite_leaves_only_this_runs_outputs_and_the_users_files(face, tmp_path, run_cli):
     out = tmp_path / "out"
     out.mkdir()
