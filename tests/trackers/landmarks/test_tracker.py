@@ -24,6 +24,31 @@ def test_none_on_blank_frames_then_the_face_is_picked_up_and_tracked(face):
     assert tracker.track(img).detected
 
 
+def test_a_face_upside_down_is_read_upside_down(face, monkeypatch):
+    """The detector places its keypoints as on an upright face; the tracker looks at the
+    picture turned too, and reads an upside-down face from a crop turned its way."""
+    import trackers.landmarks.tracker as tracker_module
+
+    img, corners = face
+    turned = np.ascontiguousarray(img[::-1, ::-1])
+    truth = (np.array(img.shape[1::-1]) - 1) - corners       # the corners, turned
+    def read(tracker):
+        lm = [tracker.track(turned) for _ in range(3)][-1]
+        if lm is None:
+            return None, np.inf
+        iod = np.linalg.norm(lm.points[263] - lm.points[33])
+        return lm, np.linalg.norm(lm.points[[61, 291]] - truth, axis=1).max() / iod
+
+    lm, error = read(LandmarkTracker())
+    assert lm.presence > 0.9 and error < 0.1
+    # the subject's left eye (263) on the image's left, as on a face upside down
+    assert lm.points[263, 0] < lm.points[33, 0]
+    # read from the detector's keypoints as they come, the crop is turned the wrong way:
+    # the mesh lands on other features, or the face is lost
+    monkeypatch.setattr(tracker_module, "UPSIDE_DOWN_MARGIN", np.inf)
+    assert read(LandmarkTracker())[1] > 0.5
+
+
 def test_the_largest_face_first_then_the_same_face(face):
     img, _ = face
     tracker = LandmarkTracker()
@@ -206,6 +231,29 @@ def test_a_real_face_24_px_between_the_eyes_is_fitted_at_its_size(real_video_dir
     # (from the full-range detector's own box the mesh settles 30 % too large)
     assert lm is not None and lm.presence > 0.9
     assert iod(lm.points) == pytest.approx(0.24 * given, rel=0.05)
+
+
+def test_real_faces_upside_down_are_tracked_as_upright(real_video_dir, models):
+    """The talking face, and the clip with a hand, turned by 180 degrees: each frame's
+    landmarks are the upright frame's, turned (where the detector's own keypoints put the
+    mesh on other features of cap13 with full confidence)."""
+    import cv2
+
+    from trackers.landmark_contours import interocular_distance as iod
+
+    for name in ("cap13_edit2.mp4", "WolfgangLanger_Pexels.mp4"):
+        path = real_video_dir / name
+        if not path.is_file():
+            pytest.skip(f"{path} is absent")
+        capture = cv2.VideoCapture(str(path))
+        frames = [capture.read()[1] for _ in range(20)]
+        capture.release()
+        upright, turned = LandmarkTracker(channel_order="bgr"), LandmarkTracker(channel_order="bgr")
+        far_corner = np.array(frames[0].shape[1::-1]) - 1
+        for frame in frames:
+            a, b = upright.track(frame), turned.track(cv2.rotate(frame, cv2.ROTATE_180))
+            assert b is not None and b.presence > 0.9
+            assert np.abs(far_corner - b.points - a.points).max() < 0.1 * iod(a.points), name
 
 
 def test_without_the_full_range_detector_a_far_face_is_found_on_tiles(face, monkeypatch):
