@@ -100,27 +100,28 @@ _SAME_FACE = 0.5
 
 
 def _upright(net, image, face, channel_order: str, min_score: float):
-    """``face`` as found in ``image`` turned by 180 degrees, mapped back, where it scores
-    :data:`UPSIDE_DOWN_MARGIN` higher that way (the face is upside down); else ``face``."""
+    """``face`` and its detection in ``image`` turned by 180 degrees (mapped back; None where
+    that finds none there), the likelier first: the turned one where it scores
+    :data:`UPSIDE_DOWN_MARGIN` higher (the face is upside down)."""
     import cv2
 
     from trackers.landmarks.detection import FaceDetection
 
     h, w = image.shape[:2]
     far_corner = np.array([w - 1, h - 1], float)
-    turned = _detect(net, cv2.rotate(image, cv2.ROTATE_180), channel_order, min_score)
     x0, y0, x1, y1 = face.box
     centre, size = np.array([x0 + x1, y0 + y1]) / 2, max(x1 - x0, y1 - y0)
-    for other in turned:
-        if other.score < face.score + UPSIDE_DOWN_MARGIN:
-            break                              # highest score first
+    for other in _detect(net, cv2.rotate(image, cv2.ROTATE_180), channel_order, min_score):
         u0, v0, u1, v1 = other.box
         box = (far_corner[0] - u1, far_corner[1] - v1, far_corner[0] - u0, far_corner[1] - v0)
         if np.hypot(*(np.array([box[0] + box[2], box[1] + box[3]]) / 2 - centre)) \
                 <= _SAME_FACE * size:
-            return FaceDetection(tuple(float(v) for v in box), far_corner - other.keypoints,
-                                 other.score)
-    return face
+            turned = FaceDetection(tuple(float(v) for v in box), far_corner - other.keypoints,
+                                   other.score)
+            if turned.score >= face.score + UPSIDE_DOWN_MARGIN:
+                return turned, face
+            return face, turned
+    return face, None
 
 
 def _crop_change(a, b) -> float:
@@ -310,11 +311,15 @@ class LandmarkTracker:
             face = faces[int(np.argmin(dist))]
         else:
             face = faces[int(np.argmax(np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)))]
+        other = None
         if far:
             face = _closer_look(near, image, face, self.channel_order, self.min_score)
         elif not tiled:
-            face = _upright(near, image, face, self.channel_order, self.min_score)
+            face, other = _upright(near, image, face, self.channel_order, self.min_score)
         points, presence = self._landmarks(image, face)
+        if presence < self.min_presence and other is not None:
+            # a face on its side the detector scores alike both ways: the mesh tells
+            points, presence = self._landmarks(image, other)
         if self.refine_first and presence >= self.min_presence:
             points, presence = self._converge(image, points, presence, max_runs=1)
         return points, presence

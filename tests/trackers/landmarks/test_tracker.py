@@ -45,7 +45,7 @@ def test_a_face_upside_down_is_read_upside_down(face, monkeypatch):
     assert lm.points[263, 0] < lm.points[33, 0]
     # read from the detector's keypoints as they come, the crop is turned the wrong way:
     # the mesh lands on other features, or the face is lost
-    monkeypatch.setattr(tracker_module, "UPSIDE_DOWN_MARGIN", np.inf)
+    monkeypatch.setattr(tracker_module, "_upright", lambda net, image, face, *a: (face, None))
     assert read(LandmarkTracker())[1] > 0.5
 
 
@@ -254,6 +254,33 @@ def test_real_faces_upside_down_are_tracked_as_upright(real_video_dir, models):
             a, b = upright.track(frame), turned.track(cv2.rotate(frame, cv2.ROTATE_180))
             assert b is not None and b.presence > 0.9
             assert np.abs(far_corner - b.points - a.points).max() < 0.1 * iod(a.points), name
+
+
+def test_a_real_face_at_any_angle_in_the_picture_is_tracked(real_video_dir, models):
+    """cap13's first frames turned in steps of 15 degrees (a subject lying down, a camera
+    on its side): each turn's landmarks are the upright frame's, turned."""
+    import cv2
+
+    from trackers.landmark_contours import interocular_distance as iod
+
+    path = real_video_dir / "cap13_edit2.mp4"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    capture = cv2.VideoCapture(str(path))
+    frames = [capture.read()[1] for _ in range(3)]
+    capture.release()
+    h, w = frames[0].shape[:2]
+    upright = [LandmarkTracker(channel_order="bgr").track(f) for f in frames][-1].points
+    errors = {}
+    for angle in range(15, 360, 15):
+        turn = cv2.getRotationMatrix2D((w / 2, h / 2), angle, 1.0)
+        turn[:, 2] += (520 - w) / 2, (520 - h) / 2
+        tracker = LandmarkTracker(channel_order="bgr")
+        lm = [tracker.track(cv2.warpAffine(f, turn, (520, 520), borderValue=(120,) * 3))
+              for f in frames][-1]
+        truth = upright @ turn[:, :2].T + turn[:, 2]
+        errors[angle] = np.inf if lm is None else np.abs(lm.points - truth).max() / iod(upright)
+    assert max(errors.values()) < 0.1, errors
 
 
 def test_without_the_full_range_detector_a_far_face_is_found_on_tiles(face, monkeypatch):
