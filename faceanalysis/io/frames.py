@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["check_float_range", "to_bgr_uint8", "to_gray_float", "to_uint8"]
+__all__ = ["check_float_range", "fit_image", "to_bgr_uint8", "to_gray_float", "to_uint8"]
 
 
 def _scale_of(dtype: np.dtype) -> float | None:
@@ -184,3 +184,56 @@ def check_float_range(image, *, hint: str = "divide by 255 or pass uint8") -> No
     if lo < -1e-3 or hi > 1.0 + 1e-3:
         raise ValueError(f"float pixels must lie in [0, 1], got values in [{lo:.4g}, {hi:.4g}]: "
                          f"{hint}")
+
+
+def fit_image(image, size) -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+    """``image`` scaled to fit inside ``size`` and centred on a canvas of that size.
+
+    For photographs of several sizes analysed together: each is measured on the first's
+    canvas, its face's geometry kept (one scale for both axes; the analysis measures in
+    the head's own units, so the scale does not change what it reads).
+
+    Parameters
+    ----------
+    image : ndarray
+        ``(h, w)`` or ``(h, w, C)``; not modified.
+    size : (width, height)
+        The canvas.
+
+    Returns
+    -------
+    canvas : ndarray
+        ``(height, width[, C])``, the image's dtype; the margins repeat the image's edge.
+    scale : (float, float)
+        Canvas pixels per image pixel along x and y (alike but for the rounding of the
+        scaled image's size).
+    offset : (float, float)
+        Where the image's pixel (0, 0) lies on the canvas: a point ``p`` of the image is
+        ``scale * p + offset`` there (pixel centres on integers).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> canvas, scale, offset = fit_image(np.zeros((50, 200), np.uint8), (100, 100))
+    >>> canvas.shape, scale, offset
+    ((100, 100), (0.5, 0.5), (-0.25, 36.75))
+    """
+    image = _check_image(image)
+    width, height = (int(v) for v in size)
+    h, w = image.shape[:2]
+    scale = min(width / w, height / h)
+    new_w, new_h = max(1, round(w * scale)), max(1, round(h * scale))
+    shrink = scale < 1
+    resized = cv2.resize(image, (new_w, new_h),
+                         interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    if resized.ndim < image.ndim:            # OpenCV drops a single channel
+        resized = resized[..., None]
+    left, top = (width - new_w) // 2, (height - new_h) // 2
+    canvas = cv2.copyMakeBorder(resized, top, height - new_h - top, left,
+                                width - new_w - left, cv2.BORDER_REPLICATE)
+    if canvas.ndim < image.ndim:
+        canvas = canvas[..., None]
+    # pixel centres: image pixel i spans [i - 0.5, i + 0.5], mapped onto the canvas
+    sx, sy = new_w / w, new_h / h
+    return canvas, (float(sx), float(sy)), (float(left + 0.5 * sx - 0.5),
+                                           float(top + 0.5 * sy - 0.5))

@@ -213,7 +213,8 @@ def input_metadata(source) -> dict:
     (absolute; None for frames in memory), ``kind``, ``size`` ``[width, height]``, ``fps``,
     ``fps_origin``, ``frame_count``, ``frame_range`` ``[start, end)`` (``end``: the real end
     when the frame count is known, else None = to the end), ``dtype``, ``channels``,
-    ``frames_undecodable`` and ``missing_tail``.
+    ``frames_undecodable``, ``missing_tail`` and, where photographs of other sizes than the
+    first were placed on its canvas, ``placed`` (frame -> file, size, scale, offset).
     """
     if isinstance(source, Mapping):
         return dict(source)
@@ -237,6 +238,8 @@ def input_metadata(source) -> dict:
         "channels": getattr(source, "channels", None),
         "frames_undecodable": getattr(source, "n_failed", 0),
         "missing_tail": getattr(source, "missing_tail", 0),
+        **({"placed": {str(i): dict(p) for i, p in sorted(source.placed.items())}}
+           if getattr(source, "placed", None) else {}),
     }
 
 

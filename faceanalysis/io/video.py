@@ -41,7 +41,7 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from faceanalysis.io.frames import check_float_range, to_uint8  # noqa: E402
+from faceanalysis.io.frames import check_float_range, fit_image, to_uint8  # noqa: E402
 
 __all__ = [
     "DEFAULT_FPS",
@@ -314,6 +314,11 @@ class VideoSource:
     missing_tail : int
         Frames announced by the container at the end of the range that never decoded
         (a truncated or damaged file); counted in ``n_failed``, not yielded.
+    placed : dict
+        Photographs of another size than the first, so far: frame index -> ``file``,
+        its own ``size``, and the ``scale`` and ``offset`` that placed it on the first's
+        canvas (:func:`faceanalysis.io.frames.fit_image`); their pixel coordinates are
+        the canvas's. (Frames of a video of another size are lost instead.)
     """
 
     def __init__(self, path: Path, kind: str, *, fps: float, fps_origin: str, size: tuple,
@@ -334,6 +339,7 @@ class VideoSource:
         self.frame_count = frame_count
         self.n_failed = 0
         self.missing_tail = 0
+        self.placed: dict[int, dict] = {}
         self._files = files
         self._capture: cv2.VideoCapture | None = None
 
@@ -347,6 +353,14 @@ class VideoSource:
         """
         stop = self.end if self.end is not None else self.frame_count
         return None if stop is None else max(stop - self.start, 0)
+
+    @property
+    def photographs(self) -> bool:
+        """Images given without a frame rate: photographs, each fitted on its own, which
+        may each have their own size (:func:`faceanalysis.io.report.is_photographs`)."""
+        from faceanalysis.io.report import is_photographs
+
+        return is_photographs({"kind": self.kind, "fps_origin": self.fps_origin})
 
     @property
     def name(self) -> str:
@@ -380,6 +394,7 @@ class VideoSource:
     def __iter__(self) -> Iterator[Frame]:
         self.n_failed = 0
         self.missing_tail = 0
+        self.placed = {}
         if self.kind == "images":
             return self._iter_images()
         if self.kind == "frames":
@@ -417,6 +432,12 @@ class VideoSource:
             timestamp = index / self.fps
             if image is None:
                 log.warning("%s: cannot decode image; frame %d marked lost", name, index)
+            elif image.shape[:2] != (height, width) and self.photographs:
+                # photographs may each have their own size: measured on the first's canvas
+                own = image.shape[1], image.shape[0]
+                image, scale, offset = fit_image(image, (width, height))
+                self.placed[index] = {"file": Path(name).name, "size": list(own),
+                                      "scale": list(scale), "offset": list(offset)}
             elif image.shape[:2] != (height, width):
                 log.warning("%s: image is %dx%d, not %dx%d like the first; frame %d marked lost",
                             name, image.shape[1], image.shape[0], width, height, index)

@@ -77,3 +77,28 @@ def test_alpha_and_float_pictures_give_the_analysis_of_their_eight_bit_colour(tm
     with pytest.raises(ValueError, match=r"f0\.tif \(frame 0\): float pixels must lie in "
                                          r"\[0, 1\], got values in \[\d+, 2\d\d\]"):
         analyze(folders["float255"])
+
+
+def test_a_photograph_of_another_size_is_analysed_as_at_the_first_size(tmp_path):
+    """Photographs may each have their own size: one stored at twice the first's size is
+    shrunk onto its canvas and reads exactly as stored at that size, where it was lost."""
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "render", expression="happiness", frames=3, size=128,
+                            seed=7, flow=False)
+    capture = cv2.VideoCapture(str(files["video"]))
+    frames = [capture.read()[1] for _ in range(3)]
+    capture.release()
+    same, mixed = tmp_path / "same", tmp_path / "mixed"
+    for folder in (same, mixed):
+        folder.mkdir()
+    for n, frame in enumerate(frames):
+        cv2.imwrite(str(same / f"p{n}.png"), frame)
+        big = cv2.resize(frame, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+        cv2.imwrite(str(mixed / f"p{n}.png"), big if n == 2 else frame)
+    at_size, placed = analyze(same), analyze(mixed)
+    assert placed.table["success"].all()
+    pd.testing.assert_frame_equal(placed.table, at_size.table)
+    assert placed.metadata["input"]["placed"] == {
+        "2": {"file": "p2.png", "size": [256, 256], "scale": [0.5, 0.5],
+              "offset": [-0.25, -0.25]}}

@@ -55,3 +55,23 @@ def test_to_uint8_refuses_floats_it_would_clip():
                        (np.array([[0.5, np.inf]], np.float32), "finite")]:
         with pytest.raises(ValueError, match=match):
             to_uint8(bad)
+
+
+@pytest.mark.parametrize("shape", [(40, 100), (40, 100, 1), (40, 100, 3), (40, 100, 4),
+                                   (120, 30, 3), (10, 20, 3)])
+def test_fit_image_places_the_picture_by_its_scale_and_offset(shape):
+    from faceanalysis.io.frames import fit_image
+
+    image = np.zeros(shape, np.uint8)
+    top, left = shape[0] // 3, shape[1] // 3
+    image[top:top + 3, left:left + 3] = 250             # a bright block, off the edges
+    before = image.copy()
+    canvas, scale, offset = fit_image(image, (80, 60))
+    np.testing.assert_array_equal(image, before)        # not modified
+    assert canvas.shape == (60, 80, *shape[2:]) and canvas.dtype == np.uint8
+    assert min(80 / shape[1], 60 / shape[0]) == pytest.approx(scale[0], rel=0.05)
+    assert scale[0] == pytest.approx(scale[1], rel=0.05)
+    grey = (canvas if canvas.ndim == 2 else canvas[..., 0]).astype(float)
+    ys, xs = np.mgrid[:60, :80]
+    centre = np.array([(xs * grey).sum(), (ys * grey).sum()]) / grey.sum()
+    np.testing.assert_allclose(centre, np.array(scale) * (left + 1, top + 1) + offset, atol=0.3)

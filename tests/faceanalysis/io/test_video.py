@@ -350,10 +350,28 @@ def test_folder_with_a_broken_image_marks_it_lost(tmp_path):
     assert src.n_failed == 1
 
 
-def test_folder_with_a_different_size_image_marks_it_lost(tmp_path):
-    images = [np.zeros((H, W), np.uint8)] * 2 + [np.zeros((H + 2, W), np.uint8)]
-    frames = list(open_video(write_folder(tmp_path / "seq", images)))
-    assert [f.ok for f in frames] == [True, True, False]
+def test_a_video_frame_of_another_size_is_lost_a_photograph_is_placed(tmp_path):
+    """The frames of a video (a folder given a frame rate) share one size, and one of
+    another is damage: lost. Photographs (no frame rate) may each have their own: each is
+    fitted onto the first's canvas, and where it went is recorded."""
+    rng = np.random.default_rng(0)
+    first = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    other = rng.integers(0, 256, (H // 2, W // 2, 3), dtype=np.uint8)
+    folder = write_folder(tmp_path / "seq", [first, first, first[:H - 2]])
+    with open_video(folder, fps=25) as video:
+        assert [f.ok for f in video] == [True, True, False] and video.placed == {}
+    folder = write_folder(tmp_path / "photos", [first, np.repeat(np.repeat(other, 4, 0), 4, 1)])
+    with open_video(folder) as video:
+        frames = list(video)
+        assert [f.ok for f in frames] == [True, True]
+        assert video.placed == {1: {"file": "frame1.png", "size": [2 * W, 2 * H],
+                                    "scale": [0.5, 0.5], "offset": [-0.25, -0.25]}}
+        assert input_metadata(video)["placed"]["1"]["file"] == "frame1.png"
+    # the photograph shrunk onto the canvas: its own pixels, 2x2 blocks averaged back
+    np.testing.assert_array_equal(frames[1].image, np.repeat(np.repeat(other, 2, 0), 2, 1))
+    with open_video(write_folder(tmp_path / "one", [first, first])) as video:
+        list(video)
+        assert "placed" not in input_metadata(video)
 
 
 def _photo_with_orientation(path, orientation, *, mode="RGB"):
