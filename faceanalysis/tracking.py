@@ -583,7 +583,8 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                     if kind == "landmarks":
                         if tracker is None:
                             tracker = _anchored(backend, device, tracker_options,
-                                                video=fades)
+                                                video=fades,
+                                                photographs=source.photographs)
                         ahead = (upcoming.image if upcoming is not None and upcoming.ok
                                  else None)
                         res = tracker.track(frame.image, next_frame=ahead)
@@ -852,13 +853,14 @@ def _mesh(res):
     return np.c_[pts, z].astype(np.float32)
 
 
-def _anchored(backend, device, tracker_options, *, video: bool = False):
+def _anchored(backend, device, tracker_options, *, video: bool = False,
+              photographs: bool = False):
     from trackers.anchored import AnchoredTracker
 
     # the landmarks' thread only pays where a core is free for it: not in a batch worker
     # given one core of many; frames in time (a video) have their light evened out and an
     # entering face waited for, photographs one by one not
-    options = {"prefetch": thread_budget() > 1, "video": video,
+    options = {"prefetch": thread_budget() > 1, "video": video, "photographs": photographs,
                **(tracker_options or {})}
     return AnchoredTracker(channel_order="bgr", backend=backend, device=device, **options)
 

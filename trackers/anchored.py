@@ -464,6 +464,14 @@ class AnchoredTracker:
         change). And a face the picture cuts off where the contours would be placed waits,
         for at most :data:`EDGE_WAIT` frames, for a frame that shows it in full (a
         photograph has none to wait for).
+    photographs : bool
+        The frames are photographs, unrelated but for the face (needs ``video=False``):
+        each is read as found, detected and its contours put on their landmark curves
+        again, not from the last one's crop, contours and hands, so that a photograph
+        reads the same wherever it stands among the others. (On the IMM photographs,
+        neutral then smile and side-lit neutral, tracking one from the other read the same
+        photograph's muscles up to 0.38 apart in the two orders.) The first still gives
+        the references every later one is judged against.
     **tracker_options
         Passed to :class:`~trackers.tracking.Tracker` (``tol``, ``brow_mid``...).
 
@@ -481,7 +489,7 @@ class AnchoredTracker:
                  head_frame: str = "landmarks",
                  runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
                  device=None, max_iod: float | None = MAX_IOD, video: bool = False,
-                 **tracker_options):
+                 photographs: bool = False, **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if not np.isfinite(max_disagreement) or max_disagreement <= 0:
@@ -490,6 +498,9 @@ class AnchoredTracker:
             raise ValueError(f"max_iod must be positive or None, got {max_iod}")
         self.max_iod = None if max_iod is None else float(max_iod)
         self.video = bool(video)
+        self.photographs = bool(photographs)
+        if self.video and self.photographs:
+            raise ValueError("video=True and photographs=True exclude each other")
         self._ref_level = 1.0      # the face's grey level where the contours were placed
         #: Whole factor the frames are shrunk by before tracking (None until a face
         #: has been seen, then fixed; 1: the input's size).
@@ -573,6 +584,17 @@ class AnchoredTracker:
         self.index += 1
         if self._restart:
             self._unplace()
+        elif self.photographs and self.tracker is not None:
+            # photographs one by one: each is read as found (detected, its contours put
+            # on their curves again), not from the last one's crop, contours and hands,
+            # so that a photograph reads the same wherever it stands among the others
+            reset = getattr(self.landmarks, "reset", None)
+            if reset is not None:
+                reset()
+            self._gap = True
+            self._covered = self._edges_covered = False
+            if self.hand_tracker is not None:
+                self.hand_tracker.hands = []
         given, frame = frame, self._working(frame)
         lm = placed = self.landmarks.track(frame)
         if lm is not None and self.downscale is None:
@@ -599,7 +621,8 @@ class AnchoredTracker:
         if lm is not None and self.tracker is None:
             ref_rigid = lm.points[_RIGID_INDEX]
             ref_rigid3 = np.c_[ref_rigid, lm.z[_RIGID_INDEX]]
-        if next_frame is not None and self.prefetch and hasattr(self.landmarks, "prefetch"):
+        if (next_frame is not None and self.prefetch and not self.photographs
+                and hasattr(self.landmarks, "prefetch")):
             # the next frame's landmarks depend only on this frame's: they run in a
             # thread while this frame's snakes relax
             ahead = self._working(next_frame)
