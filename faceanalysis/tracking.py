@@ -29,11 +29,17 @@ from faceanalysis.io.cuts import frame_changes, shot_cuts
 from faceanalysis.io.report import (
     LOST_REASONS,
     input_metadata,
-    is_photographs,
     lost_reasons_text,
 )
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
-from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
+from faceanalysis.io.video import (
+    MIN_FACE_SIZE,
+    Frames,
+    as_video,
+    is_photographs,
+    open_video,
+    read_ahead,
+)
 from trackers.torch_backend import check_backend, make_tracker
 
 log = logging.getLogger(__name__)

@@ -45,7 +45,6 @@ from faceanalysis.estimation.response import FiducialResponse
 from faceanalysis.io.report import (
     analysis_metadata,
     frame_ranges,
-    is_photographs,
     quality_summary,
 )
 from faceanalysis.io.table import (
@@ -60,7 +59,7 @@ from faceanalysis.io.table import (
     with_au_columns,
     with_identifiable_columns,
 )
-from faceanalysis.io.video import Frames, as_video
+from faceanalysis.io.video import Frames, as_video, is_photographs
 from faceanalysis.tracking import (
     Tracks,
     faded_furrow_ends,

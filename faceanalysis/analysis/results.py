@@ -34,7 +34,7 @@ from faceanalysis.io.outputs import (
     prepare_output_dir,
     remove_new_folders,
 )
-from faceanalysis.io.report import is_photographs, write_analysis
+from faceanalysis.io.report import write_analysis
 from faceanalysis.io.table import (
     FIDUCIALS,
     JAW,
@@ -43,6 +43,7 @@ from faceanalysis.io.table import (
     measured_values,
     write_contractions,
 )
+from faceanalysis.io.video import is_photographs
 from faceanalysis.tracking import Tracks
 from faceanalysis.viz.plots import plot_contractions
 from synth.render.video import VideoWriter

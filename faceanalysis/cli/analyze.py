@@ -176,7 +176,8 @@ def closing_line(metadata: dict, rows: int) -> str:
     ...               "input": {"kind": "images", "fps_origin": "default", "frame_count": 3}}, 3)
     'analysed 3 photographs (0 lost; all 0 controls measured)'
     """
-    from faceanalysis.io.report import is_photographs, lost_reasons_text
+    from faceanalysis.io.report import lost_reasons_text
+    from faceanalysis.io.video import is_photographs
 
     q = metadata.get("quality") or {}
     ident = metadata.get("identifiability") or {}

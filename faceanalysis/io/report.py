@@ -33,7 +33,6 @@ __all__ = [
     "frame_ranges",
     "hidden_frames_of",
     "input_metadata",
-    "is_photographs",
     "lost_reasons_text",
     "quality_summary",
     "read_analysis",
@@ -281,27 +280,6 @@ def check_analysed_input(video, recorded, *, analysis) -> None:
     raise ValueError(f"{video} ({described(got_size, got_count)}) is not the input the "
                      f"analysis in {analysis} was made from ({made_from}, "
                      f"{described(size, count)}): give the analysed video")
-
-
-def is_photographs(input_meta) -> bool:
-    """Whether an input (:func:`input_metadata`) is taken as photographs rather than a
-    video's frames: an image, or a folder of images, given without a frame rate. The
-    analysis then fits each on its own (no temporal prior), the plot shows one mark per
-    photograph instead of a time series, and the overlay shows each for a second.
-
-    Examples
-    --------
-    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 3})
-    True
-    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 1})
-    True
-    >>> is_photographs({"kind": "images", "fps_origin": "user", "frame_count": 3})
-    False
-    >>> is_photographs({"kind": "video", "fps_origin": "container", "frame_count": 3})
-    False
-    """
-    return (isinstance(input_meta, Mapping) and input_meta.get("kind") == "images"
-            and input_meta.get("fps_origin") == "default")
 
 
 #: module -> its distribution on PyPI (None: the module is imported for its version, as

@@ -29,7 +29,7 @@ import os
 import queue
 import re
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,6 +51,7 @@ __all__ = [
     "Frames",
     "VideoSource",
     "as_video",
+    "is_photographs",
     "open_video",
     "read_ahead",
     "read_image",
@@ -102,6 +103,28 @@ class Frame:
     timestamp: float
     image: np.ndarray | None
     ok: bool = True
+
+
+def is_photographs(input_meta) -> bool:
+    """Whether an input (:func:`faceanalysis.io.report.input_metadata`) is taken as
+    photographs rather than a video's frames: an image, or a folder of images, given without
+    a frame rate. The analysis then reads and fits each on its own (no tracking from the
+    last, no temporal prior; each may have its own size), the plot shows one mark per
+    photograph instead of a time series, and the overlay shows each for a second.
+
+    Examples
+    --------
+    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 3})
+    True
+    >>> is_photographs({"kind": "images", "fps_origin": "default", "frame_count": 1})
+    True
+    >>> is_photographs({"kind": "images", "fps_origin": "user", "frame_count": 3})
+    False
+    >>> is_photographs({"kind": "video", "fps_origin": "container", "frame_count": 3})
+    False
+    """
+    return (isinstance(input_meta, Mapping) and input_meta.get("kind") == "images"
+            and input_meta.get("fps_origin") == "default")
 
 
 class Frames:
@@ -357,9 +380,7 @@ class VideoSource:
     @property
     def photographs(self) -> bool:
         """Images given without a frame rate: photographs, each fitted on its own, which
-        may each have their own size (:func:`faceanalysis.io.report.is_photographs`)."""
-        from faceanalysis.io.report import is_photographs
-
+        may each have their own size (:func:`is_photographs`)."""
         return is_photographs({"kind": self.kind, "fps_origin": self.fps_origin})
 
     @property

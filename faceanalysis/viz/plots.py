@@ -169,7 +169,7 @@ def plot_contractions(df: pd.DataFrame, path: str | os.PathLike | None = None, *
         person's or seen from another camera. Frames ``df`` does not hold are left out.
     photographs : bool, keyword-only
         The rows are photographs, not a video's frames
-        (:func:`faceanalysis.io.report.is_photographs`): one mark per photograph and
+        (:func:`faceanalysis.io.video.is_photographs`): one mark per photograph and
         muscle over the frame numbers, with no line between photographs, which would
         read as motion between them.
 

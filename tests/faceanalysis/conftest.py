@@ -23,3 +23,17 @@ def subject(tmp_path_factory):
                             expression="happiness", flow=False)
     analyze_to_folder(files["video"], root / "analysis")
     return root, files
+
+
+@pytest.fixture
+def other_video(tmp_path):
+    """A 128x96 clip of three black frames: a video that is not the subject's."""
+    import cv2
+    import numpy as np
+
+    path = tmp_path / "other.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (128, 96))
+    for _ in range(3):
+        writer.write(np.zeros((96, 128, 3), np.uint8))
+    writer.release()
+    return path

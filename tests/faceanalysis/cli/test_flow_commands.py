@@ -26,15 +26,9 @@ def test_validate_and_classify_report_user_mistakes(run_cli, tmp_path):
 
 
 def test_validate_and_classify_refuse_a_video_that_is_not_the_analysed_one(subject, run_cli,
-                                                                            tmp_path):
-    import cv2
-
+                                                                            other_video):
     root, _ = subject
-    other = tmp_path / "other.avi"
-    writer = cv2.VideoWriter(str(other), cv2.VideoWriter_fourcc(*"MJPG"), 10, (128, 96))
-    for _ in range(3):
-        writer.write(np.zeros((96, 128, 3), np.uint8))
-    writer.release()
+    other = other_video
     before = (root / "analysis" / "analysis.json").read_bytes()
     for command in ("validate", "classify"):
         code, out, err = run_cli(command, other, "--analysis", root / "analysis")
