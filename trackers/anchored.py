@@ -472,6 +472,11 @@ class AnchoredTracker:
         neutral then smile and side-lit neutral, tracking one from the other read the same
         photograph's muscles up to 0.38 apart in the two orders.) The first still gives
         the references every later one is judged against.
+    start_near : (float, float), optional
+        A point (x, y, the input's pixels) on or near the face to follow where no face is
+        followed yet, instead of the largest
+        (:class:`~trackers.landmarks.LandmarkTracker`, ``start_near``); for the tracker made
+        here.
     **tracker_options
         Passed to :class:`~trackers.tracking.Tracker` (``tol``, ``brow_mid``...).
 
@@ -489,7 +494,7 @@ class AnchoredTracker:
                  head_frame: str = "landmarks",
                  runtime: str = "auto", prefetch: bool = True, backend: str = "numpy",
                  device=None, max_iod: float | None = MAX_IOD, video: bool = False,
-                 photographs: bool = False, **tracker_options):
+                 photographs: bool = False, start_near=None, **tracker_options):
         if channel_order not in ("rgb", "bgr"):
             raise ValueError(f"channel_order must be 'rgb' or 'bgr', got {channel_order!r}")
         if not np.isfinite(max_disagreement) or max_disagreement <= 0:
@@ -537,7 +542,11 @@ class AnchoredTracker:
         if landmarks is None:
             from trackers.landmarks import LandmarkTracker
 
-            landmarks = LandmarkTracker(channel_order=channel_order, runtime=runtime)
+            landmarks = LandmarkTracker(channel_order=channel_order, runtime=runtime,
+                                        start_near=start_near)
+        elif start_near is not None:
+            raise ValueError("start_near is for the landmark tracker made here; give it to "
+                             "the LandmarkTracker passed as landmarks")
         self.landmarks = landmarks
         self.channel_order = channel_order
         self.springs = dict(DEFAULT_SPRINGS) if springs is None else springs
@@ -607,6 +616,9 @@ class AnchoredTracker:
                 reset = getattr(self.landmarks, "reset", None)
                 if reset is not None:
                     reset()
+                near = getattr(self.landmarks, "start_near", None)
+                if near is not None:
+                    self.landmarks.start_near = (near + 0.5) / self.downscale - 0.5
                 frame = self._working(given)
                 lm = placed = self.landmarks.track(frame)
         if lm is not None and (self.tracker is None or lm.detected):

@@ -149,7 +149,7 @@ def default_estimator(tracker: str | None = None, *, layout=None, refine: bool =
 def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,
             start: int = 0, end: int | None = None, neutral: int | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
-            personalize: bool = False, eyes: bool = False,
+            personalize: bool = False, eyes: bool = False, face=None,
             tracker: str | None = None, tracker_options: dict | None = None,
             backend: str = "numpy",
             device: str | None = None, suspect_points: str = "exclude",
@@ -213,6 +213,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         lid gap over the neutral frame's) and the eye closures and blinks in
         ``analysis.json`` (``eyes``, :func:`faceanalysis.analysis.eyes.eye_closures`).
         Without it those columns are empty.
+    face : (float, float), keyword-only
+        A point (x, y, pixels of the first frame with a face) on or near the face to
+        analyse, where the video shows several (landmark tracker): that face is followed
+        instead of the largest.
     tracker_options : dict, optional
         Keyword arguments for :class:`trackers.Tracker` (e.g. ``{"brow_mid": 0.556}``).
     backend : {'numpy', 'torch'}, keyword-only
@@ -296,6 +300,14 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
             raise ValueError("eyes works with the landmark tracker, not the snakes (the iris "
                              "model is placed from the face mesh)")
         tracker_options = {**(tracker_options or {}), "eyes": True}
+    if face is not None:
+        from trackers.landmarks.tracker import check_point
+
+        if resolve_tracker(tracker, layout) != "landmarks":
+            raise ValueError("face works with the landmark tracker, not the snakes (they "
+                             "start on the largest face the cascades find)")
+        face = [float(v) for v in check_point(face, "face")]
+        tracker_options = {**(tracker_options or {}), "start_near": face}
     est_options = _fit_options(estimator, refine, temporal, personalize)
     if estimator == "model" and progress:
         est_options["progress"] = True     # its fit takes about 0.1 s a frame
@@ -374,6 +386,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
         "refine": bool(refine), "personalize": bool(personalize), "eyes": bool(eyes),
+        "face": face,
         "tracker_options": dict(tracker_options or {}),
         "backend": backend, "device": device,
         "measurement_points": list(response.fiducials),

@@ -39,6 +39,19 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def image_point(text: str) -> tuple[float, float]:
+    """argparse type: a point ``X,Y`` of two finite numbers (pixels)."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        x, y = (float(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be X,Y (two numbers, pixels), got {text!r}"
+                                         ) from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"must be two finite numbers, got {text!r}")
+    return x, y
+
+
 def non_negative_int(text: str) -> int:
     """argparse type: a whole number >= 0 (frame numbers, seeds)."""
     try:

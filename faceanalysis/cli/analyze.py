@@ -9,6 +9,7 @@ from pathlib import Path
 from faceanalysis.cli._common import (
     add_output_options,
     add_quiet_option,
+    image_point,
     non_negative_float,
     non_negative_int,
     progress_wanted,
@@ -125,10 +126,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "  faceanalysis analyze clip.mp4 -o results/\n"
         "  faceanalysis analyze clip.mp4 -o results/ --overlay --start 100 --end 400\n"
         "  faceanalysis analyze clip.mp4 -o results/ --mirror-check\n"
+        "  faceanalysis analyze interview.mp4 -o results/ --face 820,300\n"
         "  faceanalysis analyze frames/ --fps 25 -o results/ --estimator tw93 --overwrite")
     add_input_options(parser)
     add_output_options(parser)
     add_analysis_options(parser)
+    parser.add_argument("--face", type=image_point, metavar="X,Y",
+                        help="where the video shows several faces: a point (pixels) on or "
+                             "near the one to analyse, on the first frame with a face "
+                             "(default: the largest); landmark tracker only")
     parser.add_argument("--overlay", action="store_true",
                         help="also write overlay.mp4 with contours and fiducials drawn")
     add_quiet_option(parser)
@@ -136,14 +142,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from faceanalysis.analysis.pipeline import analyze_to_folder
+    from faceanalysis.cli._common import UsageError
     from faceanalysis.io.outputs import CONTRACTIONS_CSV
 
     check_analysis_options(args)
+    if args.face is not None and (args.tracker == "snakes" or args.layout is not None):
+        raise UsageError("--face goes with the landmark tracker; drop --tracker snakes and "
+                         "--layout")
     result = analyze_to_folder(
         args.video, args.output, overwrite=args.overwrite, overlay=args.overlay,
         quiet=not progress_wanted(args), estimator=args.estimator, fps=args.fps, start=args.start,
         end=args.end, neutral=args.neutral, tracker=args.tracker, layout=args.layout,
-        refine=args.refine, personalize=args.personalize, eyes=args.eyes,
+        refine=args.refine, personalize=args.personalize, eyes=args.eyes, face=args.face,
         temporal=args.temporal,
         mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,

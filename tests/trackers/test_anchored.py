@@ -100,6 +100,22 @@ def test_a_large_face_is_tracked_shrunk_and_reported_in_the_input_pixels(face_tr
         AnchoredTracker(max_iod=0)
 
 
+def test_a_point_picks_the_face_also_on_frames_tracked_shrunk(face_truth):
+    """The point is in the input's pixels; a face tracked on shrunk frames is picked there."""
+    from tests.trackers.landmarks.conftest import scene
+
+    img, _ = face_truth
+    two = np.repeat(np.repeat(scene(img), 2, axis=0), 2, axis=1)    # 1280x720, faces 2x
+    tracker = AnchoredTracker(max_iod=40.0, start_near=(2 * 480, 2 * 160))
+    results = [tracker.track(two) for _ in range(2)]
+    assert tracker.downscale >= 2
+    assert all(r is not None and r.fiducials["chin"][0] > 2 * 320 for r in results)
+    default = AnchoredTracker(max_iod=40.0).track(two)
+    assert default.fiducials["chin"][0] < 2 * 320
+    with pytest.raises(ValueError, match="start_near is for the landmark tracker made here"):
+        AnchoredTracker(landmarks=tracker.landmarks, start_near=(1, 2))
+
+
 def test_a_still_face_stays_still(face_truth):
     # the springs pull toward the landmark curves moved by the first frame's offsets:
     # on a face that does not move, nothing should creep

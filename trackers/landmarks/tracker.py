@@ -124,6 +124,19 @@ def _upright(net, image, face, channel_order: str, min_score: float):
     return face, None
 
 
+def check_point(point, name: str) -> np.ndarray | None:
+    """``point`` as a (2,) float array, or None; ValueError unless two finite numbers."""
+    if point is None:
+        return None
+    try:
+        out = np.asarray(point, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        out = np.array([])
+    if out.shape != (2,) or not np.isfinite(out).all():
+        raise ValueError(f"{name} must be a point (x, y) of two finite numbers, got {point!r}")
+    return out
+
+
 def _crop_change(a, b) -> float:
     """How far the crop from landmarks ``b`` lies from the crop from ``a``: the largest
     move of a crop corner, in pixels of the 192-pixel crop."""
@@ -189,6 +202,11 @@ class LandmarkTracker:
         square tiles of the frame (overlapping by half; :data:`TILE_EVERY`), which shows it
         a far face at twice the scale: for OpenCV's reader, which cannot run the full-range
         detector. Default: where ``full_range`` is off.
+    start_near : (float, float), optional
+        A point (x, y, pixels) on or near the face to follow: where no face is followed yet
+        (the start, or a face lost for long), the face whose box centre lies nearest it is
+        taken instead of the largest (a subject beside a larger face: an interviewer, a
+        face on a screen behind).
 
     Notes
     -----
@@ -207,7 +225,7 @@ class LandmarkTracker:
     def __init__(self, *, channel_order: str = "rgb", runtime: str = "auto",
                  min_presence: float = 0.5, min_score: float = 0.5, refine_first: bool = True,
                  recrop: float = RECROP, full_range: bool | None = None,
-                 tiles: bool | None = None):
+                 tiles: bool | None = None, start_near=None):
         check_image(np.zeros((2, 2), np.uint8), channel_order)
         # resolved once: 'auto' looks for LiteRT on the import path, which costs
         # file-system calls (and, with decoding in another thread, the GIL) every frame
@@ -227,6 +245,7 @@ class LandmarkTracker:
                              "reader lacks the full-range detector's DENSIFY operator)")
         self.full_range = self._runtime == "litert" if full_range is None else bool(full_range)
         self.tiles = not self.full_range if tiles is None else bool(tiles)
+        self.start_near = check_point(start_near, "start_near")
         self._executor: ThreadPoolExecutor | None = None
         self._pending = None       # (frame, future, state before it) of a prefetch
         self.reset()
@@ -306,8 +325,9 @@ class LandmarkTracker:
         if not faces:
             return None, 0.0
         boxes = np.array([f.box for f in faces])
-        if self._last_centre is not None:
-            dist = np.hypot(*((boxes[:, :2] + boxes[:, 2:]) / 2 - self._last_centre).T)
+        target = self._last_centre if self._last_centre is not None else self.start_near
+        if target is not None:
+            dist = np.hypot(*((boxes[:, :2] + boxes[:, 2:]) / 2 - target).T)
             face = faces[int(np.argmin(dist))]
         else:
             face = faces[int(np.argmax(np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)))]

@@ -956,6 +956,35 @@ def test_a_coarsely_coded_neutral_frame_is_warned_about(tmp_path, caplog, surpri
     assert "coarsely coded" not in caplog.text
 
 
+def test_a_point_says_which_of_two_faces_is_analysed(run_cli, tmp_path):
+    """Beside a larger face (an interviewer, a screen behind), the subject is picked by a
+    point on it; the point is recorded."""
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "render", expression="happiness", frames=4, size=160,
+                            seed=5, flow=False)
+    capture = cv2.VideoCapture(str(files["video"]))
+    faces = [capture.read()[1] for _ in range(4)]
+    capture.release()
+    folder = tmp_path / "two"
+    folder.mkdir()
+    for i, face in enumerate(faces):
+        frame = np.full((300, 560, 3), faces[0][0, 0], np.uint8)
+        frame[:, 240:540] = cv2.resize(faces[0], (300, 300))     # a larger face, still
+        frame[70:230, 20:180] = face                               # the subject, smiling
+        cv2.imwrite(str(folder / f"{i}.png"), frame)
+    code, _, err = run_cli("analyze", folder, "--fps", "10", "-o", tmp_path / "out", "-q",
+                           "--face", "100,150")
+    assert code == 0, err
+    table = pd.read_csv(tmp_path / "out" / "contractions.csv")
+    assert table["success"].all() and (table["fid_chin_x"] < 200).all()
+    assert table["zygomaticus_major_l"].max() > 0.2                # the subject's smile
+    meta = json.loads((tmp_path / "out" / "analysis.json").read_text())
+    assert meta["parameters"]["face"] == [100.0, 150.0]
+    largest = analyze(folder, fps=10)
+    assert (largest.table["fid_chin_x"] > 240).all()
+
+
 def test_a_photograph_reads_the_same_wherever_it_stands_among_the_others(tmp_path):
     """Photographs are read one by one, each as found: not from the crop and contours of
     the one before it, which drew each toward its predecessor (the IMM photographs, neutral

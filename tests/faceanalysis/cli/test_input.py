@@ -71,3 +71,15 @@ def test_analysis_options_that_cannot_go_together_are_usage_errors(run_cli, tmp_
     assert err.startswith(f"usage: faceanalysis {command}"), err
     assert message in err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("options, message", [
+    (("--face", "520"), "--face: must be X,Y (two numbers, pixels), got '520'"),
+    (("--face", "1,nan"), "--face: must be two finite numbers"),
+    (("--face", "10,20", "--tracker", "snakes"), "--face goes with the landmark tracker"),
+])
+def test_a_bad_face_point_is_a_usage_error(run_cli, tmp_path, options, message):
+    cv2.imwrite(str(tmp_path / "f.png"), np.zeros((80, 80), np.uint8))
+    code, out, err = run_cli("analyze", tmp_path / "f.png", "-o", tmp_path / "out", *options)
+    assert code == 2 and message in err, err
+    assert not (tmp_path / "out").exists()

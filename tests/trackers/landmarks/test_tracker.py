@@ -49,6 +49,21 @@ def test_a_face_upside_down_is_read_upside_down(face, monkeypatch):
     assert read(LandmarkTracker())[1] > 0.5
 
 
+def test_a_point_picks_the_face_to_follow_instead_of_the_largest(face):
+    img, _ = face
+    two = scene(img)                  # the larger face at the left, a smaller one at 480, 160
+    assert _centre(LandmarkTracker().track(two)) < 320
+    tracker = LandmarkTracker(start_near=(480, 160))
+    assert [_centre(tracker.track(two)) > 320 for _ in range(3)] == [True] * 3
+    # lost for long, then back: the point still says which
+    for _ in range(40):
+        assert tracker.track(np.full_like(two, 128)) is None
+    assert _centre(tracker.track(two)) > 320
+    for bad in ((1, np.nan), (1, 2, 3), "here"):
+        with pytest.raises(ValueError, match="start_near must be a point"):
+            LandmarkTracker(start_near=bad)
+
+
 def test_the_largest_face_first_then_the_same_face(face):
     img, _ = face
     tracker = LandmarkTracker()
