@@ -709,7 +709,9 @@ def find_face(video: str | os.PathLike, *, fps: float | None = None, start: int 
         ``frame`` (its number), ``interocular_px`` (the distance between the eye centres),
         ``box`` (x0, y0, x1, y1 of the face mesh, pixels) and ``detector``: ``'short'``
         where MediaPipe's short-range detector finds the face on the whole frame,
-        ``'full'`` where only the full-range one does (a face far from the camera).
+        ``'full'`` where only the full-range one does (a face far from the camera);
+        ``faces``: the boxes of every face the short-range detector finds on that frame
+        (None where it finds none), for picking one with ``analyze(face=...)``.
         None where no face is found in the frames looked at.
 
     Raises
@@ -743,7 +745,8 @@ def find_face(video: str | os.PathLike, *, fps: float | None = None, start: int 
             return {"frame": int(frame.index),
                     "interocular_px": round(interocular_distance(lm.points), 1),
                     "box": [round(v, 1) for v in lm.box],
-                    "detector": "short" if near else "full"}
+                    "detector": "short" if near else "full",
+                    "faces": [[round(v, 1) for v in f.box] for f in near] or None}
     return None
 
 

@@ -28,7 +28,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "the shots")
     parser.add_argument("--face", action="store_true",
                         help="find the first frame with a face: where, how large (pixels "
-                             "between the eyes), which detector (needs the face models)")
+                             "between the eyes), which detector, and every face on it "
+                             "(analyze follows the largest; --face X,Y there picks another) "
+                             "(needs the face models)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         face = find_face(args.video, fps=args.fps, start=args.start, end=args.end) or {}
         info.update(first_face=face.get("frame"), interocular_px=face.get("interocular_px"),
                     face_box=face.get("box"), face_detector=face.get("detector"),
+                    faces=face.get("faces"),
                     face_small=(None if not face
                                 else face["interocular_px"] < SMALL_FACE_IOD))
     if args.json:

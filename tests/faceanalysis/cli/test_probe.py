@@ -108,6 +108,16 @@ def test_probe_finds_the_first_face_and_its_size(run_cli, tmp_path):
     assert 30 < info["interocular_px"] < 100 and info["face_small"] is False
     x0, y0, x1, y1 = info["face_box"]
     assert 0 <= x0 < x1 <= 192 and 0 <= y0 < y1 <= 192
+    assert len(info["faces"]) == 1
+    # two faces: both are listed, for analyze --face to pick one
+    two = np.full((192, 400, 3), img[0, 0], np.uint8)
+    two[:, :192] = img
+    two[40:152, 260:372] = cv2.resize(img, (112, 112), interpolation=cv2.INTER_AREA)
+    cv2.imwrite(str(tmp_path / "two.png"), two)
+    code, out, err = run_cli("probe", tmp_path / "two.png", "--face", "--json")
+    faces = sorted(json.loads(out)["faces"])
+    assert code == 0 and len(faces) == 2, err
+    assert faces[0][2] < 200 and faces[1][0] > 250 and faces[1][2] <= 400
     # the same face shrunk to 96 px: small, and found only at full range (with LiteRT)
     from trackers.landmarks.runtime import litert_available
 
