@@ -341,14 +341,13 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     if len(tracks) == 1:
         log.warning("%s: one frame has no expression to measure: its contractions are 0 "
                     "by definition (the neutral frame is the frame itself)", video)
-    if (temporal is None and "temporal" in est_options and len(tracks) >= 3
-            and is_photographs(tracks.input)):
-        # a folder of images without a frame rate is taken as photographs, as the tracker
-        # takes it: each is fitted on its own, not drawn toward its neighbours' fits
-        est_options["temporal"] = 0.0
+    if len(tracks) >= 2 and is_photographs(tracks.input):
         log.info("%s: a folder of images without a frame rate is taken as photographs, each "
-                 "fitted on its own; for the frames of a video give --fps (or --temporal)",
-                 video)
+                 "read and fitted on its own; for the frames of a video give --fps", video)
+        if temporal is None and "temporal" in est_options and len(tracks) >= 3:
+            # as the tracker takes them: each fitted on its own, not drawn toward its
+            # neighbours' fits
+            est_options["temporal"] = 0.0
     k = _neutral_row(tracks, neutral)
     calib_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
                      "options": {"fps": fps, "start": start, "end": end}}

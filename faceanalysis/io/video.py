@@ -639,8 +639,9 @@ def _open_images(path: Path, fps: float | None) -> dict:
             raise ValueError(f"{path}: cannot decode image")
         raise ValueError(f"{path}: none of its {len(files)} images can be decoded")
     if fps is None and len(files) > 1:
-        log.info("%s: no frame rate for an image folder; assuming %g fps (use --fps)",
-                 path, DEFAULT_FPS)
+        # (the analysis says what it makes of it: photographs)
+        log.debug("%s: no frame rate for an image folder; timestamps at %g fps", path,
+                  DEFAULT_FPS)
     return dict(kind="images", fps=DEFAULT_FPS if fps is None else fps,
                 fps_origin="default" if fps is None else "user", first=first,
                 frame_count=len(files), files=files)

@@ -17,6 +17,7 @@ import pandas as pd
 
 from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, JAW, MUSCLES, numeric_column
+from faceanalysis.io.video import is_photographs
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +69,13 @@ class Series:
         return int(np.argmax(self.success))
 
     def fps(self, override: float | None = None) -> float:
+        """Frames per second to play the series at: ``override``, the analysed input's
+        rate, one a second for photographs (as their overlay shows them), or the
+        timestamps'."""
         if override is not None:
             return float(override)
+        if is_photographs(self.metadata.get("input")):
+            return 1.0
         f = (self.metadata.get("input") or {}).get("fps")
         if f and np.isfinite(f) and f > 0:
             return float(f)

@@ -1036,11 +1036,16 @@ def test_a_folder_without_a_frame_rate_is_taken_photograph_by_photograph(tmp_pat
     assert "taken as photographs" in caplog.text
     # and plotted as photographs, not a time series (the saved plot too)
     assert photos.plot().axes[0].get_xlabel() == "photograph (frame)"
-    # the overlay shows each photograph for a second, not for a thirtieth
+    # the overlay shows each photograph for a second, not for a thirtieth; so does the
+    # resynthesis
     assert cv2.VideoCapture(str(tmp_path / "overlay.mp4")).get(cv2.CAP_PROP_FPS) == 1.0
+    from faceanalysis.resynthesis.pipeline import resynthesize
+
+    assert resynthesize(photos, size=48, shading="plain").fps == 1.0
     # a frame rate makes them the frames of a video; an explicit weight is kept either way
     frames = analyze(folder, fps=25.0)
     assert frames.metadata["parameters"]["temporal"] == TEMPORAL
+    assert resynthesize(frames, size=48, shading="plain").fps == 25.0
     assert frames.plot().axes[0].get_xlabel() == "time (s)"
     assert analyze(folder, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
     # re-estimating keeps what the analysis used
