@@ -662,10 +662,20 @@ def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
     if hits.size == 0:
         raise ValueError(f"neutral frame {neutral} is outside the analysed range "
                          f"{tracks.frames[0]}..{tracks.frames[-1]}")
-    if not tracks.success[hits[0]]:
-        raise ValueError(f"neutral frame {neutral} was not tracked (face lost); "
-                         "choose another with --neutral")
-    return int(hits[0])
+    k = int(hits[0])
+    if not tracks.success[k]:
+        from faceanalysis.io.report import LOST_REASONS
+
+        reason = (tracks.lost_reasons or [None] * len(tracks))[k]
+        why = f"lost: {LOST_REASONS[reason][0]}" if reason in LOST_REASONS else "face lost"
+        tracked = np.flatnonzero(tracks.success)
+        before, after = tracked[tracked < k], tracked[tracked > k]
+        near = [str(int(tracks.frames[r])) for r in (before[-1:], after[:1]) for r in r]
+        hint = (f"; the nearest tracked frame{'s are' if len(near) > 1 else ' is'} "
+                f"{' and '.join(near)}" if near else "")
+        raise ValueError(f"{tracks.video}: neutral frame {neutral} was not tracked ({why})"
+                         f"{hint}; choose another with --neutral")
+    return k
 
 
 def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_points: str,

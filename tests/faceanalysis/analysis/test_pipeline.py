@@ -856,6 +856,13 @@ def test_the_analysis_says_why_frames_were_lost(run_cli, surprise, tmp_path):
     # and the plot's legend
     legend = [t.get_text() for t in analyze(folder, fps=10).plot().legends[0].get_texts()]
     assert "lost frames (2 without a face)" in legend
+    # a lost frame named as the neutral one: why it was lost, and where to look instead
+    code, _, err = run_cli("analyze", folder, "--fps", "10", "-o", tmp_path / "n", "-q",
+                           "--neutral", "3")
+    assert code == 1
+    assert err.strip() == (f"faceanalysis: error: {folder}: neutral frame 3 was not tracked "
+                           "(lost: without a face); the nearest tracked frames are 2 and 4; "
+                           "choose another with --neutral")
 
 
 def test_a_shot_cut_between_two_faces_is_reported(tmp_path, caplog, surprise):
