@@ -507,6 +507,10 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
     # frames are read at 8 bits: the same picture at any bit depth gives the same tracks
     source = open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE,
                         eight_bit=True)
+    if mirror and (tracker_options or {}).get("start_near") is not None:
+        # the point that picks the face is the unmirrored frame's
+        x, y = tracker_options["start_near"]
+        tracker_options = {**tracker_options, "start_near": [source.size[0] - 1 - x, y]}
     n_fid = len(FIDUCIALS)
     fid_of_point = [points.index(n) if n in points else None for n in FIDUCIALS]
     point_contours = [POINT_CONTOUR[p] for p in points]   # once, not per frame

@@ -990,6 +990,11 @@ def test_a_point_says_which_of_two_faces_is_analysed(run_cli, tmp_path):
     assert meta["parameters"]["face"] == [100.0, 150.0]
     largest = analyze(folder, fps=10)
     assert (largest.table["fid_chin_x"] > 240).all()
+    # the mirror check tracks the same face, mirrored
+    from faceanalysis.tracking import track
+
+    mirrored = track(folder, fps=10, mirror=True, tracker_options={"start_near": [100, 150]})
+    assert mirrored.success.all() and (mirrored.fiducials[:, -1, 0] > 560 - 200).all()
 
 
 def test_a_photograph_reads_the_same_wherever_it_stands_among_the_others(tmp_path):
