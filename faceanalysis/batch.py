@@ -67,6 +67,7 @@ from faceanalysis.io.outputs import (
 )
 from faceanalysis.io.report import LOST_REASONS
 from faceanalysis.io.table import measured_values
+from faceanalysis.io.video import is_photographs
 from faceanalysis.tracking import available_cores
 
 __all__ = ["SCHEDULER_TIMEOUT_S", "SUMMARY", "analysis_options", "run_batch",
@@ -158,14 +159,15 @@ def _summarise(folder: Path) -> dict:
     frames_lost = int(quality.get("frames_lost", int((~success).sum())))
     duration = math.nan
     info = metadata.get("input", {}) if isinstance(metadata, dict) else {}
-    if isinstance(info, dict):
+    photographs = is_photographs(info)      # they last no time: no duration
+    if isinstance(info, dict) and not photographs:
         for key in ("duration_s", "duration"):
             if key in info:
                 duration = _finite_or_nan(info[key])
                 break
         if math.isnan(duration) and info.get("fps"):
             duration = frames / _finite_or_nan(info["fps"])
-    if math.isnan(duration) and "timestamp" in table and len(table) >= 2:
+    if math.isnan(duration) and "timestamp" in table and len(table) >= 2 and not photographs:
         t = table["timestamp"].to_numpy(dtype=float)
         duration = float((t[-1] - t[0]) * len(t) / (len(t) - 1))
     record = {"frames": frames, "frames_lost": frames_lost, "duration_s": duration}

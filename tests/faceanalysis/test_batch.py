@@ -580,3 +580,16 @@ def test_the_summary_counts_the_blinks_of_an_analysis_with_eyes(tmp_path):
     # without --eyes (null) there are no blink columns
     (tmp_path / "analysis.json").write_text(json.dumps({"quality": {}, "eyes": None}))
     assert "blinks" not in batch._summarise(tmp_path)
+
+
+def test_photographs_have_no_duration_in_the_summary(tmp_path):
+    table = pd.DataFrame({"frame": [0, 1, 2], "timestamp": [0.0, 1 / 30, 2 / 30],
+                          "success": [1, 1, 1], "confidence": [1.0, 1.0, 1.0]})
+    table.to_csv(tmp_path / "contractions.csv", index=False)
+    photographs = {"kind": "images", "fps": 30.0, "fps_origin": "default", "frame_count": 3}
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {},
+                                                        "input": photographs}))
+    assert np.isnan(batch._summarise(tmp_path)["duration_s"])       # not a 0.1 s video
+    frames = {**photographs, "fps_origin": "user"}                 # a sequence, --fps 30
+    (tmp_path / "analysis.json").write_text(json.dumps({"quality": {}, "input": frames}))
+    assert batch._summarise(tmp_path)["duration_s"] == pytest.approx(0.1)
