@@ -90,8 +90,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"  neutral reference: frame {rec.reference} ({reference_reason(rec)})")
     print("  " + "  ".join(f"{c} {rec.scores.get(c, 0.0):.3f}" for c in CLASSES))
     for s in rec.segments:
-        print(f"  frames {s.start}-{s.end} (apex {s.apex}): {s.label} "
-              f"({s.scores[s.label]:.3f})")
+        where = (f"frame {s.start}" if s.start == s.end
+                 else f"frames {s.start}-{s.end} (apex {s.apex})")
+        print(f"  {where}: {s.label} ({s.scores[s.label]:.3f})")
     return 0
 
 
@@ -100,7 +101,8 @@ def reference_reason(rec) -> str:
     used, and how far it can be trusted, in words."""
     how = {"given": "given by --neutral",
            "detected": "detected rest frame: the least contracted face searched",
-           "first": "first frame searched; no frame is clearly less contracted"}
+           "first": "first frame searched; no frame is clearly less contracted",
+           "first_photograph": "the first photograph with a face, as analyze takes it"}
     text = how.get(rec.reference_source, str(rec.reference_source))
     doubt = {"still": "",
              "moving": "; the face does not hold still there (a lull in an expression, or "

@@ -151,8 +151,9 @@ class Recognition:
 
     ``reference`` is the frame number of the neutral reference the motion was measured
     from, and ``reference_source`` how it was chosen: ``'given'`` (``neutral=``),
-    ``'detected'`` (:func:`rest_frame` found a less contracted frame than the first) or
-    ``'first'`` (the first tracked frame, no frame being clearly more at rest);
+    ``'detected'`` (:func:`rest_frame` found a less contracted frame than the first),
+    ``'first'`` (the first tracked frame, no frame being clearly more at rest) or
+    ``'first_photograph'`` (photographs: the first with a face, as the analysis takes it);
     ``reference_rest`` what the detector can say of a found reference (``None`` for a
     given one): ``'still'`` (the face holds there, :data:`REST_HOLD`), ``'moving'`` (it
     does not: probably a lull in an expression rather than the face at rest) or
@@ -441,13 +442,17 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
 
 
 def _classify_clean(clean, energy: np.ndarray, fr: np.ndarray, templates: FlowTemplates,
-                    thr: float, *, min_score: float, min_length: int, min_gap: int
-                    ) -> Recognition:
+                    thr: float, *, min_score: float, min_length: int, min_gap: int,
+                    photographs: bool = False) -> Recognition:
     """:func:`classify_flow` from the nuisance-free displacement on the mask (an array or a
-    :class:`_FrameStore`) and its motion energy."""
+    :class:`_FrameStore`) and its motion energy; ``photographs``: each active frame is a
+    segment of its own (a photograph has no onset, nor neighbours to join)."""
     segments = []
     dropped = []                       # (peak energy, scores) of segments matching nothing
-    for a, b in find_segments(energy, thr, min_length=min_length, min_gap=min_gap):
+    runs = ([(i, i) for i in np.flatnonzero(np.nan_to_num(energy, nan=-np.inf) > thr)]
+            if photographs else
+            find_segments(energy, thr, min_length=min_length, min_gap=min_gap))
+    for a, b in runs:
         apex = a + int(np.nanargmax(energy[a:b + 1]))
         scores = score_segment(clean, templates, a, apex, b)
         similarity = scores.pop("_similarity")
@@ -658,7 +663,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                    end: int | None = None, personalised: bool = True,
                    rest_lookback: int = REST_LOOKBACK, threshold: float | None = None,
                    min_score: float = MIN_SCORE, min_length: int = 3,
-                   min_gap: int = 5, hidden=None) -> Recognition:
+                   min_gap: int = 5, hidden=None,
+                   photographs: bool | None = None) -> Recognition:
     """Recognise the expressions of a video (flow from its neutral frame, then
     :func:`classify_flow`), in memory that does not grow with the video's length.
 
@@ -696,6 +702,12 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         (:func:`~faceanalysis.flow.dense.video_face_flow`); default: those the tracking
         finds when ``table`` is tracked here, none of a given table's (an analysis's are
         :func:`faceanalysis.io.report.hidden_frames_of` its ``analysis.json``).
+    photographs : bool, optional
+        The frames are photographs (default: a folder of images given without ``fps``, as
+        the analysis takes it, :func:`faceanalysis.io.video.is_photographs`): each
+        photograph with an expression is a segment of its own, named by the same scores
+        (``min_length`` and ``min_gap`` do not apply), and the neutral reference defaults
+        to the first with a face.
 
     Returns
     -------
@@ -731,6 +743,10 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
     thr = NEUTRAL_THRESHOLD if threshold is None else float(threshold)
     if not thr > 0:
         raise ValueError(f"threshold={thr} must be positive")
+    if photographs is None:
+        photographs = _photographs(video, fps)
+    if photographs:
+        rest_lookback = 0               # no rest frame to look for before the range
     first = max(0, start - rest_lookback) if neutral is None else min(start, int(neutral))
     if table is None:
         # the contours are not needed here; keeping them would grow with the video
@@ -744,6 +760,12 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                    hidden=hidden)
     rest = None
     kept = None
+    given = "given"
+    if neutral is None and photographs:
+        # as the analysis takes photographs: the first with a face is the neutral one
+        seen = table[(table["frame"] >= start) & (table["success"] == 1)]
+        if len(seen):
+            neutral, given = int(seen["frame"].iloc[0]), "first_photograph"
     try:
         if neutral is None:
             stream = VideoFlowStream(video, start=first, **options)
@@ -778,7 +800,7 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
                 kept = None
             del stream, total
         else:
-            ref, source = int(neutral), "given"
+            ref, source = int(neutral), given
         # where the first pass could not tell rest from noise (its flow runs from the first
         # frame, perhaps the apex of an expression, and is noisy where it is large), the
         # flow from the rest frame found is small near it: judge there whether the face
@@ -794,7 +816,8 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         else:
             templates = kept.templates
         rec = _classify_clean(kept.store, kept.energy, kept.frames, templates, thr,
-                              min_score=min_score, min_length=min_length, min_gap=min_gap)
+                              min_score=min_score, min_length=min_length, min_gap=min_gap,
+                              photographs=photographs)
     finally:
         if kept is not None:
             kept.store.close()
@@ -803,6 +826,17 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
         if again == ref:
             rest = verdict
     return replace(rec, reference=int(ref), reference_source=source, reference_rest=rest)
+
+
+def _photographs(video, fps) -> bool:
+    """Whether ``video`` is taken as photographs (an image folder without ``fps``)."""
+    from faceanalysis.io.report import input_metadata
+    from faceanalysis.io.video import Frames, is_photographs, open_video
+
+    if isinstance(video, Frames):
+        return False
+    with open_video(video, fps=fps) as source:
+        return is_photographs(input_metadata(source))
 
 
 def calibrate_threshold(neutral_energies, expression_energies) -> float:

@@ -70,6 +70,33 @@ def test_classify_command_on_a_synthetic_video(run_cli, tmp_path):
     assert (tmp_path / "seg.csv").read_text().startswith("start,apex,end,label")
 
 
+def test_classify_names_each_photograph(run_cli, tmp_path):
+    """Photographs (a folder of images without --fps) have no onset nor neighbours: each
+    with an expression is named on its own, from the first as the neutral; the same images
+    as a video's frames are one frame too short for an expression segment."""
+    import cv2
+
+    from synth.render import render_sequence
+
+    paths = render_sequence(tmp_path / "seq", expression="surprise", frames=12, size=200,
+                            seed=107, flow=False)
+    capture = cv2.VideoCapture(str(paths["video"]))
+    frames = [capture.read()[1] for _ in range(12)]
+    capture.release()
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for k, i in enumerate((0, 6, 0)):                   # neutral, surprise, neutral again
+        cv2.imwrite(str(photos / f"{k}.png"), frames[i])
+    code, out, err = run_cli("classify", photos)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == "surprise"
+    assert "neutral reference: frame 0 (the first photograph with a face" in lines[1]
+    assert lines[3].startswith("  frame 1: surprise (") and len(lines) == 4
+    code, out, err = run_cli("classify", photos, "--fps", "10", "--json")
+    assert code == 0 and json.loads(out)["label"] == "neutral", err
+
+
 @pytest.mark.slow
 def test_laughing_part_of_the_real_video_is_happiness(run_cli, real_video_dir):
     video = real_video_dir / "WolfgangLanger_Pexels.mp4"
