@@ -183,7 +183,8 @@ class Frames:
                 if f.shape != items[0].shape or f.dtype != items[0].dtype:
                     raise ValueError(f"frame {i} is {f.shape} {f.dtype}, frame 0 "
                                      f"{items[0].shape} {items[0].dtype}: every frame must "
-                                     "have the same shape and type")
+                                     "have the same shape and type (photographs of several "
+                                     "sizes: analyse the folder they are in, without fps)")
         if len(items) == 0:
             raise ValueError("frames: no frame")
         first = np.asarray(items[0])
