@@ -397,7 +397,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     parameters["measurement_points"] = list(est.response.fiducials)
     parameters["mirror_check"] = bool(mirror_check)
     parameters["suspect_points"] = suspect_points
-    ident = _assess(est)
+    ident = _assess(est, tracks.input)
     ident, unreproduced = _with_mirror(ident, check, tracks.frames)
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
                                          tracks.confidence, parameters, ident, unreproduced,
@@ -551,11 +551,13 @@ def _response_array(values: pd.DataFrame, response: FiducialResponse) -> np.ndar
         for m in response.muscles])
 
 
-def _assess(est) -> dict:
+def _assess(est, input_meta=None) -> dict:
     """:func:`~faceanalysis.estimation.identifiability.assess` of an estimate: at the
-    tracking noise, and from the estimates themselves (controls that trade places)."""
+    tracking noise, and from the estimates themselves (controls that trade places); of
+    photographs (``input_meta``), at the reference noise and without trading."""
     return assess(est.response, est.displacements, fit_options=est.fit_options,
-                  values=_response_array(est.values, est.response))
+                  values=_response_array(est.values, est.response),
+                  sequence=not is_photographs(input_meta))
 
 
 def _warn_identifiability(video, ident: dict) -> None:
@@ -729,7 +731,10 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
 def _late_references(tracks: Tracks, k: int) -> dict[int, int]:
     """For each point the neutral frame ``k`` does not see, the first tracked row within
     :data:`LATE_REFERENCE_S` after it that sees it: point index -> row. A point seen
-    nowhere in that time is left without a neutral position (not measured)."""
+    nowhere in that time is left without a neutral position (not measured), and so is one
+    of photographs (the photograph after the neutral one shows another expression)."""
+    if is_photographs(tracks.input):
+        return {}
     pts = tracks.points
     missing = np.flatnonzero(~np.isfinite(pts[k]).all(axis=1))
     if not missing.size:
@@ -1090,7 +1095,8 @@ def reestimate(analysis: Analysis, estimator: str, *, refine: bool = False,
                          "options": obs.options}
         check = _mirror_check(est, mirrored, k, tracks, analysis.response, estimator,
                               est_options, mirrored.video, calib_options)
-    ident, unreproduced = _with_mirror(_assess(est), check, tracks.frames
+    ident, unreproduced = _with_mirror(_assess(est, analysis.metadata.get("input")), check,
+                                       tracks.frames
                                        if tracks is not None else table["frame"].to_numpy())
     table, residual, fit = _contractions(table, est.values, est.displacements, est.response,
                                          track_conf, parameters, ident, unreproduced,

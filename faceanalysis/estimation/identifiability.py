@@ -369,7 +369,7 @@ def traded_pairs(values: np.ndarray, names, *, limit: float = TRADE_LIMIT,
 
 def assess(response: FiducialResponse, displacements: np.ndarray, *,
            min_seen: float = 0.5, fit_options: dict | None = None,
-           values: np.ndarray | None = None) -> dict:
+           values: np.ndarray | None = None, sequence: bool = True) -> dict:
     """Identifiability of every control from the points seen in a video, for
     ``analysis.json``.
 
@@ -386,6 +386,10 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     values : ndarray, shape (T, C), optional
         The video's estimates of ``response.muscles``: a control that trades places with
         another in them (:func:`traded_pairs`) is not identifiable either.
+    sequence : bool, keyword-only
+        The frames are a video's, in time (True), or photographs: then neither the
+        noise nor the trading is read from one frame to the next (which would be from one
+        photograph's expression to another's); the noise is :data:`REFERENCE_NOISE_CM`.
 
     Returns
     -------
@@ -406,7 +410,8 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     frames = measured.any(axis=1)
     share = measured[frames].mean(axis=0) if frames.any() else np.zeros(d.shape[1])
     seen = [p for p, s in zip(response.fiducials, share) if s >= min_seen]
-    noise, samples = tracking_noise(d, points=[response.fiducials.index(p) for p in seen])
+    noise, samples = (tracking_noise(d, points=[response.fiducials.index(p) for p in seen])
+                      if sequence else (None, 0))
     source = "measured"
     if noise is None:
         noise, source = REFERENCE_NOISE_CM, "reference"
@@ -425,7 +430,7 @@ def assess(response: FiducialResponse, displacements: np.ndarray, *,
     else:
         controls = {name: {"rmse": None, "independent": 0.0, "identifiable": False}
                     for name in response.muscles}
-    traded = [] if values is None else traded_pairs(values, response.muscles)
+    traded = [] if values is None or not sequence else traded_pairs(values, response.muscles)
     for name in response.muscles:
         controls[name]["traded_with"] = [o for p in traded for o in p["controls"]
                                          if name in p["controls"] and o != name]

@@ -1015,9 +1015,13 @@ def test_a_photograph_reads_the_same_wherever_it_stands_among_the_others(tmp_pat
         folder.mkdir()
         for k, i in enumerate(order):
             cv2.imwrite(str(folder / f"{k}.png"), frames[i])
-        table = analyze(folder).table
+        analysis = analyze(folder)
+        table = analysis.table
         assert table["success"].all()
-        tables[order] = {i: table[list(MUSCLES)].iloc[k].to_numpy(float)
+        # no noise read from one photograph's expression to the next
+        assert analysis.metadata["identifiability"]["noise_source"] == "reference"
+        columns = [*MUSCLES, *(f"{m}_identifiable" for m in MUSCLES)]
+        tables[order] = {i: table[columns].iloc[k].to_numpy(float)
                          for k, i in enumerate(order)}
     a, b = tables.values()
     assert a[4].max() > 0.2                                  # the smile reads
@@ -1062,3 +1066,20 @@ def test_a_folder_without_a_frame_rate_is_taken_photograph_by_photograph(tmp_pat
     assert analyze(folder, temporal=0.02).metadata["parameters"]["temporal"] == 0.02
     # re-estimating keeps what the analysis used
     assert reestimate(photos, "joint").metadata["parameters"]["temporal"] == 0.0
+
+
+def test_a_point_the_neutral_photograph_misses_is_not_taken_from_the_next():
+    """Over a video, a point the neutral frame misses takes its neutral place from a frame
+    just after it; the photograph after the neutral one shows another expression."""
+    from types import SimpleNamespace
+
+    from faceanalysis.analysis.pipeline import _late_references
+
+    points = np.zeros((3, 4, 2))
+    points[0, 2] = np.nan                                    # unseen on the neutral frame
+    tracks = SimpleNamespace(points=points, success=np.ones(3, bool),
+                             timestamps=np.arange(3) / 30.0,
+                             input={"kind": "images", "fps_origin": "user"})
+    assert _late_references(tracks, 0) == {2: 1}             # frames of a video
+    tracks.input = {"kind": "images", "fps_origin": "default"}
+    assert _late_references(tracks, 0) == {}                 # photographs

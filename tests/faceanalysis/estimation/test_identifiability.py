@@ -284,3 +284,15 @@ def test_mirror_agreement_checks_its_inputs():
         mirror_agreement(x, x[:10], NAMES)
     with pytest.raises(ValueError, match="positive ranges"):
         mirror_agreement(x, x, NAMES, upper=[0.0] * len(NAMES))
+
+
+def test_photographs_read_no_noise_nor_trading_from_one_to_the_next():
+    response = model_response()
+    rng = np.random.default_rng(0)
+    # each frame a different expression: their differences are no noise
+    d = rng.normal(0, 0.3, (6, len(response.fiducials), 2))
+    video = assess(response, d)
+    photos = assess(response, d, sequence=False)
+    assert video["noise_source"] == "measured" and video["noise_cm"] > 0.1
+    assert photos["noise_source"] == "reference" and photos["noise_cm"] == REFERENCE_NOISE_CM
+    assert photos["traded"] == []
