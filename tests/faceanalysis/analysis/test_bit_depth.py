@@ -46,15 +46,10 @@ def test_alpha_and_float_pictures_give_the_analysis_of_their_eight_bit_colour(tm
     TIFF in 0..255 is refused by name, where it would have read as white frames."""
     from PIL import Image
 
-    from synth.render.sequence import render_sequence
+    from tests.faceanalysis._frames import rendered_frames
 
-    files = render_sequence(tmp_path / "render", expression="happiness", frames=4, size=128,
-                            seed=7, flow=False)
-    capture = cv2.VideoCapture(str(files["video"]))
-    frames = []
-    while (read := capture.read())[0]:
-        frames.append(read[1])
-    capture.release()
+    frames = rendered_frames(tmp_path / "render", expression="happiness", frames=4, size=128,
+                             seed=7)
     folders = {k: tmp_path / k for k in ("bgr", "bgra", "grey", "grey_alpha", "float", "float255")}
     for folder in folders.values():
         folder.mkdir()
@@ -82,13 +77,10 @@ def test_alpha_and_float_pictures_give_the_analysis_of_their_eight_bit_colour(tm
 def test_a_photograph_of_another_size_is_analysed_as_at_the_first_size(tmp_path):
     """Photographs may each have their own size: one stored at twice the first's size is
     shrunk onto its canvas and reads exactly as stored at that size, where it was lost."""
-    from synth.render.sequence import render_sequence
+    from tests.faceanalysis._frames import rendered_frames
 
-    files = render_sequence(tmp_path / "render", expression="happiness", frames=3, size=128,
-                            seed=7, flow=False)
-    capture = cv2.VideoCapture(str(files["video"]))
-    frames = [capture.read()[1] for _ in range(3)]
-    capture.release()
+    frames = rendered_frames(tmp_path / "render", expression="happiness", frames=3, size=128,
+                             seed=7)
     same, mixed = tmp_path / "same", tmp_path / "mixed"
     for folder in (same, mixed):
         folder.mkdir()

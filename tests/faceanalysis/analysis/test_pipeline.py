@@ -966,13 +966,10 @@ def test_a_coarsely_coded_neutral_frame_is_warned_about(tmp_path, caplog, surpri
 def test_a_point_says_which_of_two_faces_is_analysed(run_cli, tmp_path):
     """Beside a larger face (an interviewer, a screen behind), the subject is picked by a
     point on it; the point is recorded."""
-    from synth.render.sequence import render_sequence
+    from tests.faceanalysis._frames import rendered_frames
 
-    files = render_sequence(tmp_path / "render", expression="happiness", frames=4, size=160,
-                            seed=5, flow=False)
-    capture = cv2.VideoCapture(str(files["video"]))
-    faces = [capture.read()[1] for _ in range(4)]
-    capture.release()
+    faces = rendered_frames(tmp_path / "render", expression="happiness", frames=4, size=160,
+                            seed=5)
     folder = tmp_path / "two"
     folder.mkdir()
     for i, face in enumerate(faces):
@@ -1002,13 +999,10 @@ def test_a_photograph_reads_the_same_wherever_it_stands_among_the_others(tmp_pat
     the one before it, which drew each toward its predecessor (the IMM photographs, neutral
     then smile and side-lit neutral, read a muscle up to 0.38 apart in the two orders)."""
     from faceanalysis.io.table import MUSCLES
-    from synth.render.sequence import render_sequence
+    from tests.faceanalysis._frames import rendered_frames
 
-    files = render_sequence(tmp_path / "render", expression="happiness", frames=10, size=192,
-                            seed=5, flow=False)
-    capture = cv2.VideoCapture(str(files["video"]))
-    frames = [capture.read()[1] for _ in range(10)]
-    capture.release()
+    frames = rendered_frames(tmp_path / "render", expression="happiness", frames=10, size=192,
+                             seed=5)
     tables = {}
     for order in ((0, 1, 4), (0, 4, 1)):
         folder = tmp_path / "".join(map(str, order))

@@ -76,13 +76,10 @@ def test_classify_names_each_photograph(run_cli, tmp_path):
     as a video's frames are one frame too short for an expression segment."""
     import cv2
 
-    from synth.render import render_sequence
+    from tests.faceanalysis._frames import rendered_frames
 
-    paths = render_sequence(tmp_path / "seq", expression="surprise", frames=12, size=200,
-                            seed=107, flow=False)
-    capture = cv2.VideoCapture(str(paths["video"]))
-    frames = [capture.read()[1] for _ in range(12)]
-    capture.release()
+    frames = rendered_frames(tmp_path / "seq", expression="surprise", frames=12, size=200,
+                             seed=107)
     photos = tmp_path / "photos"
     photos.mkdir()
     for k, i in enumerate((0, 6, 0)):                   # neutral, surprise, neutral again
