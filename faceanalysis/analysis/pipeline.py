@@ -873,8 +873,10 @@ def _eye_summary(table: pd.DataFrame, tracks: Tracks, k: int, video) -> dict | N
     distance, and the closures of :func:`~faceanalysis.analysis.eyes.eye_closures`; None
     without measured eyes. Warns when the neutral frame's eyes are narrower than usual (the
     openness is relative to them) or smaller than :data:`SMALL_EYES_PX`."""
-    summary = eye_closures(table[list(EYE_COLUMNS)].to_numpy(float), tracks.frames,
-                           tracks.timestamps)
+    # photographs last no time: their closures have no duration, none is a blink
+    times = (np.full(len(tracks.frames), np.nan) if is_photographs(tracks.input)
+             else tracks.timestamps)
+    summary = eye_closures(table[list(EYE_COLUMNS)].to_numpy(float), tracks.frames, times)
     if summary is None:
         return None
     neutral = tracks.eyes[k]

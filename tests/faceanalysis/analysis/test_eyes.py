@@ -108,3 +108,29 @@ def test_the_mirror_check_does_not_read_the_mirrored_eyes(still_face):
     assert np.isfinite(a.tracks.eyes).all()
     assert np.isnan(a.mirrored_tracks.eyes).all()           # not read: nothing uses them
     assert a.metadata["parameters"]["tracker_options"] == {"eyes": True}
+
+
+def test_closed_eyes_on_photographs_are_no_blinks():
+    """A photograph with closed eyes is a closure, not a blink of 1/30 s (the time assumed
+    for an image folder): photographs last no time."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from faceanalysis.analysis.pipeline import _eye_summary
+    from faceanalysis.io.table import EYE_COLUMNS
+
+    openness = np.array([[1.0, 1.0], [0.1, 0.1], [1.0, 0.9], [0.95, 1.0]])
+    table = pd.DataFrame(openness, columns=list(EYE_COLUMNS))
+    mesh = np.zeros((468, 3))
+    mesh[263, 0] = 100.0                                    # outer eye corners 100 px apart
+    tracks = SimpleNamespace(frames=np.arange(4), timestamps=np.arange(4) / 30.0,
+                             eyes=np.full((4, 2), 0.2), success=np.ones(4, bool),
+                             landmarks=[mesh] * 4,
+                             input={"kind": "images", "fps_origin": "user"})
+    video = _eye_summary(table, tracks, 0, "frames")
+    assert video["blinks"] == 1 and video["closures"][0]["blink"] is True
+    tracks.input = {"kind": "images", "fps_origin": "default"}          # photographs
+    photos = _eye_summary(table, tracks, 0, "photos")
+    assert photos["closures"] == [{"first": 1, "last": 1, "duration_s": None, "blink": False}]
+    assert photos["blinks"] == 0 and photos["blinks_per_minute"] is None
