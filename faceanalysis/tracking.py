@@ -26,20 +26,9 @@ import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.cuts import frame_changes, shot_cuts
-from faceanalysis.io.report import (
-    LOST_REASONS,
-    input_metadata,
-    lost_reasons_text,
-)
+from faceanalysis.io.report import LOST_REASONS, input_metadata, lost_reasons_text
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
-from faceanalysis.io.video import (
-    MIN_FACE_SIZE,
-    Frames,
-    as_video,
-    is_photographs,
-    open_video,
-    read_ahead,
-)
+from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
 
 log = logging.getLogger(__name__)
@@ -548,7 +537,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
             from synth.render.video import VideoWriter
 
             # photographs are shown a second each, not at the frame rate assumed for them
-            rate = 1.0 if is_photographs(input_metadata(source)) else source.fps
+            rate = 1.0 if source.photographs else source.fps
             writer = VideoWriter(overlay, rate, source.size, channel_order="bgr")
         shown = None if res is None else res.contours
         hands = None if res is None else res.extra.get("hands")

@@ -671,8 +671,8 @@ def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
         reason = (tracks.lost_reasons or [None] * len(tracks))[k]
         why = f"lost: {LOST_REASONS[reason][0]}" if reason in LOST_REASONS else "face lost"
         tracked = np.flatnonzero(tracks.success)
-        before, after = tracked[tracked < k], tracked[tracked > k]
-        near = [str(int(tracks.frames[r])) for r in (before[-1:], after[:1]) for r in r]
+        nearest = [*tracked[tracked < k][-1:], *tracked[tracked > k][:1]]
+        near = [str(int(tracks.frames[r])) for r in nearest]
         hint = (f"; the nearest tracked frame{'s are' if len(near) > 1 else ' is'} "
                 f"{' and '.join(near)}" if near else "")
         raise ValueError(f"{tracks.video}: neutral frame {neutral} was not tracked ({why})"

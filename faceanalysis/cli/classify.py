@@ -53,7 +53,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
     from faceanalysis.flow.recognition import CLASSES, classify_video
     from faceanalysis.flow.templates import FlowTemplates
     from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV

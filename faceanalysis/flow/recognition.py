@@ -830,13 +830,12 @@ def classify_video(video: str | os.PathLike, *, templates: FlowTemplates | None 
 
 def _photographs(video, fps) -> bool:
     """Whether ``video`` is taken as photographs (an image folder without ``fps``)."""
-    from faceanalysis.io.report import input_metadata
-    from faceanalysis.io.video import Frames, is_photographs, open_video
+    from faceanalysis.io.video import Frames, open_video
 
     if isinstance(video, Frames):
         return False
     with open_video(video, fps=fps) as source:
-        return is_photographs(input_metadata(source))
+        return source.photographs
 
 
 def calibrate_threshold(neutral_energies, expression_energies) -> float:

@@ -427,16 +427,11 @@ class VideoSource:
         """``image`` as the frames are delivered; a ValueError names the input and frame."""
         if not self.eight_bit:
             return image
-        if image.dtype.kind == "f":
-            hint = ("divide by 255 or pass uint8" if file is None else
-                    "a float image is read as 0..1; save it with 8- or 16-bit integer pixels")
-            try:
-                check_float_range(image, hint=hint)
-            except ValueError as error:
-                where = (f"{file} (frame {index})" if file is not None
-                         else f"{self.name}: frame {index}")
-                raise ValueError(f"{where}: {error}") from None
-        return to_uint8(image)
+        try:
+            return to_uint8(image)
+        except ValueError as error:           # floats outside [0, 1]
+            where = f"{file} (frame {index})" if file is not None else f"{self.name}: frame {index}"
+            raise ValueError(f"{where}: {error}") from None
 
     def _iter_frames(self) -> Iterator[Frame]:
         stop = len(self._frames) if self.end is None else self.end

@@ -17,7 +17,7 @@ from faceanalysis.resynthesis.export import MeshExporter
 from faceanalysis.resynthesis.options import MESH_FORMATS, SHADINGS, VIEWS
 from faceanalysis.resynthesis.personalize import SubjectInfo, personalize, personalize_series
 from faceanalysis.resynthesis.render import Resynthesis
-from faceanalysis.resynthesis.series import load_series
+from faceanalysis.resynthesis.series import load_series, same_path
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +150,7 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     elif subject is not None:
         same = (isinstance(subject, (str, os.PathLike)) and Path(subject).is_file()
                 and series.input_path is not None and series.input_path.exists()
-                and series.input_path.resolve() == Path(subject).resolve())
+                and same_path(series.input_path, subject))
         # the subject is the video the source analysed: its neutral frame is already tracked
         subj = (personalize_series(series, Path(subject), model=model) if same
                 else personalize(subject, model=model))
@@ -190,9 +190,8 @@ def _flow_agreement(series, res: Resynthesis, subject, input_video) -> dict:
     neutral = int(series.frames[series.neutral_row])
     # the personalised model is compared as it is when it was made from this video's
     # neutral frame; otherwise the generic model's flow is warped onto the subject in 2-D
-    same = (subject is not None and subject.source
-            and Path(subject.source).exists()
-            and Path(subject.source).resolve() == video.resolve())
+    same = (subject is not None and subject.source and Path(subject.source).exists()
+            and same_path(subject.source, video))
     try:
         agree, summary, _, _ = video_flow_agreement(
             video, table, neutral=neutral, model=None if same else res.model,
@@ -234,7 +233,7 @@ def _analysis_json_for(source, subject) -> Path | None:
             analysed = json.loads(meta_path.read_text()).get("input", {}).get("path")
         except (OSError, json.JSONDecodeError):
             return None
-        if analysed and Path(analysed).resolve() == subject.resolve():
+        if same_path(analysed, subject):
             return meta_path
     return None
 

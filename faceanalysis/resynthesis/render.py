@@ -49,7 +49,7 @@ from faceanalysis.resynthesis.framing import (
 )
 from faceanalysis.resynthesis.options import VIEWS
 from faceanalysis.resynthesis.personalize import SubjectInfo
-from faceanalysis.resynthesis.series import FrameState, Series
+from faceanalysis.resynthesis.series import FrameState, Series, same_path
 
 log = logging.getLogger(__name__)
 
@@ -501,15 +501,9 @@ class Resynthesis:
         """Whether the model is the analysed face's own (generic, or personalised to the
         analysed video): only then do its fiducials answer to the tracked ones. A subject
         from another video plays the series on another face (expression transfer)."""
-        if self.subject is None or not self.subject.source:
+        if self.subject is None or not self.subject.source or self.series.input_path is None:
             return True
-        analysed = self.series.input_path
-        if analysed is None:
-            return True
-        try:
-            return Path(self.subject.source).resolve() == Path(analysed).resolve()
-        except OSError:
-            return False
+        return same_path(self.subject.source, self.series.input_path)
 
 
 def _masked_mae(a: np.ndarray, b: np.ndarray, mask) -> float | None:

@@ -88,6 +88,23 @@ class Series:
         return _DEFAULT_FPS
 
 
+def same_path(a, b) -> bool:
+    """Whether ``a`` and ``b`` name one file or folder (links and ``..`` resolved); False
+    where either is missing (None or empty) or cannot be resolved.
+
+    Examples
+    --------
+    >>> same_path("clips/../clip.mp4", "clip.mp4"), same_path(None, "clip.mp4")
+    (True, False)
+    """
+    if not a or not b:
+        return False
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
 def _label(frames, row: int) -> str:
     return f"line {row + 2} (frame {int(frames[row])})"
 

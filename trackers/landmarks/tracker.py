@@ -6,9 +6,11 @@ import contextlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from trackers.landmarks._image import check_image
+from trackers.landmarks.detection import FaceDetection
 from trackers.landmarks.detection import _run as _detect
 from trackers.landmarks.mesh import _SIZE, roi_transform
 from trackers.landmarks.mesh import _run as _mesh
@@ -103,10 +105,6 @@ def _upright(net, image, face, channel_order: str, min_score: float):
     """``face`` and its detection in ``image`` turned by 180 degrees (mapped back; None where
     that finds none there), the likelier first: the turned one where it scores
     :data:`UPSIDE_DOWN_MARGIN` higher (the face is upside down)."""
-    import cv2
-
-    from trackers.landmarks.detection import FaceDetection
-
     h, w = image.shape[:2]
     far_corner = np.array([w - 1, h - 1], float)
     x0, y0, x1, y1 = face.box
