@@ -326,8 +326,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         from faceanalysis.estimation.model_response import model_response
 
         response = model_response()
-    if neutral is not None:
-        _check_neutral_in_range(video, neutral, fps=fps, start=start, end=end)
+    if neutral is not None or face is not None:
+        _check_input_points(video, neutral, face, fps=fps, start=start, end=end)
     track_options = {"points": response.fiducials, "fps": fps, "start": start, "end": end,
                      "layout": layout, "tracker": tracker, "tracker_options": tracker_options,
                      "backend": backend, "device": device, "progress": progress}
@@ -615,16 +615,22 @@ def _fit_options(estimator: str, refine: bool, temporal, personalize: bool = Fal
     return options
 
 
-def _check_neutral_in_range(video, neutral: int, *, fps, start: int, end: int | None) -> None:
-    """Refuse a neutral frame outside the analysed range before any frame is tracked."""
+def _check_input_points(video, neutral: int | None, face, *, fps, start: int,
+                        end: int | None) -> None:
+    """Refuse, before any frame is tracked, a neutral frame outside the analysed range and
+    a face point outside the picture (coordinates from a scaled display or another video
+    would otherwise quietly pick whichever face lies nearest)."""
     from faceanalysis.io.video import MIN_FACE_SIZE, open_video
 
     with open_video(video, fps=fps, start=start, end=end, min_size=MIN_FACE_SIZE) as src:
-        n = src.n_frames
+        n, (w, h) = src.n_frames, src.size
     last = None if n is None else start + n - 1
-    if neutral < start or (last is not None and neutral > last):
+    if neutral is not None and (neutral < start or (last is not None and neutral > last)):
         raise ValueError(f"{video}: neutral frame {neutral} is outside the analysed range "
                          f"{start}..{'end' if last is None else last}")
+    if face is not None and not (0 <= face[0] <= w and 0 <= face[1] <= h):
+        raise ValueError(f"{video}: face point ({face[0]:g}, {face[1]:g}) lies outside the "
+                         f"{w}x{h} picture (x 0..{w}, y 0..{h} pixels)")
 
 
 #: Added to the warnings that say the snakes did not hold the face: on real faces the

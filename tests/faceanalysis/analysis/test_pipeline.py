@@ -553,6 +553,22 @@ def test_a_neutral_frame_beyond_the_range_is_refused_before_tracking(tmp_path, m
         pipeline.analyze(files["video"], neutral=9)
 
 
+def test_a_face_point_outside_the_picture_is_refused_before_tracking(tmp_path, monkeypatch):
+    # a point from a scaled display or another video: not quietly the nearest face
+    import faceanalysis.analysis.pipeline as pipeline
+
+    frames = np.zeros((2, 80, 120, 3), np.uint8)
+
+    def no_tracking(*args, **kwargs):
+        raise AssertionError("tracked before the face point was checked")
+
+    monkeypatch.setattr(pipeline, "track", no_tracking)
+    with pytest.raises(ValueError, match=r"face point \(130, 40\) lies outside the 120x80"):
+        pipeline.analyze(frames, fps=30, face=(130, 40))
+    with pytest.raises(ValueError, match=r"face point \(60, -1\) lies outside"):
+        pipeline.analyze(frames, fps=30, face=(60, -1))
+
+
 def test_one_image_is_analysed_and_said_to_have_no_expression(tmp_path, caplog):
     import cv2
 
