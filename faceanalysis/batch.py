@@ -583,8 +583,8 @@ def run_batch(inputs: str | os.PathLike | Iterable[str | os.PathLike],
                            "resumed": True}
             else:
                 rows[i] = _failed_row(video, name, f"{folder} exists but is not a finished "
-                                      f"result: {problem}; remove it, or pass --overwrite to "
-                                      f"redo every video")
+                                      f"result: {problem}; remove it, or pass --overwrite "
+                                      f"(overwrite=True) to redo every video")
             continue
         todo.append(i)
     skipped = sum(1 for r in rows if r is not None and r["resumed"])

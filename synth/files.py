@@ -109,7 +109,7 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool = False) -> P
     >>> prepare_output_dir(d / "run" / "1")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    FileExistsError: ... is not empty (it holds old.csv); pass --overwrite to replace its results
+    FileExistsError: ... is not empty (it holds old.csv); pass --overwrite (overwrite=True) ...
     """
     out = Path(path)
     if out.exists() and not out.is_dir():
@@ -119,7 +119,8 @@ def prepare_output_dir(path: str | os.PathLike, *, overwrite: bool = False) -> P
         others = sorted(p.name for p in out.iterdir() if p not in leftovers)
         if others and not overwrite:
             raise FileExistsError(f"{out} is not empty (it holds {_describe(others)}); "
-                                  f"pass --overwrite to replace its results")
+                                  f"pass --overwrite (overwrite=True) to replace "
+                                  f"its results")
         for leftover in leftovers:           # unfinished writes of an interrupted run
             with contextlib.suppress(FileNotFoundError):
                 leftover.unlink()

@@ -34,7 +34,8 @@ class MeshExporter:
         self.subject_uv = subject.uv()[0] if subject is not None else None
         if self.npz:
             if self.target.exists() and not overwrite:
-                raise FileExistsError(f"{self.target} exists; pass --overwrite to replace it")
+                raise FileExistsError(f"{self.target} exists; pass --overwrite "
+                                      f"(overwrite=True) to replace it")
         else:
             from faceanalysis.io.outputs import prepare_output_dir
 

@@ -124,7 +124,8 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
             or texture_seed < 0:
         raise ValueError(f"texture_seed must be a non-negative integer, got {texture_seed!r}")
     if output is not None and Path(output).exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
+        raise FileExistsError(f"{output} exists; pass --overwrite (overwrite=True) to replace "
+                              f"it")
     series = load_series(source)
     if input_video is not None:
         if not Path(input_video).exists():

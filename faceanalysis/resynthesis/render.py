@@ -448,7 +448,8 @@ class Resynthesis:
 
         output = Path(output)
         if output.exists() and not overwrite:
-            raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
+            raise FileExistsError(f"{output} exists; pass --overwrite (overwrite=True) to "
+                                  f"replace it")
         exporter = MeshExporter(export_meshes, mesh_format, self.model, overwrite,
                                  self.subject) if export_meshes is not None else None
         t0 = time.perf_counter()

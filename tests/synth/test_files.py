@@ -153,7 +153,8 @@ def test_prepare_refusal_names_the_contents_and_touches_nothing(tmp_path):
     with pytest.raises(FileExistsError) as info:
         prepare_output_dir(tmp_path)
     assert str(info.value) == (f"{tmp_path} is not empty (it holds .hidden, a.csv, b.png, c, d "
-                               f"and 2 more); pass --overwrite to replace its results")
+                               f"and 2 more); pass --overwrite (overwrite=True) to replace its "
+                               f"results")
     assert len(list(tmp_path.iterdir())) == 8
     prepare_output_dir(tmp_path, overwrite=True)            # results kept, leftover gone
     assert sorted(p.name for p in tmp_path.iterdir()) == names

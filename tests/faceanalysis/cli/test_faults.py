@@ -111,7 +111,8 @@ def test_refusal_names_what_the_folder_holds(face, tmp_path, run_cli):
     code, _, err = run_cli("analyze", face["video"], "-o", out, "-q")
     assert code == 1
     assert err.strip() == (f"faceanalysis: error: {out} is not empty (it holds .notes, "
-                           f"contractions.csv); pass --overwrite to replace its results")
+                           f"contractions.csv); pass --overwrite (overwrite=True) to replace "
+                           f"its results")
 
 
 def test_results_are_not_written_among_the_images_they_come_from(tmp_path, run_cli):
