@@ -85,6 +85,30 @@ def parse_au_string(text: str) -> dict[int, float]:
     return out
 
 
+def _missing_message(path, df: pd.DataFrame, column: str, bad: np.ndarray) -> str:
+    """One line naming the rows of ``column`` that are empty or not numbers; for an
+    analysis's table, whose lost frames are empty, it names them as frames and points to
+    ``resynth``, which renders an analysis and holds its lost frames."""
+    rows = np.flatnonzero(bad)
+    frames = pd.to_numeric(df["frame"], errors="coerce") if "frame" in df.columns else None
+    lost = ("success" in df.columns
+            and (pd.to_numeric(df["success"], errors="coerce").iloc[rows] == 0).all())
+    if frames is not None and frames.iloc[rows].notna().all():
+        where = "frame"
+        shown = frames.iloc[rows].astype(int).tolist()
+    else:
+        where = "data row"
+        shown = (rows + 1).tolist()
+    listed = ", ".join(str(v) for v in shown[:5]) + (f" and {len(shown) - 5} more"
+                                                     if len(shown) > 5 else "")
+    text = (f"{path}: column {column} is empty or not a number on {len(rows)} "
+            f"{where}{'s' if len(rows) != 1 else ''} ({listed}); every row is rendered")
+    if lost:
+        text += (" (these are an analysis's lost frames, success = 0: 'faceanalysis resynth' "
+                 "renders an analysis, holding its lost frames)")
+    return text
+
+
 def _read_contractions_csv(path, muscle_names) -> pd.DataFrame:
     p = Path(path)
     if not p.is_file():
@@ -99,7 +123,7 @@ def _read_contractions_csv(path, muscle_names) -> pd.DataFrame:
         if c in df.columns:
             v = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
             if not np.all(np.isfinite(v)):
-                raise ValueError(f"{p}: column {c} holds missing or non-numeric values")
+                raise ValueError(_missing_message(p, df, c, ~np.isfinite(v)))
             if c != "jaw_rotation" and (v.min() < 0 or v.max() > 1):
                 raise ValueError(f"{p}: column {c} has contractions outside [0, 1]")
             out[c] = v

@@ -173,6 +173,25 @@ def test_contractions_csv_file(tmp_path):
         synthesize(model=KinematicFace(), contractions=tmp_path / "none.csv", size=48)
 
 
+def test_an_analysis_table_with_lost_frames_names_them_and_resynth(tmp_path):
+    # an analysis's contractions.csv: lost frames (success = 0) have empty values
+    p = tmp_path / "contractions.csv"
+    df = _ramp(4)
+    df.insert(0, "frame", [10, 11, 12, 13])
+    df.insert(1, "success", [1, 0, 0, 1])
+    df.loc[[1, 2], ["zygomaticus_major_l", "zygomaticus_major_r", "frontalis_inner_l",
+                    "jaw_rotation"]] = np.nan
+    df.to_csv(p, index=False)
+    with pytest.raises(ValueError, match=r"frontalis_inner_l is empty or not a number on 2 "
+                                         r"frames \(11, 12\).*success = 0.*resynth"):
+        synthesize(model=KinematicFace(), contractions=p, size=48)
+    # a plain table: its rows are named, 1-based as a spreadsheet shows them
+    plain = tmp_path / "plain.csv"
+    pd.DataFrame({"zygomaticus_major_l": ["0.2", "x", "0.3"]}).to_csv(plain, index=False)
+    with pytest.raises(ValueError, match=r"on 1 data row \(2\); every row is rendered$"):
+        synthesize(model=KinematicFace(), contractions=plain, size=48)
+
+
 def test_head_motion_track_starts_frontal_and_is_smooth():
     poses = head_motion_track(40, 5)
     assert poses[0] == HeadPose()
