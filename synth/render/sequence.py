@@ -28,6 +28,7 @@ illumination and sensor noise.
 
 from __future__ import annotations
 
+import difflib
 import io
 import json
 import logging
@@ -115,6 +116,14 @@ def _read_contractions_csv(path, muscle_names) -> pd.DataFrame:
         raise FileNotFoundError(f"contractions file {p} does not exist")
     df = pd.read_csv(p)
     cols = [c for c in muscle_names if c in df.columns]
+    known = {*muscle_names, "jaw_rotation"}
+    for c in df.columns:
+        # a misspelt muscle would be rendered at rest without a word; other columns (an
+        # analysis's head, fiducials, AUs, notes) are not contractions and are left alone
+        near = difflib.get_close_matches(str(c), sorted(known), n=1, cutoff=0.85)
+        if c not in known and near:
+            raise ValueError(f"{p}: column {c!r} is not a control of the face model (did you "
+                             f"mean {near[0]!r}?)")
     if not cols and "jaw_rotation" not in df.columns:
         raise ValueError(f"{p}: no muscle columns (expected names like "
                          f"{', '.join(list(muscle_names)[:3])}, ...) and no jaw_rotation")

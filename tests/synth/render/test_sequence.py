@@ -192,6 +192,16 @@ def test_an_analysis_table_with_lost_frames_names_them_and_resynth(tmp_path):
         synthesize(model=KinematicFace(), contractions=plain, size=48)
 
 
+def test_a_misspelt_muscle_column_is_refused_not_rendered_at_rest(tmp_path):
+    p = tmp_path / "script.csv"
+    pd.DataFrame({"zygomaticus_major_l": [0.0, 0.5], "zygomaticus_mayor_r": [0.0, 0.5],
+                  "notes": ["a", "b"]}).to_csv(p, index=False)
+    with pytest.raises(ValueError, match=r"column 'zygomaticus_mayor_r' is not a control of "
+                                         r"the face model \(did you mean "
+                                         r"'zygomaticus_major_r'\?\)"):
+        synthesize(model=KinematicFace(), contractions=p, size=48)
+
+
 def test_head_motion_track_starts_frontal_and_is_smooth():
     poses = head_motion_track(40, 5)
     assert poses[0] == HeadPose()
