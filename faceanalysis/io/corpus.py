@@ -23,15 +23,11 @@ from faceanalysis.io.outputs import (
     OVERLAY_MP4,
     SUMMARY_CSV,
 )
-from faceanalysis.io.video import IMAGE_SUFFIXES
+from faceanalysis.io.video import IMAGE_SUFFIXES, VIDEO_EXTENSIONS
 
 __all__ = ["MARKER", "VIDEO_EXTENSIONS", "completion_problem", "discover_inputs",
            "expected_outputs", "is_complete", "output_names"]
 
-#: File name suffixes taken as videos when a folder or a glob pattern is expanded
-#: (camcorders write MPEG transport streams, .mts and .m2ts; older phones .3gp).
-VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv",
-                    ".flv", ".mts", ".m2ts", ".ts", ".3gp", ".ogv")
 #: The finished marker, written last into each video's output folder.
 MARKER = "_finished.json"
 MARKER_FORMAT = 1

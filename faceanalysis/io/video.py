@@ -47,6 +47,7 @@ __all__ = [
     "DEFAULT_FPS",
     "IMAGE_SUFFIXES",
     "MIN_FACE_SIZE",
+    "VIDEO_EXTENSIONS",
     "Frame",
     "Frames",
     "VideoSource",
@@ -64,6 +65,10 @@ DEFAULT_FPS = 30.0
 
 #: File name suffixes read from an image folder (compared case-insensitively).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+#: File name suffixes taken as videos when a folder or a glob pattern is expanded
+#: (camcorders write MPEG transport streams, .mts and .m2ts; older phones .3gp).
+VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv",
+                    ".flv", ".mts", ".m2ts", ".ts", ".3gp", ".ogv")
 
 # Reads tried when opening a video before deciding it has no decodable frame.
 _FIRST_FRAME_ATTEMPTS = 250
@@ -608,12 +613,25 @@ def _exif_orientation(path) -> int:
         return 1
 
 
+#: The image folders whose videos have been said to be left unread (:func:`_open_images`).
+_SAID_VIDEOS_BESIDE: set = set()
+
+
+def _named(names: list[str], noun: str) -> str:
+    """``"2 videos (a.mp4, b.mp4)"``: a count and the first three names."""
+    shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+    return f"{len(names)} {noun}{'s' if len(names) != 1 else ''} ({shown})"
+
+
 def _open_images(path: Path, fps: float | None) -> dict:
     if path.is_dir():
         files = sorted((p for p in path.iterdir()
                         if p.is_file() and not p.name.startswith(".")
                         and p.suffix.lower() in IMAGE_SUFFIXES),
                        key=lambda p: _natural_key(p.name))
+        videos = sorted((p.name for p in path.iterdir()
+                         if p.is_file() and not p.name.startswith(".")
+                         and p.suffix.lower() in VIDEO_EXTENSIONS), key=_natural_key)
         if not files:
             heif = sorted(p.name for p in path.iterdir()
                           if p.suffix.lower() in (".heic", ".heif", ".avif"))
@@ -621,8 +639,18 @@ def _open_images(path: Path, fps: float | None) -> dict:
                 f"; its {len(heif)} HEIF/AVIF photograph{'s' if len(heif) > 1 else ''} "
                 f"({heif[0]}{', ...' if len(heif) > 1 else ''}), as phones take them, cannot "
                 "be read: convert them to JPEG or PNG")
+            if videos:
+                hint += (f"; it holds {_named(videos, 'video')}: give a video's own path, or "
+                         "analyse each with 'faceanalysis batch'")
             raise ValueError(f"{path}: folder holds no images "
                              f"({', '.join(IMAGE_SUFFIXES)}){hint}")
+        if videos and (path.resolve(), tuple(videos)) not in _SAID_VIDEOS_BESIDE:
+            # a folder of frames is read as one input; a video beside them is not a frame.
+            # Said once a process: an analysis opens its input more than once.
+            _SAID_VIDEOS_BESIDE.add((path.resolve(), tuple(videos)))
+            log.warning("%s: the folder's images are read as the frames (%d); %s in it %s "
+                        "not read (give a video's own path to analyse it)", path, len(files),
+                        _named(videos, "video"), "is" if len(videos) == 1 else "are")
     else:  # a single image is a one-frame sequence
         files = [path]
     first = None

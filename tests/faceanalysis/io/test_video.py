@@ -449,6 +449,29 @@ def test_empty_folder(tmp_path):
         open_video(tmp_path / "nothing")
 
 
+def test_a_folder_of_videos_is_not_taken_for_an_empty_image_folder(tmp_path, caplog):
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name in ("take2.mp4", "take10.MOV", "take1.mp4"):
+        (folder / name).write_bytes(b"\x00")
+    with pytest.raises(ValueError, match=r"clips: folder holds no images .*; it holds 3 videos "
+                                         r"\(take1\.mp4, take2\.mp4, take10\.MOV\): give a "
+                                         r"video's own path, or analyse each with "
+                                         r"'faceanalysis batch'$"):
+        open_video(folder)
+    # frames with a video beside them: the images are the frames, and the video is said to
+    # be left unread, once however often the folder is opened
+    cv2.imwrite(str(folder / "f0.png"), np.zeros((64, 64, 3), np.uint8))
+    with caplog.at_level("WARNING", logger="faceanalysis.io.video"):
+        for _ in range(2):
+            with open_video(folder) as src:
+                assert src.kind == "images" and src.n_frames == 1
+    said = [r.getMessage() for r in caplog.records if "not read" in r.getMessage()]
+    assert said == [f"{folder}: the folder's images are read as the frames (1); 3 videos "
+                    "(take1.mp4, take2.mp4, take10.MOV) in it are not read (give a video's own "
+                    "path to analyse it)"]
+
+
 def test_folder_start_beyond_end(tmp_path):
     folder = write_folder(tmp_path / "seq", [np.zeros((H, W), np.uint8)] * 3)
     with pytest.raises(ValueError, match=r"start \(3\) is beyond the last frame \(2\)"):
