@@ -425,7 +425,11 @@ class AnchoredTracker:
     occlusion : bool
         Lose the lower face where its contours lie on edges far deeper than their
         features' (:data:`OCCLUSION_WITNESSES`, :data:`OCCLUSION_CHIN`): a hand over the
-        mouth; it stays lost while the chin does (:data:`OCCLUSION_HOLD`).
+        mouth; it stays lost while the chin does (:data:`OCCLUSION_HOLD`). Lose it too
+        where both lips are lost (their edges gone, or off their landmark curves): an
+        occluder with no deep edges of its own (a card, a cup, a blur), under which the
+        face mesh goes on drawing a mouth. Both lips are never lost otherwise on the
+        three real clips, the 120 IMM photographs or rendered expressions.
     hands : bool
         Lose the contours a hand covers (:data:`HAND_COVER`), the hands found by
         MediaPipe's palm detector where the lower face's edges deepen (:data:`HAND_GATE`)
@@ -774,10 +778,14 @@ class AnchoredTracker:
         # times them in a laugh
         chin_alone = chin > OCCLUSION_CHIN and (self.hand_tracker is None
                                                  or self._since_hand <= HAND_MEMORY)
+        # an occluder with no edges of its own over the mouth (a card, a mask, a cup) takes
+        # both lips' edges away: the mesh goes on drawing a mouth there too
+        lipless = (all(quality[n].lost for n in _LIPS)
+                   and not self._unreferenced.intersection(_LIPS))
         covered = self.occlusion and (
             all(not quality[n].lost and quality[n].depth * shrink > d
                 for n, d in OCCLUSION_WITNESSES.items())
-            or chin_alone or self._covered and chin > OCCLUSION_HOLD)
+            or chin_alone or lipless or self._covered and chin > OCCLUSION_HOLD)
         self._edges_covered = covered
         # a covered lower face stays covered while its edges stay deep, on frames where
         # the hand's landmarks or the palm detector lose the hand for a moment

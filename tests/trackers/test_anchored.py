@@ -366,6 +366,34 @@ def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
 
 
+@pytest.mark.parametrize("cover", ["skin", "blur"])
+def test_a_mouth_hidden_without_edges_of_its_own_loses_the_lower_face(face_truth, cover):
+    # a card the colour of the cheek, or the mouth blurred away: no edge deepens, so
+    # neither the edges nor the palm detector call it a hand; both lips lose theirs
+    img, truth = face_truth
+    tracker = AnchoredTracker()
+    tracker.track(img)
+    (xl, yl), (xr, yr) = truth["mouth_corner_l"], truth["mouth_corner_r"]
+    w = abs(xl - xr)
+    x0, x1 = int(min(xl, xr) - 0.4 * w), int(max(xl, xr) + 0.4 * w)
+    y0, y1 = int(min(yl, yr) - 0.5 * w), int(max(yl, yr) + 1.3 * w)
+    hidden = img.copy()
+    if cover == "skin":
+        cheek = img[y0 - int(w):y0 - int(0.5 * w), max(x0 - int(w), 0):x0]
+        hidden[y0:y1, x0:x1] = np.median(cheek.reshape(-1, 3), axis=0)
+    else:
+        hidden[y0:y1, x0:x1] = cv2.GaussianBlur(img[y0:y1, x0:x1], (0, 0), 8)
+    res = tracker.track(hidden)
+    if res is None:
+        pytest.skip("the mesh gave up on the covered face")
+    assert set(res.extra["occluded"]) == set(LOWER_FACE)
+    assert all(res.quality[n].lost for n in LOWER_FACE)
+    assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
+    # the mouth shown again is held again
+    res = tracker.track(img)
+    assert not any(res.quality[n].lost for n in ("upper_lip", "lower_lip"))
+
+
 def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
     img, truth = face_truth
     covered = _fingers(img, truth, int(truth["mouth_corner_r"][1]) - 10)
