@@ -58,9 +58,10 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.io.outputs import ANALYSIS_JSON, CONTRACTIONS_CSV
     from faceanalysis.io.report import check_analysed_input, hidden_frames_of, read_analysis
     from faceanalysis.io.table import read_csv_table
+    from faceanalysis.io.video import missing_input
 
     if not args.video.exists():
-        raise FileNotFoundError(f"{args.video}: no such file or folder")
+        raise missing_input(args.video)
     table = hidden = None
     if args.analysis is not None:
         csv = args.analysis / CONTRACTIONS_CSV

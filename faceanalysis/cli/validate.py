@@ -42,9 +42,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from faceanalysis.evaluation.validation import validate
+    from faceanalysis.io.video import missing_input
 
     if not args.video.exists():
-        raise FileNotFoundError(f"{args.video}: no such file or folder")
+        raise missing_input(args.video)
     if not args.analysis.is_dir():
         raise FileNotFoundError(f"{args.analysis}: no such analysis folder")
     res = validate(args.video, args.analysis, method=args.method,

@@ -23,7 +23,7 @@ from faceanalysis.io.outputs import (
     OVERLAY_MP4,
     SUMMARY_CSV,
 )
-from faceanalysis.io.video import IMAGE_SUFFIXES, VIDEO_EXTENSIONS
+from faceanalysis.io.video import IMAGE_SUFFIXES, VIDEO_EXTENSIONS, missing_input
 
 __all__ = ["MARKER", "VIDEO_EXTENSIONS", "completion_problem", "discover_inputs",
            "expected_outputs", "is_complete", "output_names"]
@@ -120,7 +120,7 @@ def discover_inputs(patterns: str | os.PathLike | Iterable[str | os.PathLike], *
                         "or folder of images" if hits else "matches no file")
                 raise FileNotFoundError(f"pattern {text!r} {what}")
         else:
-            raise FileNotFoundError(f"{text}: no such file or folder")
+            raise missing_input(text)
         for p in matches:
             real = p.resolve()
             if real not in seen:  # the same file reached twice (or through a link)

@@ -53,6 +53,7 @@ __all__ = [
     "VideoSource",
     "as_video",
     "is_photographs",
+    "missing_input",
     "open_video",
     "read_ahead",
     "read_image",
@@ -623,6 +624,23 @@ def _named(names: list[str], noun: str) -> str:
     return f"{len(names)} {noun}{'s' if len(names) != 1 else ''} ({shown})"
 
 
+#: A URL's scheme, as a path shows it (``Path`` folds ``https://`` to ``https:/``); two
+#: letters at least, so that a Windows drive (``C:/``) is not one.
+_URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+):/+")
+
+
+def missing_input(path) -> FileNotFoundError:
+    """The error for an input ``path`` that does not exist: a URL or stream (which the
+    toolkit does not download) is named as one."""
+    text = os.fsdecode(path)
+    url = _URL.match(text)
+    if url:
+        text = _URL.sub(lambda m: f"{m.group(1)}://", text, count=1)
+        return FileNotFoundError(f"{text}: a URL or stream; the toolkit reads local files "
+                                 "(a video, a folder of images, an image): download it first")
+    return FileNotFoundError(f"{text}: no such file or folder")
+
+
 def _open_images(path: Path, fps: float | None) -> dict:
     if path.is_dir():
         files = sorted((p for p in path.iterdir()
@@ -889,7 +907,7 @@ def open_video(path: str | os.PathLike | Frames, *, fps: float | None = None,
     else:
         path = Path(os.fsdecode(path))
         if not path.exists():
-            raise FileNotFoundError(f"{path}: no such file or folder")
+            raise missing_input(path)
         if not os.access(path, os.R_OK):
             raise PermissionError(f"{path}: permission denied")
         if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:

@@ -129,7 +129,9 @@ def resynthesize(source, *, model=None, subject=None, size=None, view: str = "fr
     series = load_series(source)
     if input_video is not None:
         if not Path(input_video).exists():
-            raise FileNotFoundError(f"{input_video}: no such file or folder")
+            from faceanalysis.io.video import missing_input
+
+            raise missing_input(input_video)
         from faceanalysis.io.report import check_analysed_input
 
         check_analysed_input(input_video, series.metadata.get("input"),

@@ -115,6 +115,16 @@ def test_refusal_names_what_the_folder_holds(face, tmp_path, run_cli):
                            f"its results")
 
 
+@pytest.mark.parametrize("command", [("analyze", "-o", "out"), ("classify",), ("probe",),
+                                     ("batch", "-o", "out")])
+def test_a_url_is_refused_in_one_line_naming_it(tmp_path, run_cli, monkeypatch, command):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(command[0], "https://example.com/clip.mp4", *command[1:])
+    assert code == 1
+    assert err.startswith("faceanalysis: error: https://example.com/clip.mp4: a URL or stream")
+    assert err.count("\n") == 1 and not (tmp_path / "out").exists()
+
+
 def test_results_are_not_written_among_the_images_they_come_from(tmp_path, run_cli):
     """The plot written into a folder of images would be read as one more picture by the
     next analysis of it; --overwrite does not change that."""

@@ -6,6 +6,7 @@ import gc
 import threading
 import tracemalloc
 from contextlib import closing
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -117,6 +118,17 @@ def test_grey_video_is_read(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nothere\.mp4: no such file"):
         open_video(tmp_path / "nothere.mp4")
+
+
+@pytest.mark.parametrize("url", ["https://example.com/clip.mp4", "rtsp://camera/stream"])
+def test_a_url_is_named_as_one_not_as_a_missing_file(url):
+    # as given, and as a Path (the command line's), which folds '//' to '/'
+    for given in (url, Path(url)):
+        with pytest.raises(FileNotFoundError, match=rf"^{url}: a URL or stream; the toolkit "
+                                                    r"reads local files .*download it first$"):
+            open_video(given)
+    with pytest.raises(FileNotFoundError, match=r"^C:/clips/a\.mp4: no such file or folder$"):
+        open_video("C:/clips/a.mp4")
 
 
 def test_random_bytes_are_not_a_video(tmp_path):
