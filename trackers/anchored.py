@@ -53,8 +53,9 @@ from trackers.torch_backend import check_backend, make_tracker
 from trackers.tracking import Tracker
 
 __all__ = ["DEFAULT_SPRINGS", "EDGE_CONTOURS", "EDGE_WAIT", "END_HOLD", "HAND_START",
-           "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD", "OCCLUSION_CHIN", "OCCLUSION_HOLD",
-           "OCCLUSION_WITNESSES", "AnchoredTracker", "rigid_similarity", "rotation_angles"]
+           "LIPS_EDGELESS", "LOWER_FACE", "MAX_DISAGREEMENT", "MAX_IOD", "OCCLUSION_CHIN",
+           "OCCLUSION_HOLD", "OCCLUSION_WITNESSES", "AnchoredTracker", "rigid_similarity",
+           "rotation_angles"]
 
 #: Spring stiffness per contour (relative to the damping ``gamma/dt`` = 0.5). Weak: on
 #: rendered faces, whose edges the snakes find to a fraction of a pixel, stiffer springs
@@ -119,6 +120,15 @@ OCCLUSION_CHIN = 15.0
 OCCLUSION_HOLD = 8.0
 LOWER_FACE = ("upper_lip", "lower_lip", "chin_boss", "furrow_l", "furrow_r")
 _LIPS = ("upper_lip", "lower_lip")
+
+#: Where the contours are placed, the lips are taken as covered (a card, a cup, a blur
+#: over the mouth from the start) when both lie on edges shallower than this many times
+#: the mean depth of the brows' and the nose's (:data:`_LIP_GAUGE`) there. The larger of
+#: the two is at least 0.196 of it on the first frame of 150 faces (the 120 IMM
+#: photographs, 24 frames of the three real clips, 6 rendered faces), against 0.001 under
+#: a card the colour of the cheek and 0.082 with the mouth blurred away.
+LIPS_EDGELESS = 0.12
+_LIP_GAUGE = ("brow_l", "brow_r", "nose_tip")
 
 #: A hand is looked for (:class:`~trackers.landmarks.hands.HandTracker`'s palm detector) on
 #: a frame where the lower lip or the chin lies on edges more than this many times as deep
@@ -429,7 +439,10 @@ class AnchoredTracker:
         where both lips are lost (their edges gone, or off their landmark curves): an
         occluder with no deep edges of its own (a card, a cup, a blur), under which the
         face mesh goes on drawing a mouth. Both lips are never lost otherwise on the
-        three real clips, the 120 IMM photographs or rendered expressions.
+        three real clips, the 120 IMM photographs or rendered expressions. Where the
+        contours are placed on lips without edges (:data:`LIPS_EDGELESS`), ``video``
+        places them afresh on the next frame (for at most :data:`EDGE_WAIT` frames), so
+        that their references come from the mouth itself, not its cover.
     hands : bool
         Lose the contours a hand covers (:data:`HAND_COVER`), the hands found by
         MediaPipe's palm detector where the lower face's edges deepen (:data:`HAND_GATE`)
@@ -528,6 +541,7 @@ class AnchoredTracker:
         self._since_init = 0        # frames since the contours were placed
         self._restart = False       # place them afresh on the next frame with a face
         self._edge_waited = 0       # frames held back with the face at the picture's edge
+        self._lips_waited = 0       # frames held back with the mouth covered where placed
         if hands:
             from trackers.landmarks.hands import HandTracker
 
@@ -779,9 +793,23 @@ class AnchoredTracker:
         chin_alone = chin > OCCLUSION_CHIN and (self.hand_tracker is None
                                                  or self._since_hand <= HAND_MEMORY)
         # an occluder with no edges of its own over the mouth (a card, a mask, a cup) takes
-        # both lips' edges away: the mesh goes on drawing a mouth there too
-        lipless = (all(quality[n].lost for n in _LIPS)
-                   and not self._unreferenced.intersection(_LIPS))
+        # both lips' edges away: the mesh goes on drawing a mouth there too. Where the
+        # contours are placed (``first``) the lips have no references yet: both lost there
+        # is a mouth covered from the start
+        if first:
+            ref = self.tracker.ref_depth
+            flat = (max(ref[n] for n in _LIPS)
+                    < LIPS_EDGELESS * np.mean([ref[n] for n in _LIP_GAUGE]))
+            lipless = flat or all(quality[n].lost for n in _LIPS)
+        else:
+            lipless = (all(quality[n].lost for n in _LIPS)
+                       and not self._unreferenced.intersection(_LIPS))
+        # their references would be taken on the cover (a flat one: every later edge
+        # seems far deeper, and the lower face stays covered): placed afresh on the next
+        # frame, for at most EDGE_WAIT frames (lips never found are placed as they are)
+        unplaced = (first and lipless and self.video and next_frame is not None
+                    and self._lips_waited < EDGE_WAIT)
+        self._lips_waited += unplaced
         covered = self.occlusion and (
             all(not quality[n].lost and quality[n].depth * shrink > d
                 for n, d in OCCLUSION_WITNESSES.items())
@@ -796,7 +824,8 @@ class AnchoredTracker:
         # the first frame's references (its edges' depths, the contours' offsets from
         # their curves) may lie under it, and would then hide the hand from every later
         # frame's edges; the contours are placed afresh on the next frame
-        self._restart = edge or bool(hands and occluded and self._since_init < HAND_START)
+        self._restart = (edge or unplaced
+                         or bool(hands and occluded and self._since_init < HAND_START))
         # a face entering the picture: its features there are not yet where the contours
         # would take their references (and the analysis its neutral frame) from
         for name in quality if edge else occluded:

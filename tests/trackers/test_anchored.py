@@ -366,13 +366,8 @@ def test_a_hand_over_the_mouth_loses_the_lower_face(face_truth):
     assert not res.quality["brow_l"].lost and not res.quality["brow_r"].lost
 
 
-@pytest.mark.parametrize("cover", ["skin", "blur"])
-def test_a_mouth_hidden_without_edges_of_its_own_loses_the_lower_face(face_truth, cover):
-    # a card the colour of the cheek, or the mouth blurred away: no edge deepens, so
-    # neither the edges nor the palm detector call it a hand; both lips lose theirs
-    img, truth = face_truth
-    tracker = AnchoredTracker()
-    tracker.track(img)
+def _mouth_hidden(img, truth, cover):
+    """``img`` with the mouth under a card the colour of the cheek, or blurred away."""
     (xl, yl), (xr, yr) = truth["mouth_corner_l"], truth["mouth_corner_r"]
     w = abs(xl - xr)
     x0, x1 = int(min(xl, xr) - 0.4 * w), int(max(xl, xr) + 0.4 * w)
@@ -383,7 +378,17 @@ def test_a_mouth_hidden_without_edges_of_its_own_loses_the_lower_face(face_truth
         hidden[y0:y1, x0:x1] = np.median(cheek.reshape(-1, 3), axis=0)
     else:
         hidden[y0:y1, x0:x1] = cv2.GaussianBlur(img[y0:y1, x0:x1], (0, 0), 8)
-    res = tracker.track(hidden)
+    return hidden
+
+
+@pytest.mark.parametrize("cover", ["skin", "blur"])
+def test_a_mouth_hidden_without_edges_of_its_own_loses_the_lower_face(face_truth, cover):
+    # no edge deepens, so neither the edges nor the palm detector call it a hand; both
+    # lips lose theirs
+    img, truth = face_truth
+    tracker = AnchoredTracker()
+    tracker.track(img)
+    res = tracker.track(_mouth_hidden(img, truth, cover))
     if res is None:
         pytest.skip("the mesh gave up on the covered face")
     assert set(res.extra["occluded"]) == set(LOWER_FACE)
@@ -392,6 +397,25 @@ def test_a_mouth_hidden_without_edges_of_its_own_loses_the_lower_face(face_truth
     # the mouth shown again is held again
     res = tracker.track(img)
     assert not any(res.quality[n].lost for n in ("upper_lip", "lower_lip"))
+
+
+@pytest.mark.parametrize("cover", ["skin", "blur"])
+def test_a_mouth_hidden_from_the_first_frame_is_placed_once_it_shows(face_truth, cover):
+    # the lips' references taken on the cover would make every later edge seem far
+    # deeper than theirs, and the lower face would stay covered after the cover left
+    img, truth = face_truth
+    hidden = _mouth_hidden(img, truth, cover)
+    tracker = AnchoredTracker(video=True)
+    for _ in range(3):
+        res = tracker.track(hidden, next_frame=hidden)
+        assert set(res.extra["occluded"]) == set(LOWER_FACE)
+    for _ in range(3):
+        res = tracker.track(img, next_frame=img)
+        assert not any(res.quality[n].lost for n in LOWER_FACE)
+    # photographs have no later frame to wait for: one with the mouth hidden is read
+    # with its lower face lost
+    still = AnchoredTracker(video=False, photographs=True)
+    assert set(still.track(hidden).extra["occluded"]) == set(LOWER_FACE)
 
 
 def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
