@@ -807,8 +807,8 @@ class AnchoredTracker:
         # their references would be taken on the cover (a flat one: every later edge
         # seems far deeper, and the lower face stays covered): placed afresh on the next
         # frame, for at most EDGE_WAIT frames (lips never found are placed as they are)
-        unplaced = (first and lipless and self.video and next_frame is not None
-                    and self._lips_waited < EDGE_WAIT)
+        unplaced = (self.occlusion and first and lipless and self.video
+                    and next_frame is not None and self._lips_waited < EDGE_WAIT)
         self._lips_waited += unplaced
         covered = self.occlusion and (
             all(not quality[n].lost and quality[n].depth * shrink > d

@@ -408,7 +408,8 @@ def test_a_mouth_hidden_from_the_first_frame_is_placed_once_it_shows(face_truth,
     tracker = AnchoredTracker(video=True)
     for _ in range(3):
         res = tracker.track(hidden, next_frame=hidden)
-        assert set(res.extra["occluded"]) == set(LOWER_FACE)
+        # lost, and placed again (from a detection) on the next frame
+        assert set(res.extra["occluded"]) == set(LOWER_FACE) and res.extra["detected"]
     for _ in range(3):
         res = tracker.track(img, next_frame=img)
         assert not any(res.quality[n].lost for n in LOWER_FACE)
@@ -416,6 +417,10 @@ def test_a_mouth_hidden_from_the_first_frame_is_placed_once_it_shows(face_truth,
     # with its lower face lost
     still = AnchoredTracker(video=False, photographs=True)
     assert set(still.track(hidden).extra["occluded"]) == set(LOWER_FACE)
+    # without the occlusion rules, the contours stay placed on the covered mouth
+    free = AnchoredTracker(video=True, occlusion=False)
+    placed = [free.track(hidden, next_frame=hidden).extra["detected"] for _ in range(2)]
+    assert placed == [True, False]
 
 
 def test_a_hand_staying_on_the_chin_keeps_the_lower_face_lost(face_truth):
