@@ -616,7 +616,7 @@ def track(video: str | os.PathLike, *, points: tuple[str, ...] = tuple(FIDUCIALS
                 mesh.append(_mesh(res) if good else None)
                 ok.append(good)
                 reasons.append(None if good else "fading" if fading
-                               else _lost_reason(frame.ok, res))
+                               else _lost_reason(frame.ok, res, getattr(tracker, "others", 0)))
                 conf.append(c)
                 fid_rows.append(fids)
                 pt_rows.append(pts)
@@ -776,7 +776,7 @@ def lost_everywhere(video, reasons) -> str:
 #: Lost-frame reasons (:data:`~faceanalysis.io.report.LOST_REASONS`) that leave nothing of
 #: the face to see: no face found, a hand over it, no picture at all. (A frame lost for
 #: ``'contours'`` still shows the face.)
-HIDDEN_REASONS = ("no_face", "hand", "undecodable", "fading")
+HIDDEN_REASONS = ("no_face", "other_face", "hand", "undecodable", "fading")
 
 
 def hidden_frames(frames, lost_reasons) -> np.ndarray:
@@ -806,13 +806,14 @@ def _under_hand(result) -> set:
     return set(result.extra.get("occluded", ()))
 
 
-def _lost_reason(decoded: bool, result) -> str:
+def _lost_reason(decoded: bool, result, others: int = 0) -> str:
     """Why a frame that was not tracked is lost (a code of
-    :data:`~faceanalysis.io.report.LOST_REASONS`)."""
+    :data:`~faceanalysis.io.report.LOST_REASONS`); ``others``: faces the tracker found
+    on it and took for someone else's."""
     if not decoded:
         return "undecodable"
     if result is None:
-        return "no_face"
+        return "other_face" if others else "no_face"
     if result.extra.get("edge"):
         return "edge"
     return "hand" if result.extra.get("hands") else "contours"

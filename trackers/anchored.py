@@ -542,6 +542,7 @@ class AnchoredTracker:
         self._restart = False       # place them afresh on the next frame with a face
         self._edge_waited = 0       # frames held back with the face at the picture's edge
         self._lips_waited = 0       # frames held back with the mouth covered where placed
+        self.others = 0             # faces on the last frame taken for others' (landmarks)
         if hands:
             from trackers.landmarks.hands import HandTracker
 
@@ -674,6 +675,8 @@ class AnchoredTracker:
                                                          thread_name_prefix="hands")
                 following = self._hand_pool.submit(self.hand_tracker.track, frame,
                                                    detect=False)
+        # faces found on this frame and taken for someone else's than the followed one
+        self.others = 0 if lm is not None else int(getattr(self.landmarks, "others", 0))
         if lm is None:
             self._gap = True
             return None
@@ -859,7 +862,10 @@ class AnchoredTracker:
         working size, brightness and hands are kept): the next frame with a face places
         them as a first frame does, from the face detector's read of it."""
         self._restart = False
-        reset = getattr(self.landmarks, "reset", None)
+        # the same face, placed again: looked for where it was, not taken afresh from
+        # the picture's faces
+        reset = (getattr(self.landmarks, "redetect", None)
+                 or getattr(self.landmarks, "reset", None))
         if reset is not None:
             reset()
         self.tracker = None

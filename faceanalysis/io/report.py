@@ -47,6 +47,9 @@ FORMAT = "faceanalysis.analysis.pipeline/1"
 LOST_REASONS: dict[str, tuple[str, str]] = {
     "undecodable": ("undecodable", "the frame could not be decoded"),
     "no_face": ("without a face", "no face found (or the landmark model not confident of one)"),
+    "other_face": ("with only someone else's face",
+                   "the followed face not found, another face elsewhere in the picture (a "
+                   "face far from where the followed one was last seen is someone else's)"),
     "hand": ("under a hand", "a hand over the face, and too few points left"),
     "contours": ("with too few contours held",
                  "too few points held (contours lost: an occluder, or off their features)"),

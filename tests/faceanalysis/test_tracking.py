@@ -6,6 +6,7 @@ import pytest
 
 from faceanalysis.tracking import MIN_POINTS, POINT_CONTOUR, Tracks, to_head_frame, track
 from tests.trackers.conftest import draw_face
+from tests.trackers.landmarks.conftest import face, models, scene  # noqa: F401 (fixtures)
 from trackers import layout_from_eyes
 
 
@@ -274,11 +275,12 @@ def test_a_lost_frame_says_why():
     hand = SimpleNamespace(extra={"hands": [np.zeros((21, 2))]})
     bare = SimpleNamespace(extra={"hands": []})
     reasons = [_lost_reason(False, None), _lost_reason(True, None), _lost_reason(True, hand),
-               _lost_reason(True, bare), _lost_reason(True, SimpleNamespace(extra={}))]
-    assert reasons == ["undecodable", "no_face", "hand", "contours", "contours"]
+               _lost_reason(True, bare), _lost_reason(True, SimpleNamespace(extra={})),
+               _lost_reason(True, None, others=1)]
+    assert reasons == ["undecodable", "no_face", "hand", "contours", "contours", "other_face"]
     assert set(reasons) <= set(LOST_REASONS)
-    assert lost_reason_counts([None, *reasons]) == {"undecodable": 1, "no_face": 1, "hand": 1,
-                                                    "contours": 2}
+    assert lost_reason_counts([None, *reasons]) == {"undecodable": 1, "no_face": 1,
+                                                    "other_face": 1, "hand": 1, "contours": 2}
     # tracks made elsewhere do not know why
     tr = Tracks(video="v", input={}, frames=np.arange(2), timestamps=np.zeros(2),
                 success=np.array([True, False]), confidence=np.ones(2),
@@ -398,3 +400,16 @@ def test_the_frames_before_a_hand_is_found_lose_what_it_covers(tmp_path, rendere
     assert chin[untouched].notna().all() and tr.success[untouched].all()
     cap = cv2.VideoCapture(str(overlay))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 7          # held-back frames all drawn
+
+
+def test_a_subject_who_leaves_beside_someone_else_is_lost_not_replaced(face):  # noqa: F811
+    # an interview: the followed (larger) face leaves the picture for a while, the other
+    # stays; its frames are not measured on the other face against the subject's neutral
+    from faceanalysis.io.video import Frames
+
+    img, _ = face
+    frames = [scene(img)] * 4 + [scene(img, big=False)] * 4 + [scene(img)] * 4
+    tr = track(Frames(np.stack(frames), 30))
+    assert tr.success.tolist() == [True] * 4 + [False] * 4 + [True] * 4
+    assert tr.lost_reasons[4:8] == ["other_face"] * 4
+    assert (tr.heads[tr.success, 0] < 320).all()

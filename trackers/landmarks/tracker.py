@@ -17,7 +17,8 @@ from trackers.landmarks.mesh import _run as _mesh
 from trackers.landmarks.models import ensure_models
 from trackers.landmarks.runtime import check_runtime, load_network
 
-__all__ = ["RECROP", "FAR_SIZE", "TILE_EVERY", "UPSIDE_DOWN_MARGIN", "Landmarks", "LandmarkTracker"]
+__all__ = ["RECROP", "FAR_SIZE", "REACQUIRE", "TILE_EVERY", "UPSIDE_DOWN_MARGIN", "Landmarks",
+           "LandmarkTracker"]
 
 #: Crop change (pixels of the 192-pixel crop) beyond which a tracking frame is read again
 #: from the crop its own landmarks call for (:class:`LandmarkTracker`, ``recrop``). On
@@ -25,8 +26,16 @@ __all__ = ["RECROP", "FAR_SIZE", "TILE_EVERY", "UPSIDE_DOWN_MARGIN", "Landmarks"
 RECROP = 4.0
 
 # frames a lost face's position is remembered, so that a face returning after a short
-# occlusion is preferred over a bystander
+# occlusion is preferred over a bystander (in a picture that has shown several faces, for
+# as long as it is lost)
 _MEMORY = 30
+
+#: In a picture that has shown several faces at once, a face found farther than this many
+#: times the lost face's size (its landmarks' extent) from where the followed face was
+#: last seen is someone else's, not the face come back (:attr:`LandmarkTracker.others`):
+#: a subject who turns away or leaves the picture is not replaced by the interviewer
+#: beside them. (A face alone in the picture is taken wherever it comes back.)
+REACQUIRE = 1.5
 
 #: While a lost face is remembered, a face that only the full-range detector finds and that
 #: is smaller than this share of it (its box's longer side against the lost face's
@@ -206,6 +215,14 @@ class LandmarkTracker:
         taken instead of the largest (a subject beside a larger face: an interviewer, a
         face on a screen behind).
 
+    Attributes
+    ----------
+    others : int
+        Faces found on the last frame tracked and taken for someone else's: once the
+        picture has shown several faces at once, a lost face is looked for where it was
+        last seen, for as long as it is lost, and a face farther than :data:`REACQUIRE`
+        times its size from there is not taken for it (:meth:`track` returns None).
+
     Notes
     -----
     :meth:`prefetch` starts the next frame's landmarks in a background thread: the
@@ -246,7 +263,15 @@ class LandmarkTracker:
         self.start_near = check_point(start_near, "start_near")
         self._executor: ThreadPoolExecutor | None = None
         self._pending = None       # (frame, future, state before it) of a prefetch
+        self._crowd = False        # several faces were found at once on some frame
         self.reset()
+
+    def redetect(self) -> None:
+        """Start the next frame with a detection, of the face followed so far: the face
+        found nearest where it was last seen (:data:`REACQUIRE`), as after a loss."""
+        self._discard()
+        self._previous = None
+        self.others = 0
 
     def reset(self) -> None:
         """Forget the face: the next frame starts with a detection."""
@@ -255,6 +280,7 @@ class LandmarkTracker:
         self._last_centre = None   # where the face was last seen
         self._last_size = None     # and its landmarks' extent (pixels)
         self._lost = 0             # frames since then
+        self.others = 0            # faces found on the last frame but taken for others
 
     def prefetch(self, frame) -> None:
         """Start tracking ``frame`` in a background thread.
@@ -270,7 +296,7 @@ class LandmarkTracker:
             self._executor = ThreadPoolExecutor(max_workers=1,
                                                 thread_name_prefix="landmarks")
         # before the thread moves it
-        state = self._previous, self._last_centre, self._last_size, self._lost
+        state = self._previous, self._last_centre, self._last_size, self._lost, self._crowd
         self._pending = (frame, self._executor.submit(self._track, frame), state)
 
     def close(self) -> None:
@@ -294,7 +320,8 @@ class LandmarkTracker:
             # its frame is not tracked: an error there is not this caller's
             with contextlib.suppress(Exception):
                 future.result()
-            self._previous, self._last_centre, self._last_size, self._lost = state
+            (self._previous, self._last_centre, self._last_size, self._lost,
+             self._crowd) = state
 
     def _net(self, name):
         # the networks are cached per thread by load_network; the files are checked (and
@@ -320,8 +347,18 @@ class LandmarkTracker:
             # a face far smaller than the one just lost is someone else's
             faces = [f for f in faces if max(f.box[2] - f.box[0], f.box[3] - f.box[1])
                      >= FAR_SIZE * self._last_size]
+        self._crowd = self._crowd or len(faces) > 1
+        refused = 0
+        if faces and self._last_centre is not None and self._crowd:
+            # in a picture that has shown several faces, a face far from where the
+            # followed one was last seen is someone else's
+            centres = np.array([f.box for f in faces], float).reshape(-1, 2, 2).mean(axis=1)
+            close = (np.hypot(*(centres - self._last_centre).T)
+                     <= REACQUIRE * self._last_size)
+            refused = int(np.count_nonzero(~close))
+            faces = [f for f, k in zip(faces, close) if k]
         if not faces:
-            return None, 0.0
+            return None, 0.0, refused
         boxes = np.array([f.box for f in faces])
         target = self._last_centre if self._last_centre is not None else self.start_near
         if target is not None:
@@ -340,7 +377,7 @@ class LandmarkTracker:
             points, presence = self._landmarks(image, other)
         if self.refine_first and presence >= self.min_presence:
             points, presence = self._converge(image, points, presence, max_runs=1)
-        return points, presence
+        return points, presence, refused
 
     def _converge(self, image, points, presence, max_runs: int = 5, shift: float = 0.25):
         """Run the model from the crop of its own landmarks until they move less than
@@ -387,13 +424,17 @@ class LandmarkTracker:
         pending = self._pending
         if pending is not None and pending[0] is frame:
             self._pending = None
-            return pending[1].result()
+            out, self.others = pending[1].result()
+            return out
         self._discard()
-        return self._track(frame)
+        out, self.others = self._track(frame)
+        return out
 
-    def _track(self, frame) -> Landmarks | None:
+    def _track(self, frame) -> tuple[Landmarks | None, int]:
+        """This frame's landmarks (None: no face followed) and how many faces were
+        found and taken for others'."""
         image = check_image(frame, self.channel_order)
-        points, presence, detected = None, 0.0, False
+        points, presence, detected, refused = None, 0.0, False, 0
         if self._previous is not None:
             points, presence = self._landmarks(image, self._previous)
             if (presence >= self.min_presence
@@ -402,14 +443,15 @@ class LandmarkTracker:
                 if p >= self.min_presence:
                     points, presence = again, p
         if points is None or presence < self.min_presence:
-            (points, presence), detected = self._detect(image), True
+            (points, presence, refused), detected = self._detect(image), True
         if points is None or presence < self.min_presence:
             self._previous = None
             self._lost += 1
-            if self._lost > _MEMORY:
+            if self._lost > _MEMORY and not self._crowd:
+                # alone in the picture, a face found after long is the face come back
                 self._last_centre = self._last_size = None
-            return None
-        return self._accept(points, presence, detected)
+            return None, refused
+        return self._accept(points, presence, detected), 0
 
     def _accept(self, points, presence, detected) -> Landmarks:
         """Track on from ``points`` (468, 3) and return them as this frame's landmarks."""

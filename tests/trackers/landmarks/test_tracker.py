@@ -78,6 +78,24 @@ def test_the_largest_face_first_then_the_same_face(face):
     assert back.detected and _centre(back) > 320
 
 
+def test_where_several_faces_were_seen_a_lost_face_is_not_replaced_by_another(face):
+    from trackers.landmarks.tracker import _MEMORY
+
+    img, _ = face
+    tracker = LandmarkTracker()
+    assert _centre(tracker.track(scene(img))) < 320 and tracker.others == 0
+    # the followed face leaves; the other stays: someone else's, for as long as it is lost
+    for _ in range(_MEMORY + 5):
+        assert tracker.track(scene(img, big=False)) is None and tracker.others == 1
+    back = tracker.track(scene(img))
+    assert back.detected and _centre(back) < 320 and tracker.others == 0
+    # a face alone in the picture is the same face wherever it comes back
+    alone = LandmarkTracker()
+    assert _centre(alone.track(scene(img, small=False))) < 320
+    moved = alone.track(scene(img, big=False))
+    assert moved is not None and _centre(moved) > 320 and alone.others == 0
+
+
 @pytest.mark.parametrize("recrop", [None, np.inf])
 def test_a_face_that_jumps_is_read_from_a_crop_that_fits_it(face, recrop):
     img, _ = face
