@@ -433,6 +433,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     if blocky[1] is None else
                     f"if the face is at rest there, frame {blocky[1]}, the first coded like "
                     f"the rest, is a better neutral frame (--neutral {blocky[1]})")
+    calib["below_neutral"] = _raised_neutral(video, est, tracks, k, given=neutral is not None)
     iod = _interocular_px(tracks)
     if iod is not None and iod < SMALL_FACE_IOD:
         log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
@@ -613,6 +614,31 @@ def _fit_options(estimator: str, refine: bool, temporal, personalize: bool = Fal
     if estimator in TEMPORAL_ESTIMATORS:
         options["temporal"] = TEMPORAL if temporal is None else temporal
     return options
+
+
+def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool) -> dict:
+    """Warn where the neutral frame shows raised brows (most frames read the frontalis
+    below it, :mod:`faceanalysis.estimation.neutral_check`); the share of frames below it
+    per frontalis, for ``analysis.json`` (empty: not checked)."""
+    from faceanalysis.estimation.neutral_check import BELOW, BELOW_SHARE, below_neutral
+
+    if is_photographs(tracks.input):
+        return {}
+    shares, lowest = below_neutral(est.displacements, est.response,
+                                   weights=est.fit_options.get("weights"))
+    raised = [c for c, s in shares.items() if s >= BELOW_SHARE]
+    if raised:
+        frame = int(tracks.frames[lowest])
+        one = len(raised) == 1
+        log.warning("%s: the brows may be raised on the %s neutral frame %d: on %.0f %% of "
+                    "the tracked frames %s read%s more than %.2f of %s range below it, so "
+                    "%s measured from raised brows, not from rest, and read%s short; frame "
+                    "%d, where the brows read lowest, may be nearer rest (--neutral %d)",
+                    video, "given" if given else "default", int(tracks.frames[k]),
+                    100 * max(shares[c] for c in raised), ", ".join(raised),
+                    "s" if one else "", BELOW, "its" if one else "their",
+                    "it is" if one else "they are", "s" if one else "", frame, frame)
+    return {c: round(s, 3) for c, s in shares.items()}
 
 
 def _check_input_points(video, neutral: int | None, face, *, fps, start: int,

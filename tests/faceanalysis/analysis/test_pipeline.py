@@ -1093,3 +1093,36 @@ def test_a_point_the_neutral_photograph_misses_is_not_taken_from_the_next():
     assert _late_references(tracks, 0) == {2: 1}             # frames of a video
     tracks.input = {"kind": "images", "fps_origin": "default"}
     assert _late_references(tracks, 0) == {}                 # photographs
+
+
+def test_a_neutral_frame_with_raised_brows_is_said_to_be_one(tmp_path, caplog):
+    # a surprise cut to start at its apex: the brows come down and stay down; every later
+    # frame would read the frontalis at 0 against the raised neutral frame
+    from faceanalysis.io.video import Frames
+    from synth.render.sequence import render_sequence
+
+    files = render_sequence(tmp_path / "s", expression="surprise", frames=24, size=160,
+                            seed=2, flow=False)
+    truth = pd.read_csv(files["truth"])
+    capture = cv2.VideoCapture(str(files["video"]))
+    frames = [capture.read()[1] for _ in range(24)]
+    capture.release()
+    top = truth.frontalis_major_l.max()
+    apex = int(truth.index[truth.frontalis_major_l >= top - 1e-6][-1])     # the apex's end
+    rest = int(truth.frontalis_major_l[apex:].idxmin())
+    clip = frames[apex:rest + 1] + [frames[rest]] * 30
+    with caplog.at_level("WARNING"):
+        a = analyze(Frames(np.stack(clip), 30, channel_order="bgr"))
+    said = [r.getMessage() for r in caplog.records if "brows may be raised" in r.getMessage()]
+    assert len(said) == 1 and "default neutral frame 0" in said[0]
+    shares = a.metadata["calibration"]["below_neutral"]
+    assert max(shares.values()) >= 0.8
+    # the suggested frame is one where the brows are down
+    suggested = int(said[0].rsplit("--neutral ", 1)[1].rstrip(")"))
+    assert suggested >= rest - apex
+    # the same frames from rest: nothing said
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        b = analyze(Frames(np.stack(clip[::-1]), 30, channel_order="bgr"))
+    assert not any("brows may be raised" in r.getMessage() for r in caplog.records)
+    assert max(b.metadata["calibration"]["below_neutral"].values()) < 0.5
