@@ -6,10 +6,10 @@ estimators, which bound each contraction at 0, cannot read the face relaxing bel
 brows coming down read as rest, and every later raise is read short. A fit without bounds
 or prior through the response linearised at rest (:func:`below_neutral`) reads such frames
 as negative contractions. For the frontalis the points tell the muscles apart well enough
-for that to be a measurement: on cap12 and cap13 analysed from 34 starting frames each (300
-frames from each), the 7 starts whose brows the whole clip's analysis reads raised by 0.58
-or more had 0.85-0.98 of their frames reading a frontalis more than :data:`BELOW` of its
-range below them, and the 27 others at most 0.72 (the lower face's controls, which the
+for that to be a measurement: on cap12 and cap13 analysed from 31 later starting frames (300
+frames from each) and whole, the 6 starts whose brows the whole clip's analysis reads raised
+by 0.58 or more had 0.85-0.98 of their frames reading a frontalis more than :data:`BELOW` of
+its range below them, and the 27 others at most 0.73 (the lower face's controls, which the
 points tell apart less well, read below rest on most frames of clips that start at rest).
 """
 
