@@ -217,7 +217,8 @@ EDGE_CONTOURS = ("brow_l", "brow_r", "furrow_l", "furrow_r", "nose_tip", "upper_
 #: placed as it is. cap13's face coming in from below over 30 frames was placed with its
 #: mouth below the picture, and its later frames read muscles 0.91 off those of the clip as
 #: it is, from the same neutral frame (median of the largest); coming in from the right,
-#: 0.49; now 0.32 and 0.12.
+#: 0.49; now 0.32 and 0.12. A mouth covered where the contours would be placed
+#: (:data:`LIPS_EDGELESS`) is waited for within the same count.
 EDGE_WAIT = 30
 
 #: Most that a frame's grey levels are raised or lowered by (``video``).
@@ -540,8 +541,9 @@ class AnchoredTracker:
         self._since_palm = HAND_RETRY   # frames since the palm detector last found nothing
         self._since_init = 0        # frames since the contours were placed
         self._restart = False       # place them afresh on the next frame with a face
-        self._edge_waited = 0       # frames held back with the face at the picture's edge
-        self._lips_waited = 0       # frames held back with the mouth covered where placed
+        # frames whose contours were held back for the face in full (at the picture's
+        # edge, its mouth covered where they would be placed): at most EDGE_WAIT
+        self._waited = 0
         self.others = 0             # faces on the last frame taken for others' (landmarks)
         if hands:
             from trackers.landmarks.hands import HandTracker
@@ -694,9 +696,9 @@ class AnchoredTracker:
         if self.tracker is None:
             h, w = frame.shape[:2]
             placed_curves = landmark_curves(placed.points)
-            if (self.video and next_frame is not None and self._edge_waited < EDGE_WAIT
+            if (self.video and next_frame is not None and self._waited < EDGE_WAIT
                     and not _inside(placed_curves, (w, h), EDGE_CONTOURS)):
-                self._edge_waited += 1
+                self._waited += 1
                 edge = True
             layout = layout_from_landmarks(placed.points, (w, h))
             springs = self.springs
@@ -811,8 +813,8 @@ class AnchoredTracker:
         # seems far deeper, and the lower face stays covered): placed afresh on the next
         # frame, for at most EDGE_WAIT frames (lips never found are placed as they are)
         unplaced = (self.occlusion and first and lipless and self.video
-                    and next_frame is not None and self._lips_waited < EDGE_WAIT)
-        self._lips_waited += unplaced
+                    and next_frame is not None and self._waited < EDGE_WAIT)
+        self._waited += unplaced
         covered = self.occlusion and (
             all(not quality[n].lost and quality[n].depth * shrink > d
                 for n, d in OCCLUSION_WITNESSES.items())

@@ -643,15 +643,13 @@ def missing_input(path) -> FileNotFoundError:
 
 def _open_images(path: Path, fps: float | None) -> dict:
     if path.is_dir():
-        files = sorted((p for p in path.iterdir()
-                        if p.is_file() and not p.name.startswith(".")
-                        and p.suffix.lower() in IMAGE_SUFFIXES),
+        entries = [p for p in path.iterdir() if p.is_file() and not p.name.startswith(".")]
+        files = sorted((p for p in entries if p.suffix.lower() in IMAGE_SUFFIXES),
                        key=lambda p: _natural_key(p.name))
-        videos = sorted((p.name for p in path.iterdir()
-                         if p.is_file() and not p.name.startswith(".")
-                         and p.suffix.lower() in VIDEO_EXTENSIONS), key=_natural_key)
+        videos = sorted((p.name for p in entries if p.suffix.lower() in VIDEO_EXTENSIONS),
+                        key=_natural_key)
         if not files:
-            heif = sorted(p.name for p in path.iterdir()
+            heif = sorted(p.name for p in entries
                           if p.suffix.lower() in (".heic", ".heif", ".avif"))
             hint = "" if not heif else (
                 f"; its {len(heif)} HEIF/AVIF photograph{'s' if len(heif) > 1 else ''} "

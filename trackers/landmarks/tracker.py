@@ -270,17 +270,15 @@ class LandmarkTracker:
         """Start the next frame with a detection, of the face followed so far: the face
         found nearest where it was last seen (:data:`REACQUIRE`), as after a loss."""
         self._discard()
-        self._previous = None
-        self.others = 0
+        self._previous = None      # (468, 3) landmarks of the last frame, while tracking
+        self.others = 0            # faces found on the last frame but taken for others
 
     def reset(self) -> None:
         """Forget the face: the next frame starts with a detection."""
-        self._discard()
-        self._previous = None      # (468, 3) landmarks of the last frame, while tracking
+        self.redetect()
         self._last_centre = None   # where the face was last seen
         self._last_size = None     # and its landmarks' extent (pixels)
         self._lost = 0             # frames since then
-        self.others = 0            # faces found on the last frame but taken for others
 
     def prefetch(self, frame) -> None:
         """Start tracking ``frame`` in a background thread.
