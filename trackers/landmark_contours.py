@@ -30,6 +30,7 @@ __all__ = [
     "interocular_distance",
     "landmark_curves",
     "layout_from_landmarks",
+    "lip_gap",
 ]
 
 # Eyebrow band: (upper edge, lower edge), inner end first; the contour is its centre line.
@@ -110,6 +111,27 @@ def eye_centres(points) -> np.ndarray:
 def interocular_distance(points) -> float:
     """The distance between the mesh's eye centres (:func:`eye_centres`), in its units."""
     return float(np.hypot(*np.subtract(*eye_centres(points))))
+
+
+def lip_gap(points) -> float:
+    """How far the mouth is open: the mean distance between the inner lips' middle three
+    landmark pairs, in inter-ocular distances (:func:`interocular_distance`).
+
+    Lips at rest touch (0.01-0.02: the landmarks lie on either lip's inner border); a
+    talking mouth opens 0.05-0.3.
+
+    Examples
+    --------
+    >>> pts = np.zeros((468, 2))
+    >>> pts[list(EYE_POINTS[1]), 0] = 60.0          # eye centres 60 px apart
+    >>> pts[[87, 14, 317], 1] = 6.0                 # lower lip 6 px below the upper
+    >>> round(lip_gap(pts), 3)
+    0.1
+    """
+    p = _check(points)
+    upper, lower = _LIP_INDEX[0][3:6], _LIP_INDEX[1][3:6]
+    gap = np.hypot(*(p[upper] - p[lower]).T).mean()
+    return float(gap / max(interocular_distance(p), 1e-12))
 
 
 def landmark_curves(points, *, eyes=None) -> dict[str, np.ndarray]:

@@ -434,6 +434,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     f"if the face is at rest there, frame {blocky[1]}, the first coded like "
                     f"the rest, is a better neutral frame (--neutral {blocky[1]})")
     calib["below_neutral"] = _raised_neutral(video, est, tracks, k, given=neutral is not None)
+    calib["neutral_lips_apart"] = _open_neutral(video, tracks, k, given=neutral is not None)
     iod = _interocular_px(tracks)
     if iod is not None and iod < SMALL_FACE_IOD:
         log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
@@ -639,6 +640,31 @@ def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool) -> dict:
                     "s" if one else "", BELOW, "its" if one else "their",
                     "it is" if one else "they are", "s" if one else "", frame, frame)
     return {c: round(s, 3) for c, s in shares.items()}
+
+
+def _open_neutral(video, tracks: Tracks, k: int, *, given: bool) -> float | None:
+    """Warn where the mouth is open on the neutral frame (its lips farther apart than on
+    the clip's closed frames, :func:`~faceanalysis.estimation.neutral_check.open_mouth`);
+    by how much, for ``analysis.json`` (None: not checked, e.g. without the face mesh)."""
+    from faceanalysis.estimation.neutral_check import MOUTH_OPEN, open_mouth
+    from trackers.landmark_contours import lip_gap
+
+    if is_photographs(tracks.input) or tracks.landmarks is None:
+        return None
+    gaps = [lip_gap(m) if ok and m is not None else np.nan
+            for m, ok in zip(tracks.landmarks, tracks.success)]
+    excess, closed = open_mouth(gaps, k)
+    if excess is None:
+        return None
+    if excess > MOUTH_OPEN:
+        log.warning("%s: the mouth is open on the %s neutral frame %d (its lips %.2f "
+                    "inter-ocular distances farther apart than on the clip's closed frames): "
+                    "the lower face is measured from an open mouth, not from rest; %s",
+                    video, "given" if given else "default", int(tracks.frames[k]), excess,
+                    "give a frame where the face is at rest (--neutral N)" if closed is None
+                    else f"frame {int(tracks.frames[closed])}, where the lips are closed, may "
+                    f"be nearer rest (--neutral {int(tracks.frames[closed])})")
+    return round(excess, 4)
 
 
 def _check_input_points(video, neutral: int | None, face, *, fps, start: int,

@@ -1,4 +1,5 @@
-"""Is the neutral frame at rest? A free fit of every frame against it tells raised brows.
+"""Is the neutral frame at rest? A free fit of every frame against it tells raised brows;
+the lips' gap tells an open mouth.
 
 Every contraction is measured from the neutral frame. Where that frame shows an expression
 (brows raised as a subject starts to speak, a clip cut to start mid-sentence), the
@@ -11,6 +12,15 @@ frames from each) and whole, the 6 starts whose brows the whole clip's analysis 
 by 0.58 or more had 0.85-0.98 of their frames reading a frontalis more than :data:`BELOW` of
 its range below them, and the 27 others at most 0.73 (the lower face's controls, which the
 points tell apart less well, read below rest on most frames of clips that start at rest).
+
+An open mouth on the neutral frame (a clip cut to start mid-sentence) is told by the
+face mesh's inner lips instead (:func:`open_mouth`): the free fit reads the jaw below the
+neutral frame only for a wide-open mouth, while the lower face already reads off with lips
+parted by a tenth of the inter-ocular distance. On cap12 and cap13 analysed from 38 starting
+frames (300 frames each) against the whole clips' analyses (which start with the lips
+closed), the 12 starts whose lips lay more than :data:`MOUTH_OPEN` farther apart than the
+clip's closed level read the lower face's muscles a mean 0.056-0.36 off, the 26 others at
+most 0.063; from the closed frame :func:`open_mouth` offers, the 12 read 0.018-0.059 off.
 """
 
 from __future__ import annotations
@@ -19,7 +29,8 @@ import numpy as np
 
 from faceanalysis.estimation.response import FiducialResponse
 
-__all__ = ["BELOW", "BELOW_SHARE", "BROWS", "MIN_FRAMES", "below_neutral"]
+__all__ = ["BELOW", "BELOW_SHARE", "BROWS", "CLOSED_PERCENTILE", "CLOSED_RUN", "MIN_FRAMES",
+           "MOUTH_OPEN", "below_neutral", "open_mouth"]
 
 #: The controls checked: the frontalis, whose free fit the points determine.
 BROWS = tuple(f"frontalis_{part}_{side}" for part in ("inner", "major", "outer")
@@ -35,6 +46,19 @@ BELOW_SHARE = 0.8
 
 #: Fewest tracked frames the check is made on.
 MIN_FRAMES = 30
+
+#: The mouth is taken as open on the neutral frame when its lips lie farther apart than
+#: the clip's closed level by more than this many inter-ocular distances
+#: (:func:`~trackers.landmark_contours.lip_gap`).
+MOUTH_OPEN = 0.05
+
+#: The clip's closed level: this percentile of the tracked frames' lip gaps (a talking
+#: face closes its lips on more than a tenth of its frames).
+CLOSED_PERCENTILE = 10
+
+#: A frame offered instead starts a run of at least this many tracked frames whose lips
+#: lie within ``MOUTH_OPEN / 2`` of the closed level (a pause, not a consonant's closure).
+CLOSED_RUN = 5
 
 
 def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
@@ -110,3 +134,48 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
     low = free[:, cols] < -BELOW
     shares = {response.muscles[j]: float(s) for j, s in zip(cols, low.mean(axis=0))}
     return shares, int(rows[np.argmin(free[:, cols].mean(axis=1))])
+
+
+def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
+    """How much farther apart the lips are on the neutral frame than the clip's closed
+    level, and a frame nearby whose lips are closed.
+
+    Parameters
+    ----------
+    gaps : array_like, shape (T,)
+        Each frame's lip gap in inter-ocular distances
+        (:func:`~trackers.landmark_contours.lip_gap`); NaN where the frame is lost.
+    neutral : int
+        Row of the neutral frame.
+
+    Returns
+    -------
+    excess : float or None
+        The neutral frame's gap less the closed level (the :data:`CLOSED_PERCENTILE`
+        percentile of the gaps); None under :data:`MIN_FRAMES` frames with a gap or
+        where the neutral frame has none. Over :data:`MOUTH_OPEN` the mouth is open there.
+    closed : int or None
+        The row, nearest the neutral frame, that starts :data:`CLOSED_RUN` frames with the
+        lips closed (within ``MOUTH_OPEN / 2`` of the closed level); None if none does.
+
+    Examples
+    --------
+    >>> g = np.full(60, 0.01)
+    >>> g[:20] = 0.2                                 # talking over the first 20 frames
+    >>> excess, closed = open_mouth(g, 0)
+    >>> round(excess, 2), closed
+    (0.19, 20)
+    """
+    g = np.asarray(gaps, dtype=float)
+    if g.ndim != 1 or not 0 <= neutral < len(g):
+        raise ValueError(f"gaps must be 1-D with the neutral row {neutral} inside it, "
+                         f"got shape {g.shape}")
+    seen = np.isfinite(g)
+    if seen.sum() < MIN_FRAMES or not seen[neutral]:
+        return None, None
+    level = float(np.percentile(g[seen], CLOSED_PERCENTILE))
+    shut = seen & (g <= level + MOUTH_OPEN / 2)
+    run = np.convolve(shut, np.ones(CLOSED_RUN, int), mode="valid") == CLOSED_RUN
+    starts = np.flatnonzero(run)
+    closed = (int(starts[np.argmin(np.abs(starts - neutral))]) if starts.size else None)
+    return float(g[neutral] - level), closed

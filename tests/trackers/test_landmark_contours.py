@@ -5,6 +5,7 @@ from trackers.landmark_contours import (
     eye_centres,
     landmark_curves,
     layout_from_landmarks,
+    lip_gap,
 )
 from trackers.layout import CONTOUR_NAMES, TEMPLATE, layout_from_eyes
 
@@ -70,6 +71,22 @@ def test_layout_from_landmarks_keeps_the_templates_settings():
         assert d.max() < 1.5, name
     # the mouth line's ends are the mesh's corners, not relocated by the tracker
     assert got.contours["upper_lip"].ends == "free"
+
+
+def test_lip_gap_measures_the_opening_in_interocular_distances():
+    from trackers.landmark_contours import _LIP_INNER
+
+    closed, _ = _mesh_from_template()
+    assert lip_gap(closed) == pytest.approx(0.0, abs=1e-9)      # both lips on one line
+    opened = closed.copy()
+    opened[list(_LIP_INNER[1])] += [0.0, 9.0]                 # lower lip 9 px down
+    assert lip_gap(opened) == pytest.approx(9.0 / 60.0)          # eyes 60 px apart
+    # the same face twice the size, moved and turned by 30 degrees: the same opening
+    turn = np.deg2rad(30.0)
+    rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    assert lip_gap(2.0 * opened @ rot.T + [40.0, -7.0]) == pytest.approx(9.0 / 60.0)
+    with pytest.raises(ValueError, match="468"):
+        lip_gap(np.zeros((68, 2)))
 
 
 def test_bad_landmarks_are_refused():

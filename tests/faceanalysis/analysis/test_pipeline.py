@@ -1095,9 +1095,11 @@ def test_a_point_the_neutral_photograph_misses_is_not_taken_from_the_next():
     assert _late_references(tracks, 0) == {}                 # photographs
 
 
-def test_a_neutral_frame_with_raised_brows_is_said_to_be_one(tmp_path, caplog):
-    # a surprise cut to start at its apex: the brows come down and stay down; every later
-    # frame would read the frontalis at 0 against the raised neutral frame
+def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(tmp_path,
+                                                                              caplog):
+    # a surprise cut to start at its apex: the brows come down and the mouth closes, and
+    # stay so; every later frame would read the frontalis at 0 against the raised neutral
+    # frame, and the lower face against an open mouth
     from faceanalysis.io.video import Frames
     from synth.render.sequence import render_sequence
 
@@ -1120,9 +1122,17 @@ def test_a_neutral_frame_with_raised_brows_is_said_to_be_one(tmp_path, caplog):
     # the suggested frame is one where the brows are down
     suggested = int(said[0].rsplit("--neutral ", 1)[1].rstrip(")"))
     assert suggested >= rest - apex
+    # the mouth too, and a frame where it is closed is offered
+    said = [r.getMessage() for r in caplog.records if "mouth is open" in r.getMessage()]
+    assert len(said) == 1 and "default neutral frame 0" in said[0]
+    assert a.metadata["calibration"]["neutral_lips_apart"] > 0.1
+    suggested = int(said[0].rsplit("--neutral ", 1)[1].rstrip(")"))
+    assert truth.jaw_rotation[min(apex + suggested, rest)] < 0.02
     # the same frames from rest: nothing said
     caplog.clear()
     with caplog.at_level("WARNING"):
         b = analyze(Frames(np.stack(clip[::-1]), 30, channel_order="bgr"))
-    assert not any("brows may be raised" in r.getMessage() for r in caplog.records)
+    assert not any("brows may be raised" in r.getMessage() or "mouth is open" in r.getMessage()
+                   for r in caplog.records)
     assert max(b.metadata["calibration"]["below_neutral"].values()) < 0.5
+    assert abs(b.metadata["calibration"]["neutral_lips_apart"]) < 0.02

@@ -1,4 +1,5 @@
-"""Raised brows on the neutral frame (faceanalysis.estimation.neutral_check)."""
+"""Raised brows and an open mouth on the neutral frame
+(faceanalysis.estimation.neutral_check)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ import pytest
 from faceanalysis.estimation.neutral_check import (
     BELOW_SHARE,
     BROWS,
+    CLOSED_RUN,
     MIN_FRAMES,
+    MOUTH_OPEN,
     below_neutral,
+    open_mouth,
 )
 from faceanalysis.estimation.registry import CONTOUR_WEIGHT, mesh_response
 
@@ -68,3 +72,54 @@ def test_too_few_frames_or_points_are_not_judged(response):
     assert below_neutral(d, response) == ({}, None)
     with pytest.raises(ValueError, match=r"displacements must be \(T, \d+, 2\)"):
         below_neutral(d[:, :5], response)
+
+
+def _talking(rng, frames=120):
+    """Lip gaps (inter-ocular distances) of a talking face: lips at rest (0.01) half the
+    time, open by up to 0.3 in syllables of 3-8 frames."""
+    g = np.full(frames, 0.01) + rng.normal(0, 0.003, frames)
+    t = 0
+    while t < frames:
+        n = int(rng.integers(3, 9))
+        if rng.random() < 0.5:
+            g[t:t + n] += rng.uniform(0.08, 0.3)
+        t += n
+    return g
+
+
+def test_an_open_mouth_on_the_neutral_frame_is_told_and_a_closed_one_offered():
+    rng = np.random.default_rng(0)
+    g = _talking(rng)
+    g[:6] = [0.25, 0.28, 0.2, 0.01, 0.22, 0.3]      # mid-sentence, a consonant's closure
+    g[40:50] = 0.01                                  # a pause
+    excess, closed = open_mouth(g, 0)
+    assert excess > MOUTH_OPEN
+    # offered: the first run of closed lips nearest the neutral frame, not frame 3
+    assert closed is not None and closed != 3
+    assert np.all(g[closed:closed + CLOSED_RUN] <= 0.01 + MOUTH_OPEN / 2 + 0.01)
+    # the same clip from its pause: the mouth at rest there
+    excess, _ = open_mouth(g, 45)
+    assert abs(excess) < MOUTH_OPEN / 2
+
+
+def test_lips_that_rest_apart_are_not_an_open_mouth():
+    # a face whose lips never close: the closed level is its own, not 0
+    rng = np.random.default_rng(1)
+    g = _talking(rng) + 0.06
+    excess, _ = open_mouth(g, int(np.argmin(np.abs(g - 0.07))))
+    assert excess < MOUTH_OPEN
+
+
+def test_an_open_mouth_is_not_judged_on_too_few_frames():
+    g = np.full(MIN_FRAMES + 10, np.nan)
+    g[:MIN_FRAMES - 1] = 0.01
+    g[0] = 0.3
+    assert open_mouth(g, 0) == (None, None)          # too few frames with a gap
+    g[:] = 0.01
+    g[5] = np.nan
+    assert open_mouth(g, 5) == (None, None)          # the neutral frame has none
+    g[:] = 0.3                                       # open throughout: no closed run
+    excess, closed = open_mouth(g, 0)
+    assert excess == pytest.approx(0.0) and closed is not None
+    with pytest.raises(ValueError, match="neutral row 99"):
+        open_mouth(g, 99)
