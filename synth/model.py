@@ -143,6 +143,10 @@ class FaceModel:
         return self._t
 
     def _check_value(self, name: str, value) -> float:
+        # float() reads "0.5" and True as numbers: a column read as text or a flag passed
+        # by mistake would go through as a contraction
+        if isinstance(value, (str, bytes, bool, np.bool_)):
+            raise ValueError(f"contraction of {name!r} must be a number, got {value!r}")
         try:
             x = float(value)
         except (TypeError, ValueError):
@@ -153,6 +157,8 @@ class FaceModel:
 
     @staticmethod
     def _check_jaw(value) -> float:
+        if isinstance(value, (str, bytes, bool, np.bool_)):
+            raise ValueError(f"jaw_rotation must be a number, got {value!r}")
         try:
             x = float(value)
         except (TypeError, ValueError):

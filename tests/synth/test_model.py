@@ -185,6 +185,20 @@ def test_bad_jaw_raises(model, jaw):
         model.set_contractions(None, jaw_rotation=jaw)
 
 
+@pytest.mark.parametrize("value", ["0.5", b"0.5", True, np.bool_(True)])
+def test_text_and_flags_are_not_contractions(model, value):
+    # float() would read each as a number: a column read as text, or a flag passed by
+    # mistake, would drive the face
+    with pytest.raises(ValueError, match="zygomaticus_major_l.*must be a number"):
+        model.set_contractions({"zygomaticus_major_l": value})
+    with pytest.raises(ValueError, match="jaw_rotation must be a number"):
+        model.set_contractions(None, jaw_rotation=value)
+    arr = np.zeros(len(model.muscle_names), dtype=object)
+    arr[model.muscle_names.index("zygomaticus_major_l")] = value
+    with pytest.raises(ValueError, match="zygomaticus_major_l"):
+        model.set_contractions(arr)
+
+
 def test_array_length_and_duplicate_jaw(model):
     with pytest.raises(ValueError, match="shape"):
         model.set_contractions(np.zeros(3))
