@@ -190,6 +190,9 @@ def _summarise(folder: Path) -> dict:
     calibration = metadata.get("calibration") if isinstance(metadata, dict) else None
     # a coarsely coded neutral frame (an encoder's first pictures) biases every value
     record["neutral_blockiness"] = _finite_or_nan((calibration or {}).get("neutral_blockiness"))
+    # where the neutral frame is coarsely coded, has raised brows or an open mouth: the frame
+    # offered instead, to analyse the video again from (NaN: none of them warned)
+    record["offered_neutral"] = _finite_or_nan((calibration or {}).get("offered_neutral"))
     cuts = quality.get("shot_cuts")
     # an edited video: the face after a cut may be someone else (analyses that say so)
     record["shot_cuts"] = len(cuts) if isinstance(cuts, list) else math.nan

@@ -424,17 +424,25 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     _warn_cuts(video, tracks, k)
     blocky = _blocky_neutral(video, tracks, k, fps)
     calib["neutral_blockiness"] = None if blocky is None else round(blocky[0], 3)
-    if neutral is None and blocky is not None and blocky[0] > BLOCKY_NEUTRAL:
+    coarse = neutral is None and blocky is not None and blocky[0] > BLOCKY_NEUTRAL
+    gaps = _lip_gaps(tracks)
+    advice = _nearer_rest(est, tracks, k, gaps, blocky if coarse else None)
+    if coarse:
         log.warning("%s: the neutral frame %d is a coarsely coded picture (its 8-px code "
                     "blocks show %.2f times as much as in the next two seconds, as in an "
                     "encoder's first pictures): every value is measured from it and biased "
                     "by it; %s", video, int(tracks.frames[k]), blocky[0],
+                    _offer(advice) if advice is not None else
                     "give a later frame where the face is at rest (--neutral N)"
                     if blocky[1] is None else
                     f"if the face is at rest there, frame {blocky[1]}, the first coded like "
                     f"the rest, is a better neutral frame (--neutral {blocky[1]})")
-    calib["below_neutral"] = _raised_neutral(video, est, tracks, k, given=neutral is not None)
-    calib["neutral_lips_apart"] = _open_neutral(video, tracks, k, given=neutral is not None)
+    given = neutral is not None
+    calib["below_neutral"] = _raised_neutral(video, est, tracks, k, given=given, advice=advice)
+    calib["neutral_lips_apart"] = _open_neutral(video, tracks, k, gaps, given=given,
+                                                advice=advice)
+    calib["offered_neutral"] = (advice[0] if advice is not None and _warned_neutral(
+        calib, coarse) else None)
     iod = _interocular_px(tracks)
     if iod is not None and iod < SMALL_FACE_IOD:
         log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
@@ -617,10 +625,12 @@ def _fit_options(estimator: str, refine: bool, temporal, personalize: bool = Fal
     return options
 
 
-def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool) -> dict:
+def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool,
+                    advice: tuple[int, str] | None = None) -> dict:
     """Warn where the neutral frame shows raised brows (most frames read the frontalis
-    below it, :mod:`faceanalysis.estimation.neutral_check`); the share of frames below it
-    per frontalis, for ``analysis.json`` (empty: not checked)."""
+    below it, :mod:`faceanalysis.estimation.neutral_check`), offering ``advice``
+    (:func:`_nearer_rest`) or else the frame where they read lowest; the share of frames
+    below it per frontalis, for ``analysis.json`` (empty: not checked)."""
     from faceanalysis.estimation.neutral_check import BELOW, BELOW_SHARE, below_neutral
 
     if is_photographs(tracks.input):
@@ -633,26 +643,86 @@ def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool) -> dict:
         one = len(raised) == 1
         log.warning("%s: the brows may be raised on the %s neutral frame %d: on %.0f %% of "
                     "the tracked frames %s read%s more than %.2f of %s range below it, so "
-                    "%s measured from raised brows, not from rest, and read%s short; frame "
-                    "%d, where the brows read lowest, may be nearer rest (--neutral %d)",
+                    "%s measured from raised brows, not from rest, and read%s short; %s",
                     video, "given" if given else "default", int(tracks.frames[k]),
                     100 * max(shares[c] for c in raised), ", ".join(raised),
                     "s" if one else "", BELOW, "its" if one else "their",
-                    "it is" if one else "they are", "s" if one else "", frame, frame)
+                    "it is" if one else "they are", "s" if one else "",
+                    _offer(advice) if advice is not None else
+                    f"frame {frame}, where the brows read lowest, may be nearer rest "
+                    f"(--neutral {frame})")
     return {c: round(s, 3) for c, s in shares.items()}
 
 
-def _open_neutral(video, tracks: Tracks, k: int, *, given: bool) -> float | None:
-    """Warn where the mouth is open on the neutral frame (its lips farther apart than on
-    the clip's closed frames, :func:`~faceanalysis.estimation.neutral_check.open_mouth`);
-    by how much, for ``analysis.json`` (None: not checked, e.g. without the face mesh)."""
-    from faceanalysis.estimation.neutral_check import MOUTH_OPEN, open_mouth
+def _lip_gaps(tracks: Tracks) -> np.ndarray | None:
+    """Each frame's lip gap (:func:`~trackers.landmark_contours.lip_gap`; NaN where lost);
+    None without the face mesh or for photographs."""
     from trackers.landmark_contours import lip_gap
 
     if is_photographs(tracks.input) or tracks.landmarks is None:
         return None
-    gaps = [lip_gap(m) if ok and m is not None else np.nan
-            for m, ok in zip(tracks.landmarks, tracks.success)]
+    return np.array([lip_gap(m) if ok and m is not None else np.nan
+                     for m, ok in zip(tracks.landmarks, tracks.success)])
+
+
+def _nearer_rest(est, tracks: Tracks, k: int, gaps, blocky) -> tuple[int, str] | None:
+    """The frame nearest the neutral one (row ``k``) that every check of the neutral frame
+    passes, and what it passes, for the warnings to offer one frame: the brows down
+    (:func:`~faceanalysis.estimation.neutral_check.brows_down`), the lips closed where the
+    face mesh tells (``gaps``), and, where the neutral frame is coarsely coded (``blocky``,
+    :func:`_blocky_neutral`), no earlier than the first frame coded like the rest. None for
+    photographs, or where no frame passes them all."""
+    from faceanalysis.estimation.neutral_check import brows_down, closed_lips, nearest
+
+    if is_photographs(tracks.input):
+        return None
+    allowed = brows_down(est.displacements, est.response,
+                         weights=est.fit_options.get("weights"))
+    allowed &= np.asarray(tracks.success, bool)
+    passes = "with the brows down"
+    if gaps is not None:
+        allowed &= closed_lips(gaps)
+        passes += " and the lips closed"
+    if blocky is not None:
+        first = int(tracks.frames[k])
+        # frames past the second it measured are taken as coded like the rest
+        clean = blocky[1] if blocky[1] is not None else first + 1 + round(
+            float(tracks.input.get("fps") or 0))
+        allowed &= np.asarray(tracks.frames) >= clean
+        passes = "coded like the rest, " + passes
+    allowed[k] = False
+    row = nearest(allowed, k)
+    if row is None:
+        return None
+    return int(tracks.frames[row]), passes
+
+
+def _warned_neutral(calib: dict, coarse: bool) -> bool:
+    """Whether a check of the neutral frame warned: coarsely coded, brows raised or the
+    mouth open (``calib`` as :func:`_raised_neutral` and :func:`_open_neutral` filled it)."""
+    from faceanalysis.estimation.neutral_check import BELOW_SHARE, MOUTH_OPEN
+
+    lips = calib.get("neutral_lips_apart")
+    return (coarse or max(calib.get("below_neutral", {}).values(), default=0.0) >= BELOW_SHARE
+            or (lips is not None and lips > MOUTH_OPEN))
+
+
+def _offer(advice: tuple[int, str]) -> str:
+    """The warnings' offer of :func:`_nearer_rest`'s frame."""
+    frame, passes = advice
+    return f"frame {frame}, {passes}, may be nearer rest (--neutral {frame})"
+
+
+def _open_neutral(video, tracks: Tracks, k: int, gaps, *, given: bool,
+                  advice: tuple[int, str] | None = None) -> float | None:
+    """Warn where the mouth is open on the neutral frame (its lips farther apart than on
+    the clip's closed frames, :func:`~faceanalysis.estimation.neutral_check.open_mouth`),
+    offering ``advice`` (:func:`_nearer_rest`) or else the nearest frame with the lips
+    closed; by how much, for ``analysis.json`` (None: not checked, ``gaps`` None)."""
+    from faceanalysis.estimation.neutral_check import MOUTH_OPEN, open_mouth
+
+    if gaps is None:
+        return None
     excess, closed = open_mouth(gaps, k)
     if excess is None:
         return None
@@ -661,6 +731,7 @@ def _open_neutral(video, tracks: Tracks, k: int, *, given: bool) -> float | None
                     "inter-ocular distances farther apart than on the clip's closed frames): "
                     "the lower face is measured from an open mouth, not from rest; %s",
                     video, "given" if given else "default", int(tracks.frames[k]), excess,
+                    _offer(advice) if advice is not None else
                     "give a frame where the face is at rest (--neutral N)" if closed is None
                     else f"frame {int(tracks.frames[closed])}, where the lips are closed, may "
                     f"be nearer rest (--neutral {int(tracks.frames[closed])})")

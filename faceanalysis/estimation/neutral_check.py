@@ -29,8 +29,9 @@ import numpy as np
 
 from faceanalysis.estimation.response import FiducialResponse
 
-__all__ = ["BELOW", "BELOW_SHARE", "BROWS", "CLOSED_PERCENTILE", "CLOSED_RUN", "MIN_FRAMES",
-           "MOUTH_OPEN", "below_neutral", "open_mouth"]
+__all__ = ["BELOW", "BELOW_SHARE", "BROWS", "CLOSED_RUN", "MIN_FRAMES", "MOUTH_OPEN",
+           "REST_PERCENTILE", "below_neutral", "brows_down", "closed_lips", "nearest",
+           "open_mouth"]
 
 #: The controls checked: the frontalis, whose free fit the points determine.
 BROWS = tuple(f"frontalis_{part}_{side}" for part in ("inner", "major", "outer")
@@ -52,9 +53,10 @@ MIN_FRAMES = 30
 #: (:func:`~trackers.landmark_contours.lip_gap`).
 MOUTH_OPEN = 0.05
 
-#: The clip's closed level: this percentile of the tracked frames' lip gaps (a talking
-#: face closes its lips on more than a tenth of its frames).
-CLOSED_PERCENTILE = 10
+#: The clip's rest level of the lips' gap (its closed level) and of the brows' free fit:
+#: this percentile over the tracked frames (a talking face closes its lips, and rests its
+#: brows, on more than a tenth of its frames; the lowest frame can be a frown or noise).
+REST_PERCENTILE = 10
 
 #: A frame offered instead starts a run of at least this many tracked frames whose lips
 #: lie within ``MOUTH_OPEN / 2`` of the closed level (a pause, not a consonant's closure).
@@ -106,6 +108,17 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
     >>> shares, lowest
     ({'frontalis_major_l': 1.0}, 7)
     """
+    rows, free, cols = _free_fit(displacements, response, weights, controls)
+    if len(rows) < MIN_FRAMES or not cols:
+        return {}, None
+    low = free[:, cols] < -BELOW
+    shares = {response.muscles[j]: float(s) for j, s in zip(cols, low.mean(axis=0))}
+    return shares, int(rows[np.argmin(free[:, cols].mean(axis=1))])
+
+
+def _free_fit(displacements, response: FiducialResponse, weights, controls):
+    """The rows with at least half the points seen, every control's free fit on them (in
+    its range), and the columns of ``controls``."""
     d = np.asarray(displacements, dtype=float)
     n_m = len(response.muscles)
     if d.ndim != 3 or d.shape[1:] != (len(response.fiducials), 2):
@@ -116,7 +129,7 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
     seen = np.isfinite(d).all(axis=2)                                   # (T, P)
     rows = np.flatnonzero(seen.sum(axis=1) >= 0.5 * d.shape[1])
     if len(rows) < MIN_FRAMES or not cols:
-        return {}, None
+        return rows, np.empty((len(rows), n_m)), cols
     jac = response.jacobian(np.zeros((1, n_m)))[0]                      # (P*2, M)
     free = np.empty((len(rows), n_m))
     # frames that see the same points share one factorisation
@@ -130,15 +143,74 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
         at = group == g
         y = np.nan_to_num(d[rows[at]]).reshape(int(at.sum()), -1) * sw
         free[at] = np.linalg.solve(h, a.T @ y.T).T
-    free = free / response.upper
-    low = free[:, cols] < -BELOW
-    shares = {response.muscles[j]: float(s) for j, s in zip(cols, low.mean(axis=0))}
-    return shares, int(rows[np.argmin(free[:, cols].mean(axis=1))])
+    return rows, free / response.upper, cols
+
+
+def brows_down(displacements, response: FiducialResponse, *, weights=None,
+               controls=BROWS) -> np.ndarray:
+    """The frames whose brows are down: the mean free fit of ``controls`` (as
+    :func:`below_neutral` fits them) at most :data:`BELOW` above its rest level over the
+    clip (its :data:`REST_PERCENTILE` percentile).
+
+    Returns
+    -------
+    ndarray of bool, shape (T,)
+        False where a frame is not fitted (under half its points seen) and on every frame
+        under :data:`MIN_FRAMES` fitted ones.
+    """
+    rows, free, cols = _free_fit(displacements, response, weights, controls)
+    out = np.zeros(len(np.asarray(displacements)), bool)
+    if len(rows) < MIN_FRAMES or not cols:
+        return out
+    level = free[:, cols].mean(axis=1)
+    out[rows] = level <= np.percentile(level, REST_PERCENTILE) + BELOW
+    return out
+
+
+def closed_lips(gaps) -> np.ndarray:
+    """The frames inside a run of at least :data:`CLOSED_RUN` whose lips lie within
+    ``MOUTH_OPEN / 2`` of the clip's closed level (the :data:`REST_PERCENTILE` percentile
+    of the lip gaps ``gaps``, NaN where a frame is lost): a pause, not a consonant's
+    closure. All False under :data:`MIN_FRAMES` frames with a gap.
+
+    Examples
+    --------
+    >>> g = np.full(40, 0.2)
+    >>> g[10:16] = g[30:32] = 0.01                   # a pause and a consonant
+    >>> np.flatnonzero(closed_lips(g)).tolist()
+    [10, 11, 12, 13, 14, 15]
+    """
+    g = np.asarray(gaps, dtype=float)
+    if g.ndim != 1:
+        raise ValueError(f"gaps must be 1-D, got shape {g.shape}")
+    seen = np.isfinite(g)
+    out = np.zeros(len(g), bool)
+    if seen.sum() < MIN_FRAMES:
+        return out
+    level = float(np.percentile(g[seen], REST_PERCENTILE))
+    shut = seen & (g <= level + MOUTH_OPEN / 2)
+    run = np.convolve(shut, np.ones(CLOSED_RUN, int), mode="valid") == CLOSED_RUN
+    for start in np.flatnonzero(run):
+        out[start:start + CLOSED_RUN] = True
+    return out
+
+
+def nearest(allowed, neutral: int) -> int | None:
+    """The row of ``allowed`` (bool, shape (T,)) nearest ``neutral`` (the earlier of two
+    as near); None where none is allowed.
+
+    >>> nearest(np.array([True, False, False, True, True]), 2)
+    3
+    >>> nearest(np.array([True, False, True]), 1)
+    0
+    """
+    rows = np.flatnonzero(np.asarray(allowed, bool))
+    return int(rows[np.argmin(np.abs(rows - neutral))]) if rows.size else None
 
 
 def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
     """How much farther apart the lips are on the neutral frame than the clip's closed
-    level, and a frame nearby whose lips are closed.
+    level, and the frame nearest it whose lips are closed.
 
     Parameters
     ----------
@@ -151,12 +223,11 @@ def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
     Returns
     -------
     excess : float or None
-        The neutral frame's gap less the closed level (the :data:`CLOSED_PERCENTILE`
+        The neutral frame's gap less the closed level (the :data:`REST_PERCENTILE`
         percentile of the gaps); None under :data:`MIN_FRAMES` frames with a gap or
         where the neutral frame has none. Over :data:`MOUTH_OPEN` the mouth is open there.
     closed : int or None
-        The row, nearest the neutral frame, that starts :data:`CLOSED_RUN` frames with the
-        lips closed (within ``MOUTH_OPEN / 2`` of the closed level); None if none does.
+        The row nearest the neutral frame among :func:`closed_lips`; None if none is.
 
     Examples
     --------
@@ -173,9 +244,5 @@ def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
     seen = np.isfinite(g)
     if seen.sum() < MIN_FRAMES or not seen[neutral]:
         return None, None
-    level = float(np.percentile(g[seen], CLOSED_PERCENTILE))
-    shut = seen & (g <= level + MOUTH_OPEN / 2)
-    run = np.convolve(shut, np.ones(CLOSED_RUN, int), mode="valid") == CLOSED_RUN
-    starts = np.flatnonzero(run)
-    closed = (int(starts[np.argmin(np.abs(starts - neutral))]) if starts.size else None)
-    return float(g[neutral] - level), closed
+    level = float(np.percentile(g[seen], REST_PERCENTILE))
+    return float(g[neutral] - level), nearest(closed_lips(g), neutral)

@@ -519,6 +519,9 @@ def test_batch_of_the_analysis_equals_single_process_analysis(face_corpus, tmp_p
         blocks = reference.metadata["calibration"]["neutral_blockiness"]
         assert (pd.isna(row["neutral_blockiness"]) if blocks is None
                 else row["neutral_blockiness"] == blocks)
+        offered = reference.metadata["calibration"]["offered_neutral"]
+        assert (pd.isna(row["offered_neutral"]) if offered is None
+                else row["offered_neutral"] == offered)
         iod = reference.metadata["quality"]["interocular_px"]
         assert pd.isna(row["interocular_px"]) if iod is None else row["interocular_px"] == iod
     # the smiling clip smiles more than the frowning one, in the summary as in the truth

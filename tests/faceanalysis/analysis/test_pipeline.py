@@ -1122,11 +1122,13 @@ def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(t
     # the suggested frame is one where the brows are down
     suggested = int(said[0].rsplit("--neutral ", 1)[1].rstrip(")"))
     assert suggested >= rest - apex
-    # the mouth too, and a frame where it is closed is offered
+    # the mouth too, and the same frame is offered, where it is closed
     said = [r.getMessage() for r in caplog.records if "mouth is open" in r.getMessage()]
     assert len(said) == 1 and "default neutral frame 0" in said[0]
     assert a.metadata["calibration"]["neutral_lips_apart"] > 0.1
-    suggested = int(said[0].rsplit("--neutral ", 1)[1].rstrip(")"))
+    assert int(said[0].rsplit("--neutral ", 1)[1].rstrip(")")) == suggested
+    assert "with the brows down and the lips closed" in said[0]
+    assert a.metadata["calibration"]["offered_neutral"] == suggested
     assert truth.jaw_rotation[min(apex + suggested, rest)] < 0.02
     # the same frames from rest: nothing said
     caplog.clear()
@@ -1136,3 +1138,4 @@ def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(t
                    for r in caplog.records)
     assert max(b.metadata["calibration"]["below_neutral"].values()) < 0.5
     assert abs(b.metadata["calibration"]["neutral_lips_apart"]) < 0.02
+    assert b.metadata["calibration"]["offered_neutral"] is None

@@ -13,6 +13,9 @@ from faceanalysis.estimation.neutral_check import (
     MIN_FRAMES,
     MOUTH_OPEN,
     below_neutral,
+    brows_down,
+    closed_lips,
+    nearest,
     open_mouth,
 )
 from faceanalysis.estimation.registry import CONTOUR_WEIGHT, mesh_response
@@ -123,3 +126,36 @@ def test_an_open_mouth_is_not_judged_on_too_few_frames():
     assert excess == pytest.approx(0.0) and closed is not None
     with pytest.raises(ValueError, match="neutral row 99"):
         open_mouth(g, 99)
+
+
+def test_frames_with_the_brows_down_are_those_near_the_lowest(response):
+    rng = np.random.default_rng(2)
+    m, upper = len(response.muscles), response.upper
+    frames = np.zeros((60, m))
+    raise_ = np.zeros(m)
+    for name in BROWS:
+        raise_[response.muscles.index(name)] = 0.7 * upper[response.muscles.index(name)]
+    frames[:25] = raise_                              # brows up, then down
+    frames[40:45] = 0.3 * raise_                      # up a little
+    down = brows_down(_displacements(response, frames, raise_, rng), response,
+                      weights=_weights(response))
+    assert not down[:25].any() and down[25:40].all() and down[45:].all()
+    assert not down[40:45].any()
+    d = _displacements(response, frames, raise_, rng)
+    d[30] = np.nan                                    # a lost frame is never offered
+    assert not brows_down(d, response)[30]
+    assert not brows_down(d[:MIN_FRAMES - 1], response).any()
+
+
+def test_closed_lips_are_pauses_and_nearest_picks_the_closest():
+    g = np.full(50, 0.2)
+    g[20:23] = 0.01                                   # a consonant: too short
+    g[30:40] = 0.01                                   # a pause
+    g[35] = np.nan                                    # lost: breaks the run
+    closed = closed_lips(g)
+    assert np.flatnonzero(closed).tolist() == list(range(30, 35))   # 36-39: too short
+    assert nearest(closed, 0) == 30 and nearest(closed, 49) == 34
+    assert nearest(np.zeros(5, bool), 2) is None
+    assert not closed_lips(g[:MIN_FRAMES - 1]).any()
+    with pytest.raises(ValueError, match="1-D"):
+        closed_lips(g[:, None])
