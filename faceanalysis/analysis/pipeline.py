@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.analysis.eyes import eye_closures, eye_openness
+from faceanalysis.analysis.neutral import NeutralCheck, check_neutral, lip_gaps
 from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
@@ -147,7 +148,7 @@ def default_estimator(tracker: str | None = None, *, layout=None, refine: bool =
 
 
 def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: float | None = None,
-            start: int = 0, end: int | None = None, neutral: int | None = None,
+            start: int = 0, end: int | None = None, neutral: int | str | None = None,
             layout=None, response: FiducialResponse | None = None, refine: bool = False,
             personalize: bool = False, eyes: bool = False, face=None,
             tracker: str | None = None, tracker_options: dict | None = None,
@@ -182,12 +183,15 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         Frame rate, overriding the container's.
     start, end : int, optional
         Frame range ``[start, end)``.
-    neutral : int, optional
+    neutral : int or 'auto', optional
         Frame (absolute index) showing the neutral face, used for calibration;
         default: the first tracked frame (with the snakes, the first tracked frame that
         sees every measurement point within :data:`LATE_REFERENCE_S` seconds of it, if
         any); a point it misses takes its neutral position from the first frame within
-        that time that sees it.
+        that time that sees it. ``'auto'``: the default, unless it is coarsely coded, has
+        the brows raised or the mouth open (:mod:`faceanalysis.analysis.neutral`); then
+        the frame nearest it that is none of these (``calibration.auto_neutral`` in
+        the metadata says from which frame and why).
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.
@@ -326,8 +330,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         from faceanalysis.estimation.model_response import model_response
 
         response = model_response()
-    if neutral is not None or face is not None:
-        _check_input_points(video, neutral, face, fps=fps, start=start, end=end)
+    auto = _check_neutral_option(neutral)
+    given_frame = None if auto else neutral
+    if given_frame is not None or face is not None:
+        _check_input_points(video, given_frame, face, fps=fps, start=start, end=end)
     track_options = {"points": response.fiducials, "fps": fps, "start": start, "end": end,
                      "layout": layout, "tracker": tracker, "tracker_options": tracker_options,
                      "backend": backend, "device": device, "progress": progress}
@@ -348,12 +354,28 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
             # as the tracker takes them: each fitted on its own, not drawn toward its
             # neighbours' fits
             est_options["temporal"] = 0.0
-    k = _neutral_row(tracks, neutral)
+    k = _neutral_row(tracks, given_frame)
     calib_options = {"suspect_points": suspect_points, "pose_correction": pose_correction,
                      "options": {"fps": fps, "start": start, "end": end}}
     t0, c0 = time.perf_counter(), time.process_time()
     meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
-                                                    est_options, video, **calib_options)
+                                                    est_options, video, quiet=auto,
+                                                    **calib_options)
+    neutral_check = _check_neutral_frame(video, est, tracks, k, fps,
+                                         default=given_frame is None)
+    moved = None
+    if auto and neutral_check.reasons and neutral_check.advice is not None:
+        # the frame every warning would offer: estimate again from it
+        moved = {"from_frame": int(tracks.frames[k]), "because": neutral_check.reasons}
+        k = int(np.flatnonzero(tracks.frames == neutral_check.advice[0])[0])
+        log.info("%s: neutral frame %d instead of %d (%s there)", video,
+                 int(tracks.frames[k]), moved["from_frame"], ", ".join(moved["because"]))
+        meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
+                                                        est_options, video, **calib_options)
+        neutral_check = _check_neutral_frame(video, est, tracks, k, fps, default=True)
+    elif auto:
+        # the estimate was quiet, in case the neutral frame moved: say what it found
+        _warn_suspect(video, tracks, k, calib["suspect_points"], calib["excluded_points"])
     mirrored = check = None
     t_estimate = time.perf_counter() - t0
     c_estimate = time.process_time() - c0
@@ -382,6 +404,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         "estimator": estimator, "fps": fps, "start": start, "end": end,
         "temporal": est_options.get("temporal"),
         "neutral_frame": int(tracks.frames[k]),
+        "neutral": neutral if neutral is None or auto else int(neutral),
         "tracker": tracks.tracker,
         "layout": None if layout is None else str(layout),
         "refine": bool(refine), "personalize": bool(personalize), "eyes": bool(eyes),
@@ -422,27 +445,10 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                     int(tracks.success.sum()), MAX_HEAD_TURN, fit["head_turn"]["max_deg"])
     _warn_identifiability(video, ident)
     _warn_cuts(video, tracks, k)
-    blocky = _blocky_neutral(video, tracks, k, fps)
-    calib["neutral_blockiness"] = None if blocky is None else round(blocky[0], 3)
-    coarse = neutral is None and blocky is not None and blocky[0] > BLOCKY_NEUTRAL
-    gaps = _lip_gaps(tracks)
-    advice = _nearer_rest(est, tracks, k, gaps, blocky if coarse else None)
-    if coarse:
-        log.warning("%s: the neutral frame %d is a coarsely coded picture (its 8-px code "
-                    "blocks show %.2f times as much as in the next two seconds, as in an "
-                    "encoder's first pictures): every value is measured from it and biased "
-                    "by it; %s", video, int(tracks.frames[k]), blocky[0],
-                    _offer(advice) if advice is not None else
-                    "give a later frame where the face is at rest (--neutral N)"
-                    if blocky[1] is None else
-                    f"if the face is at rest there, frame {blocky[1]}, the first coded like "
-                    f"the rest, is a better neutral frame (--neutral {blocky[1]})")
-    given = neutral is not None
-    calib["below_neutral"] = _raised_neutral(video, est, tracks, k, given=given, advice=advice)
-    calib["neutral_lips_apart"] = _open_neutral(video, tracks, k, gaps, given=given,
-                                                advice=advice)
-    calib["offered_neutral"] = (advice[0] if advice is not None and _warned_neutral(
-        calib, coarse) else None)
+    calib.update(neutral_check.calibration())
+    calib["auto_neutral"] = moved
+    neutral_check.warn(video, tracks, how="chosen" if moved is not None
+                       else "given" if given_frame is not None else "default")
     iod = _interocular_px(tracks)
     if iod is not None and iod < SMALL_FACE_IOD:
         log.warning("%s: the face is small, %.0f px between the eyes (median): under %.0f the "
@@ -625,117 +631,27 @@ def _fit_options(estimator: str, refine: bool, temporal, personalize: bool = Fal
     return options
 
 
-def _raised_neutral(video, est, tracks: Tracks, k: int, *, given: bool,
-                    advice: tuple[int, str] | None = None) -> dict:
-    """Warn where the neutral frame shows raised brows (most frames read the frontalis
-    below it, :mod:`faceanalysis.estimation.neutral_check`), offering ``advice``
-    (:func:`_nearer_rest`) or else the frame where they read lowest; the share of frames
-    below it per frontalis, for ``analysis.json`` (empty: not checked)."""
-    from faceanalysis.estimation.neutral_check import BELOW, BELOW_SHARE, below_neutral
-
-    if is_photographs(tracks.input):
-        return {}
-    shares, lowest = below_neutral(est.displacements, est.response,
-                                   weights=est.fit_options.get("weights"))
-    raised = [c for c, s in shares.items() if s >= BELOW_SHARE]
-    if raised:
-        frame = int(tracks.frames[lowest])
-        one = len(raised) == 1
-        log.warning("%s: the brows may be raised on the %s neutral frame %d: on %.0f %% of "
-                    "the tracked frames %s read%s more than %.2f of %s range below it, so "
-                    "%s measured from raised brows, not from rest, and read%s short; %s",
-                    video, "given" if given else "default", int(tracks.frames[k]),
-                    100 * max(shares[c] for c in raised), ", ".join(raised),
-                    "s" if one else "", BELOW, "its" if one else "their",
-                    "it is" if one else "they are", "s" if one else "",
-                    _offer(advice) if advice is not None else
-                    f"frame {frame}, where the brows read lowest, may be nearer rest "
-                    f"(--neutral {frame})")
-    return {c: round(s, 3) for c, s in shares.items()}
+def _check_neutral_option(neutral) -> bool:
+    """Whether ``neutral`` asks for the neutral frame to be chosen (``"auto"``); refuse
+    anything but None, a frame index and ``"auto"``."""
+    if isinstance(neutral, str):
+        if neutral != "auto":
+            raise ValueError(f"neutral={neutral!r}: give a frame index, 'auto' or None")
+        return True
+    if neutral is not None and (isinstance(neutral, bool) or not isinstance(
+            neutral, (int, np.integer)) or neutral < 0):
+        raise ValueError(f"neutral={neutral!r}: give a frame index (0 or more), 'auto' "
+                         "or None")
+    return False
 
 
-def _lip_gaps(tracks: Tracks) -> np.ndarray | None:
-    """Each frame's lip gap (:func:`~trackers.landmark_contours.lip_gap`; NaN where lost);
-    None without the face mesh or for photographs."""
-    from trackers.landmark_contours import lip_gap
-
-    if is_photographs(tracks.input) or tracks.landmarks is None:
-        return None
-    return np.array([lip_gap(m) if ok and m is not None else np.nan
-                     for m, ok in zip(tracks.landmarks, tracks.success)])
-
-
-def _nearer_rest(est, tracks: Tracks, k: int, gaps, blocky) -> tuple[int, str] | None:
-    """The frame nearest the neutral one (row ``k``) that every check of the neutral frame
-    passes, and what it passes, for the warnings to offer one frame: the brows down
-    (:func:`~faceanalysis.estimation.neutral_check.brows_down`), the lips closed where the
-    face mesh tells (``gaps``), and, where the neutral frame is coarsely coded (``blocky``,
-    :func:`_blocky_neutral`), no earlier than the first frame coded like the rest. None for
-    photographs, or where no frame passes them all."""
-    from faceanalysis.estimation.neutral_check import brows_down, closed_lips, nearest
-
-    if is_photographs(tracks.input):
-        return None
-    allowed = brows_down(est.displacements, est.response,
-                         weights=est.fit_options.get("weights"))
-    allowed &= np.asarray(tracks.success, bool)
-    passes = "with the brows down"
-    if gaps is not None:
-        allowed &= closed_lips(gaps)
-        passes += " and the lips closed"
-    if blocky is not None:
-        first = int(tracks.frames[k])
-        # frames past the second it measured are taken as coded like the rest
-        clean = blocky[1] if blocky[1] is not None else first + 1 + round(
-            float(tracks.input.get("fps") or 0))
-        allowed &= np.asarray(tracks.frames) >= clean
-        passes = "coded like the rest, " + passes
-    allowed[k] = False
-    row = nearest(allowed, k)
-    if row is None:
-        return None
-    return int(tracks.frames[row]), passes
-
-
-def _warned_neutral(calib: dict, coarse: bool) -> bool:
-    """Whether a check of the neutral frame warned: coarsely coded, brows raised or the
-    mouth open (``calib`` as :func:`_raised_neutral` and :func:`_open_neutral` filled it)."""
-    from faceanalysis.estimation.neutral_check import BELOW_SHARE, MOUTH_OPEN
-
-    lips = calib.get("neutral_lips_apart")
-    return (coarse or max(calib.get("below_neutral", {}).values(), default=0.0) >= BELOW_SHARE
-            or (lips is not None and lips > MOUTH_OPEN))
-
-
-def _offer(advice: tuple[int, str]) -> str:
-    """The warnings' offer of :func:`_nearer_rest`'s frame."""
-    frame, passes = advice
-    return f"frame {frame}, {passes}, may be nearer rest (--neutral {frame})"
-
-
-def _open_neutral(video, tracks: Tracks, k: int, gaps, *, given: bool,
-                  advice: tuple[int, str] | None = None) -> float | None:
-    """Warn where the mouth is open on the neutral frame (its lips farther apart than on
-    the clip's closed frames, :func:`~faceanalysis.estimation.neutral_check.open_mouth`),
-    offering ``advice`` (:func:`_nearer_rest`) or else the nearest frame with the lips
-    closed; by how much, for ``analysis.json`` (None: not checked, ``gaps`` None)."""
-    from faceanalysis.estimation.neutral_check import MOUTH_OPEN, open_mouth
-
-    if gaps is None:
-        return None
-    excess, closed = open_mouth(gaps, k)
-    if excess is None:
-        return None
-    if excess > MOUTH_OPEN:
-        log.warning("%s: the mouth is open on the %s neutral frame %d (its lips %.2f "
-                    "inter-ocular distances farther apart than on the clip's closed frames): "
-                    "the lower face is measured from an open mouth, not from rest; %s",
-                    video, "given" if given else "default", int(tracks.frames[k]), excess,
-                    _offer(advice) if advice is not None else
-                    "give a frame where the face is at rest (--neutral N)" if closed is None
-                    else f"frame {int(tracks.frames[closed])}, where the lips are closed, may "
-                    f"be nearer rest (--neutral {int(tracks.frames[closed])})")
-    return round(excess, 4)
+def _check_neutral_frame(video, est, tracks: Tracks, k: int, fps, *,
+                         default: bool) -> NeutralCheck:
+    """:func:`~faceanalysis.analysis.neutral.check_neutral` of row ``k``, with its coding
+    measured (judged only for a neutral frame not given, ``default``)."""
+    blocky = _blocky_neutral(video, tracks, k, fps)
+    coarse = default and blocky is not None and blocky[0] > BLOCKY_NEUTRAL
+    return check_neutral(est, tracks, k, blocky=blocky, coarse=coarse, gaps=lip_gaps(tracks))
 
 
 def _check_input_points(video, neutral: int | None, face, *, fps, start: int,
@@ -809,6 +725,21 @@ def _neutral_row(tracks: Tracks, neutral: int | None) -> int:
     return k
 
 
+def _warn_suspect(video, tracks: Tracks, k: int, suspect: list, excluded: list) -> None:
+    """The warning about the neutral frame's (row ``k``) suspect points, if any."""
+    if suspect:
+        log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
+                    "where the face model puts %s (a contour on the wrong feature?); %s. "
+                    "Check the overlay (--overlay), or give another --neutral frame%s",
+                    video, int(tracks.frames[k]), ", ".join(suspect),
+                    "s" if len(suspect) == 1 else "", MAX_POINT_RESIDUAL,
+                    "it" if len(suspect) == 1 else "them",
+                    "left out of the estimation" if excluded else "kept",
+                    # a layout places only the snakes' contours
+                    " or a corrected --layout" + _LANDMARK_HINT if tracks.tracker == "snakes"
+                    else "")
+
+
 def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_points: str,
                video, *, quiet: bool = False):
     """Measurements the estimators may read, the calibration, and its ``analysis.json``
@@ -836,17 +767,8 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
              & np.isfinite(meas).all(axis=2))
     if faded.any():
         meas = np.where(faded[..., None], np.nan, meas)
-    if suspect and not quiet:
-        log.warning("%s: on the neutral frame %d, %s lie%s more than %.2f head units from "
-                    "where the face model puts %s (a contour on the wrong feature?); %s. "
-                    "Check the overlay (--overlay), or give another --neutral frame%s",
-                    video, int(tracks.frames[k]), ", ".join(suspect),
-                    "s" if len(suspect) == 1 else "", MAX_POINT_RESIDUAL,
-                    "it" if len(suspect) == 1 else "them",
-                    "left out of the estimation" if excluded else "kept",
-                    # a layout places only the snakes' contours
-                    " or a corrected --layout" + _LANDMARK_HINT if tracks.tracker == "snakes"
-                    else "")
+    if not quiet:
+        _warn_suspect(video, tracks, k, suspect, excluded)
     calib = {"neutral_frame": int(tracks.frames[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
              "suspect_points": suspect, "excluded_points": excluded,

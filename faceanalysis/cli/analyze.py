@@ -19,6 +19,11 @@ from faceanalysis.cli._input import add_input_options
 HELP = "analyse a face video into muscle contractions (CSV, JSON, plot, overlay)"
 
 
+def _neutral_frame(text: str) -> int | str:
+    """argparse type of ``--neutral``: a frame number or ``auto``."""
+    return "auto" if text == "auto" else non_negative_int(text)
+
+
 def add_analysis_options(parser: argparse.ArgumentParser) -> None:
     """Options of the analysis itself (shared with ``batch``)."""
     from faceanalysis.estimation.names import ESTIMATOR_NAMES
@@ -35,10 +40,12 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "in the same fit (reads the video twice); tw93: the paper's "
                             "per-muscle inversion of eq. 5; "
                             "flow: dense optical flow on the model's per-muscle flow templates")
-    group.add_argument("--neutral", type=non_negative_int, metavar="FRAME",
+    group.add_argument("--neutral", type=_neutral_frame, metavar="FRAME",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first tracked frame; with --tracker snakes, "
-                            "the first that sees every point, waiting at most 1 s)")
+                            "the first that sees every point, waiting at most 1 s); auto: "
+                            "the default unless it is coarsely coded, has the brows raised "
+                            "or the mouth open, else the nearest frame that is none of these")
     group.add_argument("--tracker", choices=("landmarks", "snakes"),
                        help="landmarks (default): MediaPipe's face mesh finds the face on "
                             "every frame and holds the snakes; frames without a face are lost "

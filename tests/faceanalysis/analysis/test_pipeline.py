@@ -1139,3 +1139,25 @@ def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(t
     assert max(b.metadata["calibration"]["below_neutral"].values()) < 0.5
     assert abs(b.metadata["calibration"]["neutral_lips_apart"]) < 0.02
     assert b.metadata["calibration"]["offered_neutral"] is None
+    # neutral="auto" takes the offered frame, and says so; from rest it stays
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        c = analyze(Frames(np.stack(clip), 30, channel_order="bgr"), neutral="auto")
+    assert not any("brows may be raised" in r.getMessage() or "mouth is open" in r.getMessage()
+                   for r in caplog.records)
+    assert c.metadata["parameters"]["neutral_frame"] == suggested
+    assert c.metadata["parameters"]["neutral"] == "auto"
+    assert c.metadata["calibration"]["auto_neutral"] == {
+        "from_frame": 0, "because": ["brows raised", "mouth open"]}
+    given = analyze(Frames(np.stack(clip), 30, channel_order="bgr"), neutral=suggested)
+    pd.testing.assert_frame_equal(c.table, given.table)
+    d = analyze(Frames(np.stack(clip[::-1]), 30, channel_order="bgr"), neutral="auto")
+    assert d.metadata["parameters"]["neutral_frame"] == 0
+    assert d.metadata["calibration"]["auto_neutral"] is None
+    pd.testing.assert_frame_equal(d.table, b.table)
+
+
+@pytest.mark.parametrize("neutral", ["first", "AUTO", -1, 2.5, True])
+def test_a_neutral_that_is_no_frame_nor_auto_is_refused(neutral):
+    with pytest.raises(ValueError, match="frame index.*'auto'"):
+        analyze(np.zeros((3, 32, 32, 3), np.uint8), fps=30, neutral=neutral)

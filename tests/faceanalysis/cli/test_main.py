@@ -94,6 +94,7 @@ def test_numeric_options_are_checked_before_any_work(run_cli, tmp_path):
     for argv in (["resynth", "x.csv", "-o", tmp_path / "y.mp4", "--fps", "-3"],
                  ["batch", "a.mp4", "-o", tmp_path / "b", "--workers", "0"],
                  ["analyze", "a.mp4", "-o", tmp_path / "c", "--neutral", "-1"],
+                 ["analyze", "a.mp4", "-o", tmp_path / "c", "--neutral", "first"],
                  ["demo", "-o", tmp_path / "d", "--frames", "zero"]):
         code, _, err = run_cli(*argv)
         assert code == 2, argv
