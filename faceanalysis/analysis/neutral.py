@@ -20,7 +20,7 @@ from faceanalysis.io.video import is_photographs
 
 log = logging.getLogger("faceanalysis.analysis.pipeline")
 
-__all__ = ["NeutralCheck", "check_neutral", "lip_gaps"]
+__all__ = ["NeutralCheck", "check_neutral", "mouth_measures"]
 
 
 @dataclass(frozen=True)
@@ -138,19 +138,21 @@ class NeutralCheck:
         return f"frame {frame}, {passes}, may be nearer rest (--neutral {frame})"
 
 
-def lip_gaps(tracks) -> np.ndarray | None:
-    """Each frame's lip gap (:func:`~trackers.landmark_contours.lip_gap`; NaN where lost);
-    None without the face mesh or for photographs."""
-    from trackers.landmark_contours import lip_gap
+def mouth_measures(tracks) -> np.ndarray | None:
+    """Each frame's lip gap and mouth width, shape (T, 2)
+    (:func:`~trackers.landmark_contours.lip_gap`,
+    :func:`~trackers.landmark_contours.mouth_width`; NaN where lost); None without the face
+    mesh or for photographs."""
+    from trackers.landmark_contours import lip_gap, mouth_width
 
     if is_photographs(tracks.input) or tracks.landmarks is None:
         return None
-    return np.array([lip_gap(m) if ok and m is not None else np.nan
-                     for m, ok in zip(tracks.landmarks, tracks.success)])
+    return np.array([(lip_gap(m), mouth_width(m)) if ok and m is not None else (np.nan,) * 2
+                     for m, ok in zip(tracks.landmarks, tracks.success)]).reshape(-1, 2)
 
 
 def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
-                  gaps=None) -> NeutralCheck:
+                  mouth=None) -> NeutralCheck:
     """Check the neutral frame (row ``k``) of ``tracks`` as estimated by ``est``.
 
     Parameters
@@ -164,23 +166,26 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
         coded like them (``pipeline._blocky_neutral``); None where not measured.
     coarse : bool
         Whether ``blocky`` makes it a coarsely coded picture.
-    gaps : ndarray, shape (T,), optional
-        :func:`lip_gaps`; None: the mouth is not checked.
+    mouth : ndarray, shape (T, 2), optional
+        :func:`mouth_measures`; None: the mouth is not checked.
 
     Returns
     -------
     NeutralCheck
         Photographs are not checked for the brows or the mouth, nor offered a frame.
         The offer: the frame nearest row ``k`` with the brows down
-        (:func:`~faceanalysis.estimation.neutral_check.brows_down`), the lips closed
-        (:func:`~faceanalysis.estimation.neutral_check.closed_lips`, where ``gaps``) and,
+        (:func:`~faceanalysis.estimation.neutral_check.brows_down`), the lips closed and
+        the mouth not widened (:func:`~faceanalysis.estimation.neutral_check.closed_lips`,
+        :func:`~faceanalysis.estimation.neutral_check.narrow_mouth`, where ``mouth``) and,
         where ``coarse``, no earlier than the first frame coded like the rest (frames
         past the second the blockiness was measured over are taken as coded like it).
     """
     from faceanalysis.estimation.neutral_check import (
+        MOUTH_WIDER,
         below_neutral,
         brows_down,
         closed_lips,
+        narrow_mouth,
         nearest,
         open_mouth,
     )
@@ -193,14 +198,21 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
     weights = est.fit_options.get("weights")
     check["shares"], check["lowest"] = below_neutral(est.displacements, est.response,
                                                      weights=weights)
-    if gaps is not None:
-        check["lips_apart"], check["closed"] = open_mouth(gaps, k)
+    if mouth is not None:
+        check["lips_apart"], check["closed"] = open_mouth(mouth[:, 0], k)
     allowed = brows_down(est.displacements, est.response, weights=weights)
     allowed &= np.asarray(tracks.success, bool)
     passes = "with the brows down"
-    if gaps is not None:
-        allowed &= closed_lips(gaps)
-        passes += " and the lips closed"
+    if mouth is not None:
+        gaps, widths = mouth[:, 0], mouth[:, 1]
+        # a grimace or a smile can close the lips: the mouth's width tells them
+        closed, narrow = closed_lips(gaps), narrow_mouth(widths)
+        allowed &= closed & narrow
+        if closed[k] and narrow[k]:
+            # the neutral frame's mouth is at rest: not traded for a wider one (a clip
+            # without rest, whose levels are its expressions')
+            allowed &= widths <= widths[k] + MOUTH_WIDER / 2
+        passes += " and the mouth closed, not widened"
     if coarse:
         first = int(tracks.frames[k])
         clean = (blocky[1] if blocky[1] is not None

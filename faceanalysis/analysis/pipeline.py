@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from faceanalysis.analysis.eyes import eye_closures, eye_openness
-from faceanalysis.analysis.neutral import NeutralCheck, check_neutral, lip_gaps
+from faceanalysis.analysis.neutral import NeutralCheck, check_neutral, mouth_measures
 from faceanalysis.analysis.results import Analysis, OutputFolder
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.estimation.calibration import MAX_POINT_RESIDUAL, calibrate, find_suspect
@@ -651,7 +651,8 @@ def _check_neutral_frame(video, est, tracks: Tracks, k: int, fps, *,
     measured (judged only for a neutral frame not given, ``default``)."""
     blocky = _blocky_neutral(video, tracks, k, fps)
     coarse = default and blocky is not None and blocky[0] > BLOCKY_NEUTRAL
-    return check_neutral(est, tracks, k, blocky=blocky, coarse=coarse, gaps=lip_gaps(tracks))
+    return check_neutral(est, tracks, k, blocky=blocky, coarse=coarse,
+                         mouth=mouth_measures(tracks))
 
 
 def _check_input_points(video, neutral: int | None, face, *, fps, start: int,

@@ -6,6 +6,7 @@ from trackers.landmark_contours import (
     landmark_curves,
     layout_from_landmarks,
     lip_gap,
+    mouth_width,
 )
 from trackers.layout import CONTOUR_NAMES, TEMPLATE, layout_from_eyes
 
@@ -87,6 +88,17 @@ def test_lip_gap_measures_the_opening_in_interocular_distances():
     assert lip_gap(2.0 * opened @ rot.T + [40.0, -7.0]) == pytest.approx(9.0 / 60.0)
     with pytest.raises(ValueError, match="468"):
         lip_gap(np.zeros((68, 2)))
+
+
+def test_mouth_width_is_the_corners_distance_in_interocular_distances():
+    pts, _ = _mesh_from_template()
+    width = np.hypot(*(pts[291] - pts[61])) / 60.0              # eyes 60 px apart
+    assert mouth_width(pts) == pytest.approx(width)
+    wide = pts.copy()
+    wide[61] -= [3.0, 0.0]
+    wide[291] += [3.0, 0.0]                                     # a smile: 6 px wider
+    assert mouth_width(wide) == pytest.approx(width + 0.1)
+    assert mouth_width(0.5 * wide + 11.0) == pytest.approx(width + 0.1)
 
 
 def test_bad_landmarks_are_refused():

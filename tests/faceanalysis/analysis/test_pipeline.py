@@ -1127,7 +1127,7 @@ def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(t
     assert len(said) == 1 and "default neutral frame 0" in said[0]
     assert a.metadata["calibration"]["neutral_lips_apart"] > 0.1
     assert int(said[0].rsplit("--neutral ", 1)[1].rstrip(")")) == suggested
-    assert "with the brows down and the lips closed" in said[0]
+    assert "with the brows down and the mouth closed, not widened" in said[0]
     assert a.metadata["calibration"]["offered_neutral"] == suggested
     assert truth.jaw_rotation[min(apex + suggested, rest)] < 0.02
     # the same frames from rest: nothing said

@@ -12,9 +12,11 @@ from faceanalysis.estimation.neutral_check import (
     CLOSED_RUN,
     MIN_FRAMES,
     MOUTH_OPEN,
+    MOUTH_WIDER,
     below_neutral,
     brows_down,
     closed_lips,
+    narrow_mouth,
     nearest,
     open_mouth,
 )
@@ -159,3 +161,15 @@ def test_closed_lips_are_pauses_and_nearest_picks_the_closest():
     assert not closed_lips(g[:MIN_FRAMES - 1]).any()
     with pytest.raises(ValueError, match="1-D"):
         closed_lips(g[:, None])
+
+
+def test_a_widened_mouth_is_not_at_rest():
+    rng = np.random.default_rng(3)
+    w = 0.8 + rng.normal(0, 0.01, 80)                 # talking at rest
+    w[20:30] = 0.98                                   # a smile
+    w[50] = np.nan                                    # lost
+    narrow = narrow_mouth(w)
+    assert not narrow[20:30].any() and not narrow[50]
+    assert narrow[:20].mean() > 0.9 and narrow[60:].mean() > 0.9
+    assert np.all(w[narrow] <= np.nanpercentile(w, 10) + MOUTH_WIDER)
+    assert not narrow_mouth(w[:MIN_FRAMES - 1]).any()
