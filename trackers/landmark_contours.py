@@ -114,12 +114,29 @@ def interocular_distance(points) -> float:
     return float(np.hypot(*np.subtract(*eye_centres(points))))
 
 
-def lip_gap(points) -> float:
+def _mouth_points(points) -> np.ndarray:
+    """Landmarks of one frame (468, 2|3) or of several (..., 468, 2|3), x and y."""
+    p = np.asarray(points, dtype=float)
+    if p.ndim < 2 or p.shape[-2] != 468 or p.shape[-1] < 2:
+        raise ValueError(f"landmarks must have shape (..., 468, 2) or (..., 468, 3), got "
+                         f"{p.shape}")
+    return p[..., :2]
+
+
+def _per_interocular(length, p):
+    eyes = p[..., _EYE_INDEX, :].mean(axis=-2)                           # (..., 2, 2)
+    iod = np.linalg.norm(eyes[..., 0, :] - eyes[..., 1, :], axis=-1)
+    out = length / np.maximum(iod, 1e-12)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def lip_gap(points):
     """How far the mouth is open: the mean distance between the inner lips' middle three
     landmark pairs, in inter-ocular distances (:func:`interocular_distance`).
 
     Lips at rest touch (0.01-0.02: the landmarks lie on either lip's inner border); a
-    talking mouth opens 0.05-0.3.
+    talking mouth opens 0.05-0.3. ``points``: one frame's landmarks (468, 2|3), or several
+    frames' (..., 468, 2|3) for an array of gaps.
 
     Examples
     --------
@@ -129,15 +146,16 @@ def lip_gap(points) -> float:
     >>> round(lip_gap(pts), 3)
     0.1
     """
-    p = _check(points)
+    p = _mouth_points(points)
     upper, lower = _LIP_INDEX[0][3:6], _LIP_INDEX[1][3:6]
-    gap = np.hypot(*(p[upper] - p[lower]).T).mean()
-    return float(gap / max(interocular_distance(p), 1e-12))
+    gap = np.linalg.norm(p[..., upper, :] - p[..., lower, :], axis=-1).mean(axis=-1)
+    return _per_interocular(gap, p)
 
 
-def mouth_width(points) -> float:
+def mouth_width(points):
     """The distance between the mouth corners (61, 291), in inter-ocular distances
     (:func:`interocular_distance`): 0.75-0.85 on faces at rest, 0.1-0.2 more in a smile.
+    ``points`` as :func:`lip_gap` takes them.
 
     Examples
     --------
@@ -147,8 +165,8 @@ def mouth_width(points) -> float:
     >>> round(mouth_width(pts), 3)
     0.8
     """
-    p = _check(points)
-    return float(np.hypot(*(p[291] - p[61])) / max(interocular_distance(p), 1e-12))
+    p = _mouth_points(points)
+    return _per_interocular(np.linalg.norm(p[..., 291, :] - p[..., 61, :], axis=-1), p)
 
 
 def landmark_curves(points, *, eyes=None) -> dict[str, np.ndarray]:

@@ -147,8 +147,13 @@ def mouth_measures(tracks) -> np.ndarray | None:
 
     if is_photographs(tracks.input) or tracks.landmarks is None:
         return None
-    return np.array([(lip_gap(m), mouth_width(m)) if ok and m is not None else (np.nan,) * 2
-                     for m, ok in zip(tracks.landmarks, tracks.success)]).reshape(-1, 2)
+    out = np.full((len(tracks.success), 2), np.nan)
+    rows = [t for t, (m, ok) in enumerate(zip(tracks.landmarks, tracks.success))
+            if ok and m is not None]
+    if rows:
+        p = np.stack([np.asarray(tracks.landmarks[t], dtype=float)[:, :2] for t in rows])
+        out[rows] = np.c_[lip_gap(p), mouth_width(p)]
+    return out
 
 
 def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
@@ -185,6 +190,7 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
         below_neutral,
         brows_down,
         closed_lips,
+        free_fit,
         narrow_mouth,
         nearest,
         open_mouth,
@@ -195,12 +201,12 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
         check["blockiness"], check["clean"] = blocky[0], blocky[1] if coarse else None
     if is_photographs(tracks.input):
         return NeutralCheck(**check)
-    weights = est.fit_options.get("weights")
-    check["shares"], check["lowest"] = below_neutral(est.displacements, est.response,
-                                                     weights=weights)
+    # one free fit for both the check of the brows and the offer's
+    fit = free_fit(est.displacements, est.response, weights=est.fit_options.get("weights"))
+    check["shares"], check["lowest"] = below_neutral(est.displacements, est.response, fit=fit)
     if mouth is not None:
         check["lips_apart"], check["closed"] = open_mouth(mouth[:, 0], k)
-    allowed = brows_down(est.displacements, est.response, weights=weights)
+    allowed = brows_down(est.displacements, est.response, fit=fit)
     allowed &= np.asarray(tracks.success, bool)
     passes = "with the brows down"
     if mouth is not None:

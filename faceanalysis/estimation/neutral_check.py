@@ -31,7 +31,7 @@ from faceanalysis.estimation.response import FiducialResponse
 
 __all__ = ["BELOW", "BELOW_SHARE", "BROWS", "CLOSED_RUN", "MIN_FRAMES", "MOUTH_OPEN",
            "MOUTH_WIDER", "REST_PERCENTILE", "below_neutral", "brows_down", "closed_lips",
-           "narrow_mouth", "nearest", "open_mouth"]
+           "free_fit", "narrow_mouth", "nearest", "open_mouth"]
 
 #: The controls checked: the frontalis, whose free fit the points determine.
 BROWS = tuple(f"frontalis_{part}_{side}" for part in ("inner", "major", "outer")
@@ -69,8 +69,8 @@ CLOSED_RUN = 5
 
 
 def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
-                  weights: np.ndarray | None = None,
-                  controls=BROWS) -> tuple[dict[str, float], int | None]:
+                  weights: np.ndarray | None = None, controls=BROWS,
+                  fit=None) -> tuple[dict[str, float], int | None]:
     """How often each of ``controls`` reads below the neutral frame, and the frame where
     they read lowest.
 
@@ -85,6 +85,8 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
         Each point's weight in the fit (the estimator's); equal by default.
     controls : sequence of str, keyword-only
         The controls to report (of ``response.muscles``; others are left out).
+    fit : tuple, optional
+        :func:`free_fit` of the same, computed already.
 
     Returns
     -------
@@ -113,17 +115,30 @@ def below_neutral(displacements: np.ndarray, response: FiducialResponse, *,
     >>> shares, lowest
     ({'frontalis_major_l': 1.0}, 7)
     """
-    rows, free, cols = _free_fit(displacements, response, weights, controls)
-    if len(rows) < MIN_FRAMES or not cols:
+    rows, free, names = (free_fit(displacements, response, weights=weights, controls=controls)
+                         if fit is None else fit)
+    if len(rows) < MIN_FRAMES or not names:
         return {}, None
-    low = free[:, cols] < -BELOW
-    shares = {response.muscles[j]: float(s) for j, s in zip(cols, low.mean(axis=0))}
-    return shares, int(rows[np.argmin(free[:, cols].mean(axis=1))])
+    low = free < -BELOW
+    shares = {name: float(s) for name, s in zip(names, low.mean(axis=0))}
+    return shares, int(rows[np.argmin(free.mean(axis=1))])
 
 
-def _free_fit(displacements, response: FiducialResponse, weights, controls):
-    """The rows with at least half the points seen, every control's free fit on them (in
-    its range), and the columns of ``controls``."""
+def free_fit(displacements, response: FiducialResponse, *, weights=None, controls=BROWS):
+    """Each frame's fit without bounds or prior through the response linearised at rest.
+
+    Parameters as :func:`below_neutral`.
+
+    Returns
+    -------
+    rows : ndarray of int
+        The frames fitted: those with at least half the points seen.
+    free : ndarray, shape (len(rows), C)
+        The fit of each of the ``C`` ``controls`` in ``response.muscles``, in its range
+        (empty under :data:`MIN_FRAMES` rows).
+    names : list of str
+        Those controls.
+    """
     d = np.asarray(displacements, dtype=float)
     n_m = len(response.muscles)
     if d.ndim != 3 or d.shape[1:] != (len(response.fiducials), 2):
@@ -131,10 +146,11 @@ def _free_fit(displacements, response: FiducialResponse, weights, controls):
                          f"{d.shape}")
     w = np.ones(d.shape[1]) if weights is None else np.asarray(weights, dtype=float)
     cols = [response.muscles.index(c) for c in controls if c in response.muscles]
+    names = [response.muscles[j] for j in cols]
     seen = np.isfinite(d).all(axis=2)                                   # (T, P)
     rows = np.flatnonzero(seen.sum(axis=1) >= 0.5 * d.shape[1])
     if len(rows) < MIN_FRAMES or not cols:
-        return rows, np.empty((len(rows), n_m)), cols
+        return rows, np.empty((len(rows), len(cols))), names
     jac = response.jacobian(np.zeros((1, n_m)))[0]                      # (P*2, M)
     free = np.empty((len(rows), n_m))
     # frames that see the same points share one factorisation
@@ -148,14 +164,15 @@ def _free_fit(displacements, response: FiducialResponse, weights, controls):
         at = group == g
         y = np.nan_to_num(d[rows[at]]).reshape(int(at.sum()), -1) * sw
         free[at] = np.linalg.solve(h, a.T @ y.T).T
-    return rows, free / response.upper, cols
+    return rows, (free / response.upper)[:, cols], names
 
 
 def brows_down(displacements, response: FiducialResponse, *, weights=None,
-               controls=BROWS) -> np.ndarray:
+               controls=BROWS, fit=None) -> np.ndarray:
     """The frames whose brows are down: the mean free fit of ``controls`` (as
-    :func:`below_neutral` fits them) at most :data:`BELOW` above its rest level over the
-    clip (its :data:`REST_PERCENTILE` percentile).
+    :func:`below_neutral` fits them; ``fit``: :func:`free_fit` computed already) at most
+    :data:`BELOW` above its rest level over the clip (its :data:`REST_PERCENTILE`
+    percentile).
 
     Returns
     -------
@@ -163,11 +180,12 @@ def brows_down(displacements, response: FiducialResponse, *, weights=None,
         False where a frame is not fitted (under half its points seen) and on every frame
         under :data:`MIN_FRAMES` fitted ones.
     """
-    rows, free, cols = _free_fit(displacements, response, weights, controls)
+    rows, free, names = (free_fit(displacements, response, weights=weights, controls=controls)
+                         if fit is None else fit)
     out = np.zeros(len(np.asarray(displacements)), bool)
-    if len(rows) < MIN_FRAMES or not cols:
+    if len(rows) < MIN_FRAMES or not names:
         return out
-    level = free[:, cols].mean(axis=1)
+    level = free.mean(axis=1)
     out[rows] = level <= np.percentile(level, REST_PERCENTILE) + BELOW
     return out
 

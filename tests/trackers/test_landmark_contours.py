@@ -101,6 +101,17 @@ def test_mouth_width_is_the_corners_distance_in_interocular_distances():
     assert mouth_width(0.5 * wide + 11.0) == pytest.approx(width + 0.1)
 
 
+def test_mouth_measures_take_many_frames_at_once():
+    a, _ = _mesh_from_template()
+    b = a.copy()
+    b[[87, 14, 317]] += [0.0, 12.0]
+    b[291] += [6.0, 0.0]
+    both = np.stack([a, b])
+    np.testing.assert_allclose(lip_gap(both), [lip_gap(a), lip_gap(b)])
+    np.testing.assert_allclose(mouth_width(both), [mouth_width(a), mouth_width(b)])
+    assert lip_gap(b) > lip_gap(a) and mouth_width(b) > mouth_width(a)
+
+
 def test_bad_landmarks_are_refused():
     with pytest.raises(ValueError, match="468"):
         landmark_curves(np.zeros((68, 2)))
