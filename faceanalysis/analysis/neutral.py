@@ -18,7 +18,7 @@ import numpy as np
 
 from faceanalysis.io.video import is_photographs
 
-log = logging.getLogger("faceanalysis.analysis.pipeline")
+log = logging.getLogger(__name__)
 
 __all__ = ["NeutralCheck", "check_neutral", "mouth_measures"]
 
