@@ -40,7 +40,7 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "in the same fit (reads the video twice); tw93: the paper's "
                             "per-muscle inversion of eq. 5; "
                             "flow: dense optical flow on the model's per-muscle flow templates")
-    group.add_argument("--neutral", type=_neutral_frame, metavar="FRAME",
+    group.add_argument("--neutral", type=_neutral_frame, metavar="FRAME|auto",
                        help="frame showing the neutral face, for calibration "
                             "(default: the first tracked frame; with --tracker snakes, "
                             "the first that sees every point, waiting at most 1 s); auto: "
