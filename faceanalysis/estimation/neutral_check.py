@@ -15,12 +15,10 @@ points tell apart less well, read below rest on most frames of clips that start 
 
 An open mouth on the neutral frame (a clip cut to start mid-sentence) is told by the
 face mesh's inner lips instead (:func:`open_mouth`): the free fit reads the jaw below the
-neutral frame only for a wide-open mouth, while the lower face already reads off with lips
-parted by a tenth of the inter-ocular distance. On cap12 and cap13 analysed from 38 starting
-frames (300 frames each) against the whole clips' analyses (which start with the lips
-closed), the 12 starts whose lips lay more than :data:`MOUTH_OPEN` farther apart than the
-clip's closed level read the lower face's muscles a mean 0.056-0.36 off, the 26 others at
-most 0.063; from the closed frame :func:`open_mouth` offers, the 12 read 0.018-0.059 off.
+neutral frame only for a wide-open mouth, while lips parted by a tenth of the inter-ocular
+distance already bias the lower face (the figures are in ``docs/limitations.md``). A frame
+offered instead (:mod:`faceanalysis.analysis.neutral`) has the brows down, the lips closed
+and the mouth not widened (:func:`brows_down`, :func:`closed_lips`, :func:`narrow_mouth`).
 """
 
 from __future__ import annotations
