@@ -1,9 +1,9 @@
 """Is the neutral frame at rest? The checks of the neutral frame, their warnings, and the one
 frame they offer instead.
 
-Every value is measured from the neutral frame. Three things on it bias every value and are
+Every value is measured from the neutral frame. Four things on it bias every value and are
 told: a coarsely coded picture (an encoder's first pictures; measured by the pipeline,
-``blocky``), raised brows and an open mouth
+``blocky``), raised brows, an open mouth and a widened one, as in a smile
 (:mod:`faceanalysis.estimation.neutral_check`). Where one warns, all offer the same frame
 instead, the nearest that passes every check (:func:`check_neutral`), which
 ``analyze(neutral="auto")`` moves the neutral frame to.
@@ -47,6 +47,9 @@ class NeutralCheck:
         (:func:`~faceanalysis.estimation.neutral_check.open_mouth`).
     closed : int or None
         The row nearest the neutral frame with the lips closed.
+    mouth_wider : float or None
+        The mouth corners' distance over the clip's rest level
+        (:func:`~faceanalysis.estimation.neutral_check.wide_mouth`).
     advice : tuple (frame, str) or None
         The frame nearest the neutral frame that passes every check, and what it passes.
     """
@@ -59,6 +62,7 @@ class NeutralCheck:
     lowest: int | None = None
     lips_apart: float | None = None
     closed: int | None = None
+    mouth_wider: float | None = None
     advice: tuple[int, str] | None = None
 
     @property
@@ -75,11 +79,18 @@ class NeutralCheck:
         return self.lips_apart is not None and self.lips_apart > MOUTH_OPEN
 
     @property
+    def mouth_wide(self) -> bool:
+        from faceanalysis.estimation.neutral_check import MOUTH_WIDE
+
+        return self.mouth_wider is not None and self.mouth_wider > MOUTH_WIDE
+
+    @property
     def reasons(self) -> list[str]:
         """What the checks found on the neutral frame (empty: nothing)."""
         return ([r for r, found in (("coarsely coded", self.coarse),
                                     ("brows raised", bool(self.raised)),
-                                    ("mouth open", self.mouth_open)) if found])
+                                    ("mouth open", self.mouth_open),
+                                    ("mouth widened", self.mouth_wide)) if found])
 
     def calibration(self) -> dict:
         """The ``calibration`` entries of ``analysis.json``."""
@@ -87,6 +98,8 @@ class NeutralCheck:
             "neutral_blockiness": None if self.blockiness is None else round(self.blockiness, 3),
             "below_neutral": {c: round(s, 3) for c, s in self.shares.items()},
             "neutral_lips_apart": None if self.lips_apart is None else round(self.lips_apart, 4),
+            "neutral_mouth_wider": (None if self.mouth_wider is None
+                                    else round(self.mouth_wider, 4)),
             "offered_neutral": (self.advice[0] if self.advice is not None and self.reasons
                                 else None),
         }
@@ -132,6 +145,15 @@ class NeutralCheck:
                         if closed is None else
                         f"frame {closed}, where the lips are closed, may be nearer rest "
                         f"(--neutral {closed})")
+
+        if self.mouth_wide:
+            log.warning("%s: the mouth is widened on the %s neutral frame %d (its corners "
+                        "%.2f inter-ocular distances farther apart than on the clip's rest "
+                        "frames, as in a smile): the lower face is measured from it, not "
+                        "from rest, and a later smile reads short; %s", video, how, frame,
+                        self.mouth_wider,
+                        self._offer() if self.advice is not None else
+                        "give a frame where the face is at rest (--neutral N)")
 
     def _offer(self) -> str:
         frame, passes = self.advice
@@ -194,6 +216,7 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
         narrow_mouth,
         nearest,
         open_mouth,
+        wide_mouth,
     )
 
     check = {"row": k, "coarse": coarse}
@@ -206,6 +229,7 @@ def check_neutral(est, tracks, k: int, *, blocky=None, coarse: bool = False,
     check["shares"], check["lowest"] = below_neutral(est.displacements, est.response, fit=fit)
     if mouth is not None:
         check["lips_apart"], check["closed"] = open_mouth(mouth[:, 0], k)
+        check["mouth_wider"] = wide_mouth(mouth[:, 1], k)
     allowed = brows_down(est.displacements, est.response, fit=fit)
     allowed &= np.asarray(tracks.success, bool)
     passes = "with the brows down"

@@ -189,9 +189,9 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         sees every measurement point within :data:`LATE_REFERENCE_S` seconds of it, if
         any); a point it misses takes its neutral position from the first frame within
         that time that sees it. ``'auto'``: the default, unless it is coarsely coded, has
-        the brows raised or the mouth open (:mod:`faceanalysis.analysis.neutral`); then
-        the frame nearest it that is none of these (``calibration.auto_neutral`` in
-        the metadata says from which frame and why).
+        the brows raised or the mouth open or widened
+        (:mod:`faceanalysis.analysis.neutral`); then the frame nearest it that is none of
+        these (``calibration.auto_neutral`` in the metadata says from which frame and why).
     layout : FaceLayout or path-like, optional
         Initial contours (e.g. corrected by hand and saved with
         ``FaceLayout.to_json``) for the snakes tracker.

@@ -45,7 +45,8 @@ def add_analysis_options(parser: argparse.ArgumentParser) -> None:
                             "(default: the first tracked frame; with --tracker snakes, "
                             "the first that sees every point, waiting at most 1 s); auto: "
                             "the default unless it is coarsely coded, has the brows raised "
-                            "or the mouth open, else the nearest frame that is none of these")
+                            "or the mouth open or widened, else the nearest frame that is none "
+                            "of these")
     group.add_argument("--tracker", choices=("landmarks", "snakes"),
                        help="landmarks (default): MediaPipe's face mesh finds the face on "
                             "every frame and holds the snakes; frames without a face are lost "

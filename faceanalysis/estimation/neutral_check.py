@@ -28,8 +28,8 @@ import numpy as np
 from faceanalysis.estimation.response import FiducialResponse
 
 __all__ = ["BELOW", "BELOW_SHARE", "BROWS", "CLOSED_RUN", "MIN_FRAMES", "MOUTH_OPEN",
-           "MOUTH_WIDER", "REST_PERCENTILE", "below_neutral", "brows_down", "closed_lips",
-           "free_fit", "narrow_mouth", "nearest", "open_mouth"]
+           "MOUTH_WIDE", "MOUTH_WIDER", "REST_PERCENTILE", "below_neutral", "brows_down",
+           "closed_lips", "free_fit", "narrow_mouth", "nearest", "open_mouth", "wide_mouth"]
 
 #: The controls checked: the frontalis, whose free fit the points determine.
 BROWS = tuple(f"frontalis_{part}_{side}" for part in ("inner", "major", "outer")
@@ -55,6 +55,12 @@ MOUTH_OPEN = 0.05
 #: this percentile over the tracked frames (a talking face closes its lips, and rests its
 #: brows, on more than a tenth of its frames; the lowest frame can be a frown or noise).
 REST_PERCENTILE = 10
+
+#: The mouth is taken as widened on the neutral frame (a smile, closed-mouthed or not) when
+#: its corners lie farther apart than the clip's rest level by more than this many
+#: inter-ocular distances (:func:`wide_mouth`): a smile widens it by 0.1-0.3, a talking
+#: mouth's corners move about 0.04 around their median.
+MOUTH_WIDE = 0.09
 
 #: A frame offered as nearer rest (:func:`narrow_mouth`) has its mouth no wider than the
 #: clip's rest level by more than this many inter-ocular distances: talking moves the mouth
@@ -289,3 +295,27 @@ def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
         return None, None
     level = float(np.percentile(g[seen], REST_PERCENTILE))
     return float(g[neutral] - level), nearest(closed_lips(g), neutral)
+
+
+def wide_mouth(widths, neutral: int) -> float | None:
+    """How much farther apart the mouth corners are on the neutral frame than at the clip's
+    rest level (the :data:`REST_PERCENTILE` percentile of ``widths``, the corners' distance
+    in inter-ocular distances, :func:`~trackers.landmark_contours.mouth_width`; NaN where a
+    frame is lost). Over :data:`MOUTH_WIDE` the mouth is widened there, as in a smile.
+    None under :data:`MIN_FRAMES` frames with a width or where the neutral frame has none.
+
+    Examples
+    --------
+    >>> w = np.full(60, 0.8)
+    >>> w[:10] = 0.98                                # a smile over the first 10 frames
+    >>> round(wide_mouth(w, 0), 2), round(wide_mouth(w, 30), 2)
+    (0.18, 0.0)
+    """
+    w = np.asarray(widths, dtype=float)
+    if w.ndim != 1 or not 0 <= neutral < len(w):
+        raise ValueError(f"widths must be 1-D with the neutral row {neutral} inside it, "
+                         f"got shape {w.shape}")
+    seen = np.isfinite(w)
+    if seen.sum() < MIN_FRAMES or not seen[neutral]:
+        return None
+    return float(w[neutral] - np.percentile(w[seen], REST_PERCENTILE))

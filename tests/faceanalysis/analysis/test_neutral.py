@@ -97,3 +97,21 @@ def test_photographs_are_not_checked(response):
     tracks.input["fps_origin"] = "default"
     check = check_neutral(est, tracks, 0, mouth=None)
     assert check.reasons == [] and check.advice is None and check.shares == {}
+
+
+def test_a_smile_on_the_neutral_frame_is_told_and_rest_offered(response, caplog):
+    # closed lips, the corners drawn apart: a smile at the start, then rest
+    rng = np.random.default_rng(4)
+    controls = np.zeros((80, len(response.muscles)))
+    mouth = np.c_[np.full(80, 0.01), np.full(80, 0.8)] + rng.normal(0, 0.003, (80, 2))
+    mouth[:15, 1] = 1.0
+    est, tracks, mouth = _clip(response, controls, 0, mouth, rng)
+    check = check_neutral(est, tracks, 0, mouth=mouth)
+    assert check.reasons == ["mouth widened"]
+    assert check.calibration()["neutral_mouth_wider"] > 0.15
+    assert check.advice is not None and check.advice[0] == 115
+    with caplog.at_level("WARNING"):
+        check.warn("clip.mp4", tracks, how="default")
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "mouth is widened on the default neutral frame 100" in said[0]
+    assert said[0].endswith("(--neutral 115)")

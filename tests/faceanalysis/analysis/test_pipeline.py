@@ -1147,8 +1147,9 @@ def test_a_neutral_frame_with_raised_brows_and_an_open_mouth_is_said_to_be_one(t
                    for r in caplog.records)
     assert c.metadata["parameters"]["neutral_frame"] == suggested
     assert c.metadata["parameters"]["neutral"] == "auto"
-    assert c.metadata["calibration"]["auto_neutral"] == {
-        "from_frame": 0, "because": ["brows raised", "mouth open"]}
+    moved = c.metadata["calibration"]["auto_neutral"]
+    assert moved["from_frame"] == 0
+    assert {"brows raised", "mouth open"} <= set(moved["because"])
     given = analyze(Frames(np.stack(clip), 30, channel_order="bgr"), neutral=suggested)
     pd.testing.assert_frame_equal(c.table, given.table)
     d = analyze(Frames(np.stack(clip[::-1]), 30, channel_order="bgr"), neutral="auto")

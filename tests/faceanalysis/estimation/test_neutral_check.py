@@ -12,6 +12,7 @@ from faceanalysis.estimation.neutral_check import (
     CLOSED_RUN,
     MIN_FRAMES,
     MOUTH_OPEN,
+    MOUTH_WIDE,
     MOUTH_WIDER,
     below_neutral,
     brows_down,
@@ -19,6 +20,7 @@ from faceanalysis.estimation.neutral_check import (
     narrow_mouth,
     nearest,
     open_mouth,
+    wide_mouth,
 )
 from faceanalysis.estimation.registry import CONTOUR_WEIGHT, mesh_response
 
@@ -173,3 +175,16 @@ def test_a_widened_mouth_is_not_at_rest():
     assert narrow[:20].mean() > 0.9 and narrow[60:].mean() > 0.9
     assert np.all(w[narrow] <= np.nanpercentile(w, 10) + MOUTH_WIDER)
     assert not narrow_mouth(w[:MIN_FRAMES - 1]).any()
+
+
+def test_a_smile_on_the_neutral_frame_widens_the_mouth_past_talking():
+    rng = np.random.default_rng(4)
+    w = 0.8 + rng.uniform(-0.03, 0.05, 120)          # talking: the corners move
+    assert wide_mouth(w, int(np.argmax(w))) < MOUTH_WIDE   # its widest vowel is no smile
+    w[:12] = 0.8 + MOUTH_WIDE + 0.05                  # starts smiling
+    assert wide_mouth(w, 0) > MOUTH_WIDE
+    w[0] = np.nan
+    assert wide_mouth(w, 0) is None
+    assert wide_mouth(w[:MIN_FRAMES - 1], 1) is None
+    with pytest.raises(ValueError, match="neutral row 200"):
+        wide_mouth(w, 200)
