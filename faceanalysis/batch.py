@@ -190,8 +190,8 @@ def _summarise(folder: Path) -> dict:
     calibration = metadata.get("calibration") if isinstance(metadata, dict) else None
     # a coarsely coded neutral frame (an encoder's first pictures) biases every value
     record["neutral_blockiness"] = _finite_or_nan((calibration or {}).get("neutral_blockiness"))
-    # where the neutral frame is coarsely coded, has raised brows or an open mouth: the frame
-    # offered instead, to analyse the video again from (NaN: none of them warned)
+    # where the neutral frame is coarsely coded, has raised brows or the mouth open or
+    # widened: the frame offered instead, to analyse the video from (NaN: none warned)
     record["offered_neutral"] = _finite_or_nan((calibration or {}).get("offered_neutral"))
     cuts = quality.get("shot_cuts")
     # an edited video: the face after a cut may be someone else (analyses that say so)

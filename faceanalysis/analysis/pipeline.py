@@ -359,8 +359,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                      "options": {"fps": fps, "start": start, "end": end}}
     t0, c0 = time.perf_counter(), time.process_time()
     meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
-                                                    est_options, video, quiet=auto,
-                                                    **calib_options)
+                                                    est_options, video, **calib_options)
     neutral_check = _check_neutral_frame(video, est, tracks, k, fps,
                                          default=given_frame is None)
     moved = None
@@ -373,9 +372,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
         meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
                                                         est_options, video, **calib_options)
         neutral_check = _check_neutral_frame(video, est, tracks, k, fps, default=True)
-    elif auto:
-        # the estimate was quiet, in case the neutral frame moved: say what it found
-        _warn_suspect(video, tracks, k, calib["suspect_points"], calib["excluded_points"])
+    # (said once the neutral frame is settled)
+    _warn_suspect(video, tracks, k, calib["suspect_points"], calib["excluded_points"])
     mirrored = check = None
     t_estimate = time.perf_counter() - t0
     c_estimate = time.process_time() - c0
@@ -477,11 +475,11 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
 
 def _estimate(tracks: Tracks, k: int, response: FiducialResponse, estimator: str,
               est_options: dict, video, *, suspect_points: str, pose_correction: bool,
-              options: dict, quiet: bool = False):
+              options: dict):
     """Calibrate ``tracks`` on row ``k`` and run ``estimator``: the measurements, the
     calibration, its ``analysis.json`` section, whether the pose correction was applied,
     and the :class:`~faceanalysis.estimation.registry.Estimate`."""
-    meas, cal, calib = _calibrate(tracks, k, response, suspect_points, video, quiet=quiet)
+    meas, cal, calib = _calibrate(tracks, k, response, suspect_points)
     disp = cal.model_displacements(meas, tracks.heads)
     disp, pose_applied = _correct_pose(disp, tracks.pose, k, response, pose_correction)
     obs = Observations(tracks=tracks, response=response, displacements=disp, neutral=k,
@@ -520,7 +518,7 @@ def _mirror_check(est, mirrored: Tracks, k: int, tracks: Tracks, response: Fiduc
         return _skipped(f"the neutral frame {int(tracks.frames[k])} was not tracked in the "
                         "mirrored video")
     *_, mest = _estimate(mirrored, int(rows[0]), response, estimator, est_options, video,
-                         quiet=True, **calib_options)
+                         **calib_options)
     return mirror_agreement(_response_array(est.values, est.response),
                             _response_array(mest.values, est.response),
                             est.response.muscles, upper=est.response.upper)
@@ -741,11 +739,11 @@ def _warn_suspect(video, tracks: Tracks, k: int, suspect: list, excluded: list) 
                     else "")
 
 
-def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_points: str,
-               video, *, quiet: bool = False):
+def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_points: str):
     """Measurements the estimators may read, the calibration, and its ``analysis.json``
     section. Suspect points (:func:`~faceanalysis.estimation.calibration.find_suspect`)
-    are left out with ``suspect_points='exclude'``; faded furrow ends always are."""
+    are left out with ``suspect_points='exclude'`` (:func:`_warn_suspect` says so); faded
+    furrow ends always are."""
     meas = tracks.points
     late = _late_references(tracks, k)
     neutral_points = meas[k].copy()
@@ -768,8 +766,6 @@ def _calibrate(tracks: Tracks, k: int, response: FiducialResponse, suspect_point
              & np.isfinite(meas).all(axis=2))
     if faded.any():
         meas = np.where(faded[..., None], np.nan, meas)
-    if not quiet:
-        _warn_suspect(video, tracks, k, suspect, excluded)
     calib = {"neutral_frame": int(tracks.frames[k]), "residual": cal.residual,
              "matrix": cal.matrix.tolist(), "offset": cal.offset.tolist(),
              "suspect_points": suspect, "excluded_points": excluded,

@@ -189,8 +189,7 @@ def brows_down(displacements, response: FiducialResponse, *, weights=None,
     out = np.zeros(len(np.asarray(displacements)), bool)
     if len(rows) < MIN_FRAMES or not names:
         return out
-    level = free.mean(axis=1)
-    out[rows] = level <= np.percentile(level, REST_PERCENTILE) + BELOW
+    out[rows] = _above_rest(free.mean(axis=1), "levels") <= BELOW
     return out
 
 
@@ -207,19 +206,7 @@ def closed_lips(gaps) -> np.ndarray:
     >>> np.flatnonzero(closed_lips(g)).tolist()
     [10, 11, 12, 13, 14, 15]
     """
-    g = np.asarray(gaps, dtype=float)
-    if g.ndim != 1:
-        raise ValueError(f"gaps must be 1-D, got shape {g.shape}")
-    seen = np.isfinite(g)
-    out = np.zeros(len(g), bool)
-    if seen.sum() < MIN_FRAMES:
-        return out
-    level = float(np.percentile(g[seen], REST_PERCENTILE))
-    shut = seen & (g <= level + MOUTH_OPEN / 2)
-    run = np.convolve(shut, np.ones(CLOSED_RUN, int), mode="valid") == CLOSED_RUN
-    for start in np.flatnonzero(run):
-        out[start:start + CLOSED_RUN] = True
-    return out
+    return _closed_runs(_above_rest(gaps, "gaps"), len(np.asarray(gaps)))
 
 
 def narrow_mouth(widths) -> np.ndarray:
@@ -235,13 +222,10 @@ def narrow_mouth(widths) -> np.ndarray:
     >>> np.flatnonzero(~narrow_mouth(w)).tolist()
     [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
     """
-    w = np.asarray(widths, dtype=float)
-    if w.ndim != 1:
-        raise ValueError(f"widths must be 1-D, got shape {w.shape}")
-    seen = np.isfinite(w)
-    if seen.sum() < MIN_FRAMES:
-        return np.zeros(len(w), bool)
-    return seen & (w <= np.percentile(w[seen], REST_PERCENTILE) + MOUTH_WIDER)
+    above = _above_rest(widths, "widths")
+    if above is None:
+        return np.zeros(len(np.asarray(widths)), bool)
+    return above <= MOUTH_WIDER                       # (NaN, a lost frame: False)
 
 
 def nearest(allowed, neutral: int) -> int | None:
@@ -286,15 +270,10 @@ def open_mouth(gaps, neutral: int) -> tuple[float | None, int | None]:
     >>> round(excess, 2), closed
     (0.19, 20)
     """
-    g = np.asarray(gaps, dtype=float)
-    if g.ndim != 1 or not 0 <= neutral < len(g):
-        raise ValueError(f"gaps must be 1-D with the neutral row {neutral} inside it, "
-                         f"got shape {g.shape}")
-    seen = np.isfinite(g)
-    if seen.sum() < MIN_FRAMES or not seen[neutral]:
+    above = _above_rest(gaps, "gaps", neutral)
+    if above is None or not np.isfinite(above[neutral]):
         return None, None
-    level = float(np.percentile(g[seen], REST_PERCENTILE))
-    return float(g[neutral] - level), nearest(closed_lips(g), neutral)
+    return float(above[neutral]), nearest(_closed_runs(above, len(above)), neutral)
 
 
 def wide_mouth(widths, neutral: int) -> float | None:
@@ -311,11 +290,33 @@ def wide_mouth(widths, neutral: int) -> float | None:
     >>> round(wide_mouth(w, 0), 2), round(wide_mouth(w, 30), 2)
     (0.18, 0.0)
     """
-    w = np.asarray(widths, dtype=float)
-    if w.ndim != 1 or not 0 <= neutral < len(w):
-        raise ValueError(f"widths must be 1-D with the neutral row {neutral} inside it, "
-                         f"got shape {w.shape}")
-    seen = np.isfinite(w)
-    if seen.sum() < MIN_FRAMES or not seen[neutral]:
+    above = _above_rest(widths, "widths", neutral)
+    if above is None or not np.isfinite(above[neutral]):
         return None
-    return float(w[neutral] - np.percentile(w[seen], REST_PERCENTILE))
+    return float(above[neutral])
+
+
+def _above_rest(values, name: str, neutral: int | None = None) -> np.ndarray | None:
+    """Each of ``values`` (1-D; NaN where a frame is lost) less the clip's rest level, the
+    :data:`REST_PERCENTILE` percentile of those seen; None under :data:`MIN_FRAMES` seen.
+    ``neutral``, if given, must be a row of them."""
+    v = np.asarray(values, dtype=float)
+    if v.ndim != 1 or (neutral is not None and not 0 <= neutral < len(v)):
+        inside = "" if neutral is None else f" with the neutral row {neutral} inside it"
+        raise ValueError(f"{name} must be 1-D{inside}, got shape {v.shape}")
+    seen = np.isfinite(v)
+    if seen.sum() < MIN_FRAMES:
+        return None
+    return v - np.percentile(v[seen], REST_PERCENTILE)
+
+
+def _closed_runs(gaps_above_rest, length: int) -> np.ndarray:
+    """:func:`closed_lips` of the lip gaps less their rest level (None: too few frames)."""
+    out = np.zeros(length, bool)
+    if gaps_above_rest is None:
+        return out
+    shut = gaps_above_rest <= MOUTH_OPEN / 2                   # (NaN: False)
+    run = np.convolve(shut, np.ones(CLOSED_RUN, int), mode="valid") == CLOSED_RUN
+    for start in np.flatnonzero(run):
+        out[start:start + CLOSED_RUN] = True
+    return out

@@ -275,11 +275,11 @@ def test_points_on_the_wrong_feature_are_named_and_left_out(surprise, furrows_mi
     # the landmark tracker places its contours itself: no layout to correct
     from dataclasses import replace
 
-    from faceanalysis.analysis.pipeline import _calibrate
+    from faceanalysis.analysis.pipeline import _warn_suspect
 
     caplog.clear()
     with caplog.at_level("WARNING", logger="faceanalysis.analysis.pipeline"):
-        _calibrate(replace(a.tracks, tracker="landmarks"), 0, a.response, "exclude", "v.mp4")
+        _warn_suspect("v.mp4", replace(a.tracks, tracker="landmarks"), 0, suspect, suspect)
     assert suspect[0] in caplog.text and "--neutral" in caplog.text
     assert "--layout" not in caplog.text and "landmark tracker" not in caplog.text
     kept = analyze(surprise["video"], layout=furrows_misplaced, end=10, suspect_points="keep")
@@ -656,7 +656,7 @@ def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_lat
     points[1::2, i] = np.nan
     gaps = replace(tracks, points=points)
     assert _neutral_row(gaps, None) == 0
-    meas, cal, calib = _calibrate(gaps, 0, response, "exclude", "clip")
+    meas, cal, calib = _calibrate(gaps, 0, response, "exclude")
     assert calib["neutral_frame"] == 0
     assert calib["late_references"] == {"mouth_corner_l": int(tracks.frames[1])}
     np.testing.assert_allclose(cal.neutral[j],
@@ -665,12 +665,12 @@ def test_the_neutral_frame_waits_briefly_and_a_point_it_misses_is_referenced_lat
     disp = cal.model_displacements(meas, tracks.heads)
     assert np.isfinite(disp[1::2, j]).all() and np.abs(disp[1, j]).max() < 1e-9
     # a corner one frame apart at the start of a surprise is where the first frame's is
-    _, full, _ = _calibrate(tracks, 0, response, "exclude", "clip")
+    _, full, _ = _calibrate(tracks, 0, response, "exclude")
     assert np.abs(cal.neutral[j] - full.neutral[j]).max() < 0.01
     # seen nowhere near the start: no neutral position, never measured
     points[:, j] = np.nan
     never = replace(tracks, points=points)
-    meas, cal, calib = _calibrate(never, 0, response, "exclude", "clip")
+    meas, cal, calib = _calibrate(never, 0, response, "exclude")
     assert calib["late_references"] == {}
     assert np.isnan(cal.model_displacements(meas, tracks.heads)[:, j]).all()
 
