@@ -20,7 +20,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "and match it against the face model's expression templates (spatio-temporal motion "
         "from neutral to apex and its motion energy). Prints the expression of the sequence "
         "and, for a longer video, of each segment found by motion energy, with a score per "
-        "class (happiness, sadness, surprise, fear, anger, disgust, neutral).")
+        "class (happiness, sadness, surprise, fear, anger, disgust, neutral); segments whose "
+        "motion matches no expression, and frames without a face, are listed as such.")
     parser.epilog = (
         "examples:\n"
         "  faceanalysis classify clip.mp4\n"
@@ -89,11 +90,31 @@ def run(args: argparse.Namespace) -> int:
     print(rec.label)
     print(f"  neutral reference: frame {rec.reference} ({reference_reason(rec)})")
     print("  " + "  ".join(f"{c} {rec.scores.get(c, 0.0):.3f}" for c in CLASSES))
-    for s in rec.segments:
-        where = (f"frame {s.start}" if s.start == s.end
-                 else f"frames {s.start}-{s.end} (apex {s.apex})")
-        print(f"  {where}: {s.label} ({s.scores[s.label]:.3f})")
+    for line in segment_lines(rec):
+        print("  " + line)
     return 0
+
+
+def segment_lines(rec) -> list[str]:
+    """One line per segment of a :class:`~faceanalysis.flow.recognition.Recognition`, the
+    unmatched ones and the runs of frames not classified included, in frame order."""
+    def span(a, b, apex=None):
+        if a == b:
+            return f"frame {a}"
+        return f"frames {a}-{b}" + ("" if apex is None else f" (apex {apex})")
+
+    lines = []
+    for s in rec.segments:
+        lines.append((s.start, f"{span(s.start, s.end, s.apex)}: {s.label} "
+                               f"({s.scores[s.label]:.3f})"))
+    for s in rec.unmatched:
+        near = max((c for c in s.scores if c != "neutral"), key=s.scores.get)
+        lines.append((s.start, f"{span(s.start, s.end, s.apex)}: motion that matches no "
+                               f"expression (nearest {near}, {s.scores[near]:.3f})"))
+    for a, b in rec.lost_ranges():
+        lines.append((a, f"{span(a, b)}: not classified (no face tracked, or the face "
+                         f"hidden)"))
+    return [text for _, text in sorted(lines, key=lambda x: x[0])]
 
 
 def reference_reason(rec) -> str:

@@ -23,8 +23,9 @@ templates of :mod:`faceanalysis.flow.templates`:
    cosine; its *share* is the fraction of the segment's frames whose nearest apex template
    it is (a majority vote, robust to a few frames of head motion or occlusion). The class
    score is ``(2 similarity + share) / 3``; the best score names the segment. A segment
-   whose named class has a similarity below :data:`MIN_SCORE` matches no expression and is
-   dropped (neutral).
+   whose named class has a similarity below :data:`MIN_SCORE` matches no expression: it is
+   reported apart (:attr:`Recognition.unmatched`, labelled :data:`UNMATCHED`), not as an
+   expression, and does not name the sequence.
 
 Scores per class are reported for the six expressions and for ``neutral`` (0 for a
 sequence with an expression; for a neutral one ``1 -`` the best expression score of its
@@ -87,7 +88,7 @@ log = logging.getLogger(__name__)
 __all__ = ["CLASSES", "NEUTRAL_THRESHOLD", "MIN_SCORE", "WEIGHTS", "REST_MARGIN", "Segment",
            "Recognition", "nuisance_free", "motion_energy", "find_segments", "score_segment",
            "classify_flow", "classify_video", "rest_frame", "relative_contraction", "REST_NOISE",
-           "calibrate_threshold", "REST_HOLD"]
+           "calibrate_threshold", "REST_HOLD", "UNMATCHED"]
 
 #: Classes named by the recogniser: the six primary expressions and neutral.
 CLASSES = (*EXPRESSION_NAMES, "neutral")
@@ -97,6 +98,8 @@ NEUTRAL_THRESHOLD = 0.003
 #: Smallest similarity of a segment's class; motion that matches no expression template
 #: (noise, talking, residual head motion) below it is neutral.
 MIN_SCORE = 0.2
+#: Label of a segment whose motion matches no expression (:attr:`Recognition.unmatched`).
+UNMATCHED = "unmatched"
 #: Weights of the spatio-temporal displacement correlation and of the motion-energy map
 #: correlation in a class score.
 WEIGHTS = (0.8, 0.2)
@@ -125,7 +128,7 @@ class Segment:
     start, apex, end : int
         Frame numbers (``end`` inclusive).
     label : str
-        One of :data:`CLASSES`.
+        One of :data:`CLASSES`, or :data:`UNMATCHED` where the motion matches none.
     scores : dict
         Class -> score (cosine-like, higher is better).
     peak_energy : float
@@ -159,6 +162,13 @@ class Recognition:
     does not: probably a lull in an expression rather than the face at rest) or
     ``'unresolved'`` (the clip's tracking noise hides the difference between rest and
     expression); after ``'moving'`` or ``'unresolved'`` the labels are doubtful.
+
+    ``segments`` are the episodes named as expressions; ``unmatched`` those whose motion
+    matches no expression template well enough (:data:`MIN_SCORE`: talking, a hand, a head
+    turn the nuisance removal leaves, or an expression the templates lack), labelled
+    :data:`UNMATCHED` with their scores, so that no active stretch of the video goes
+    unreported. Frames whose ``energy`` is NaN were not classified (no face tracked, or the
+    face hidden).
     """
 
     label: str
@@ -170,11 +180,25 @@ class Recognition:
     reference: int | None = None
     reference_source: str | None = None
     reference_rest: str | None = None
+    unmatched: list = field(default_factory=list)
 
     def table(self) -> pd.DataFrame:
-        """One row per segment (``start, apex, end, label, peak_energy, score_<class>``)."""
+        """One row per segment, the unmatched ones (label :data:`UNMATCHED`) included, in
+        order of their start (``start, apex, end, label, peak_energy, score_<class>``)."""
         cols = ["start", "apex", "end", "label", "peak_energy", *(f"score_{c}" for c in CLASSES)]
-        return pd.DataFrame([s.as_dict() for s in self.segments], columns=cols)
+        rows = sorted(self.segments + self.unmatched, key=lambda s: s.start)
+        return pd.DataFrame([s.as_dict() for s in rows], columns=cols)
+
+    def lost_ranges(self) -> list[tuple[int, int]]:
+        """Runs of frames not classified (NaN ``energy``: no face tracked, or the face
+        hidden) as (first, last) frame numbers, inclusive."""
+        lost = np.flatnonzero(~np.isfinite(np.asarray(self.energy, dtype=float)))
+        if not lost.size:
+            return []
+        breaks = np.flatnonzero(np.diff(lost) > 1)
+        firsts = np.r_[lost[0], lost[breaks + 1]]
+        lasts = np.r_[lost[breaks], lost[-1]]
+        return [(int(self.frames[a]), int(self.frames[b])) for a, b in zip(firsts, lasts)]
 
     def as_dict(self) -> dict:
         return {"label": self.label, "scores": {k: float(v) for k, v in self.scores.items()},
@@ -182,7 +206,9 @@ class Recognition:
                 "reference": None if self.reference is None else int(self.reference),
                 "reference_source": self.reference_source,
                 "reference_rest": self.reference_rest,
-                "segments": [s.as_dict() for s in self.segments]}
+                "segments": [s.as_dict() for s in self.segments],
+                "unmatched": [s.as_dict() for s in self.unmatched],
+                "lost_ranges": [list(r) for r in self.lost_ranges()]}
 
 
 def nuisance_free(displacement: np.ndarray, templates: FlowTemplates) -> np.ndarray:
@@ -420,7 +446,8 @@ def classify_flow(flow: FaceFlow | np.ndarray, templates: FlowTemplates, *,
     -------
     Recognition
         ``label`` is the label of the segment with the largest peak energy (``neutral``
-        without segments); ``scores`` are that segment's.
+        without segments); ``scores`` are that segment's. Segments matching no expression
+        are in ``unmatched``.
     """
     if isinstance(flow, FaceFlow):
         disp = flow.displacement
@@ -448,7 +475,7 @@ def _classify_clean(clean, energy: np.ndarray, fr: np.ndarray, templates: FlowTe
     :class:`_FrameStore`) and its motion energy; ``photographs``: each active frame is a
     segment of its own (a photograph has no onset, nor neighbours to join)."""
     segments = []
-    dropped = []                       # (peak energy, scores) of segments matching nothing
+    unmatched = []                     # segments matching no expression
     runs = ([(i, i) for i in np.flatnonzero(np.nan_to_num(energy, nan=-np.inf) > thr)]
             if photographs else
             find_segments(energy, thr, min_length=min_length, min_gap=min_gap))
@@ -458,25 +485,24 @@ def _classify_clean(clean, energy: np.ndarray, fr: np.ndarray, templates: FlowTe
         similarity = scores.pop("_similarity")
         scores["neutral"] = 0.0
         label = max(templates.expressions, key=scores.get)
-        if similarity[label] < min_score:
-            dropped.append((float(energy[apex]), scores))
-            continue
-        segments.append(Segment(int(fr[a]), int(fr[apex]), int(fr[b]), label, scores,
-                                float(energy[apex])))
+        matched = similarity[label] >= min_score
+        (segments if matched else unmatched).append(
+            Segment(int(fr[a]), int(fr[apex]), int(fr[b]), label if matched else UNMATCHED,
+                    scores, float(energy[apex])))
     if segments:
         best = max(segments, key=lambda s: s.peak_energy)
         label, scores = best.label, dict(best.scores)
     else:
         label = "neutral"
-        if dropped:
-            scores = dict(max(dropped, key=lambda s: s[0])[1])
+        if unmatched:
+            scores = dict(max(unmatched, key=lambda s: s.peak_energy).scores)
             scores["neutral"] = 1.0 - max(scores[n] for n in templates.expressions)
         else:
             peak = float(np.nanmax(energy)) if np.isfinite(energy).any() else 0.0
             scores = {name: 0.0 for name in templates.expressions}
             scores["neutral"] = 1.0 - 0.5 * min(peak / thr, 1.0)
     return Recognition(label=label, scores=scores, segments=segments, energy=energy,
-                       frames=np.asarray(fr), threshold=thr)
+                       frames=np.asarray(fr), threshold=thr, unmatched=unmatched)
 
 
 class _ContractionFit:

@@ -120,3 +120,26 @@ def test_the_laugh_without_a_neutral_frame_is_named_or_doubted(run_cli, real_vid
     assert code == 0, err
     assert "neutral reference: frame" in out
     assert out.splitlines()[0] == "happiness" or "doubtful" in out, out
+
+
+def test_classify_lists_every_active_stretch_and_the_frames_it_could_not_read():
+    """The printed segments are in frame order and include the motion matching no expression
+    and the frames without a face: a long video's later laugh cannot silently vanish."""
+    import numpy as np
+
+    from faceanalysis.cli.classify import segment_lines
+    from faceanalysis.flow.recognition import CLASSES, UNMATCHED, Recognition, Segment
+
+    scores = dict.fromkeys(CLASSES, 0.0)
+    happy = Segment(3, 40, 57, "happiness", {**scores, "happiness": 0.7}, 0.03)
+    other = Segment(228, 343, 471, UNMATCHED, {**scores, "disgust": 0.21, "anger": 0.13}, 0.05)
+    energy = np.full(472, 0.01)
+    energy[58:228] = np.nan
+    rec = Recognition("happiness", happy.scores, [happy], energy, np.arange(472), 0.003,
+                      unmatched=[other])
+    assert segment_lines(rec) == [
+        "frames 3-57 (apex 40): happiness (0.700)",
+        "frames 58-227: not classified (no face tracked, or the face hidden)",
+        "frames 228-471 (apex 343): motion that matches no expression (nearest disgust, 0.210)",
+    ]
+    assert list(rec.table()["start"]) == [3, 228]

@@ -8,6 +8,7 @@ from faceanalysis.flow.grid import FaceGrid, rigid_basis
 from faceanalysis.flow.personalize import implausible_fiducials, personalize, personalize_from_table
 from faceanalysis.flow.recognition import (
     CLASSES,
+    UNMATCHED,
     calibrate_threshold,
     classify_flow,
     find_segments,
@@ -213,6 +214,38 @@ def test_recognition_names_each_expression_and_neutral(templates, rng):
     assert rec.table().shape[0] == 2
     with pytest.raises(ValueError, match="shape"):
         classify_flow(two[:, :5], t)
+
+
+def test_motion_matching_no_expression_and_lost_frames_are_reported(templates, rng):
+    """An active stretch whose motion is none of the expressions (here a smooth random field,
+    as a hand or talking gives) is reported apart, not hidden; lost frames are named."""
+    t = templates
+    happy = _episode(t, "happiness", rng)
+    field = rng.normal(0, 1, (*t.grid.shape, 2))
+    field = field / np.sqrt(np.mean(np.sum(field[t.mask] ** 2, axis=-1))) * 0.03
+    other = np.concatenate([np.zeros((8, *field.shape)),
+                            np.repeat(field[None], 12, axis=0) * np.linspace(0.2, 1, 12)[
+                                :, None, None, None],
+                            np.zeros((3, *field.shape))])
+    gone = np.full((4, *field.shape), np.nan)
+    rec = classify_flow(np.concatenate([happy, other, gone]), t,
+                        frames=np.arange(100, 100 + len(happy) + len(other) + 4))
+    assert rec.label == "happiness"
+    assert [s.label for s in rec.segments] == ["happiness"]
+    assert [s.label for s in rec.unmatched] == [UNMATCHED]
+    seg = rec.unmatched[0]
+    assert 100 + len(happy) + 8 <= seg.start and seg.end <= 100 + len(happy) + 20
+    assert set(seg.scores) == set(CLASSES)
+    assert list(rec.table()["label"]) == ["happiness", UNMATCHED]
+    end = 100 + len(happy) + len(other)
+    assert rec.lost_ranges() == [(end, end + 3)]
+    d = rec.as_dict()
+    assert d["lost_ranges"] == [[end, end + 3]] and d["unmatched"][0]["label"] == UNMATCHED
+    # alone, the same motion leaves the sequence neutral, with its score from that segment
+    alone = classify_flow(other, t)
+    assert alone.label == "neutral" and not alone.segments and len(alone.unmatched) == 1
+    best = max(alone.unmatched[0].scores[n] for n in EXPRESSION_NAMES)
+    assert alone.scores["neutral"] == pytest.approx(1 - best)
 
 
 def test_motion_energy_segments_and_threshold(templates, rng):
