@@ -95,8 +95,8 @@ CLASSES = (*EXPRESSION_NAMES, "neutral")
 #: RMS displacement on the face mask (head units) above which a frame shows an expression.
 #: Calibrated with :func:`calibrate_threshold` (see the module docstring).
 NEUTRAL_THRESHOLD = 0.003
-#: Smallest similarity of a segment's class; motion that matches no expression template
-#: (noise, talking, residual head motion) below it is neutral.
+#: Smallest similarity of a segment's class; motion below it (noise, talking, residual head
+#: motion) matches no expression: the segment is :data:`UNMATCHED`.
 MIN_SCORE = 0.2
 #: Label of a segment whose motion matches no expression (:attr:`Recognition.unmatched`).
 UNMATCHED = "unmatched"
