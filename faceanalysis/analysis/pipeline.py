@@ -360,7 +360,8 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
     t0, c0 = time.perf_counter(), time.process_time()
     meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
                                                     est_options, video, **calib_options)
-    neutral_check = _check_neutral_frame(video, est, tracks, k, fps,
+    mouth = mouth_measures(tracks)          # the clip's, whichever frame is neutral
+    neutral_check = _check_neutral_frame(video, est, tracks, k, fps, mouth,
                                          default=given_frame is None)
     moved = None
     if auto and neutral_check.reasons and neutral_check.advice is not None:
@@ -371,7 +372,7 @@ def analyze(video: str | os.PathLike, *, estimator: str | None = None, fps: floa
                  int(tracks.frames[k]), moved["from_frame"], ", ".join(moved["because"]))
         meas, cal, calib, pose_applied, est = _estimate(tracks, k, response, estimator,
                                                         est_options, video, **calib_options)
-        neutral_check = _check_neutral_frame(video, est, tracks, k, fps, default=True)
+        neutral_check = _check_neutral_frame(video, est, tracks, k, fps, mouth, default=True)
     # (said once the neutral frame is settled)
     _warn_suspect(video, tracks, k, calib["suspect_points"], calib["excluded_points"])
     mirrored = check = None
@@ -643,14 +644,14 @@ def _check_neutral_option(neutral) -> bool:
     return False
 
 
-def _check_neutral_frame(video, est, tracks: Tracks, k: int, fps, *,
+def _check_neutral_frame(video, est, tracks: Tracks, k: int, fps, mouth, *,
                          default: bool) -> NeutralCheck:
-    """:func:`~faceanalysis.analysis.neutral.check_neutral` of row ``k``, with its coding
-    measured (judged only for a neutral frame not given, ``default``)."""
+    """:func:`~faceanalysis.analysis.neutral.check_neutral` of row ``k`` with the clip's
+    ``mouth`` (:func:`~faceanalysis.analysis.neutral.mouth_measures`), its coding measured
+    (judged only for a neutral frame not given, ``default``)."""
     blocky = _blocky_neutral(video, tracks, k, fps)
     coarse = default and blocky is not None and blocky[0] > BLOCKY_NEUTRAL
-    return check_neutral(est, tracks, k, blocky=blocky, coarse=coarse,
-                         mouth=mouth_measures(tracks))
+    return check_neutral(est, tracks, k, blocky=blocky, coarse=coarse, mouth=mouth)
 
 
 def _check_input_points(video, neutral: int | None, face, *, fps, start: int,
