@@ -26,7 +26,12 @@ import pandas as pd
 
 from faceanalysis.errors import FaceAnalysisError
 from faceanalysis.io.cuts import frame_changes, shot_cuts
-from faceanalysis.io.report import LOST_REASONS, input_metadata, lost_reasons_text
+from faceanalysis.io.report import (
+    LOST_REASONS,
+    input_metadata,
+    input_name,
+    lost_reasons_text,
+)
 from faceanalysis.io.table import FIDUCIALS, HEAD_COLUMNS, POSE_COLUMNS
 from faceanalysis.io.video import MIN_FACE_SIZE, Frames, as_video, open_video, read_ahead
 from trackers.torch_backend import check_backend, make_tracker
@@ -344,6 +349,22 @@ class Tracks:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+    def __repr__(self) -> str:
+        # a summary, not the fields: the per-frame contours and landmarks print about
+        # 10 kB a frame
+        n, tracked = len(self.frames), int(np.count_nonzero(self.success))
+        lost = f"{n - tracked} lost"
+        reasons = {}
+        for code in self.lost_reasons or ():
+            if code is not None:
+                reasons[code] = reasons.get(code, 0) + 1
+        if reasons:
+            lost += f" ({lost_reasons_text(reasons)})"
+        name = (self.video.name if isinstance(self.video, Frames)
+                else input_name(self.input) if self.input else Path(str(self.video)).name)
+        return (f"<Tracks of {name}: {n} frame{'' if n == 1 else 's'}, {tracked} tracked, "
+                f"{lost}; {self.tracker} tracker{', mirrored' if self.mirrored else ''}>")
 
     @property
     def table(self) -> pd.DataFrame:

@@ -108,6 +108,11 @@ class Lattice:
     contact_k: np.ndarray = None       #: (c,) penalty stiffness keeping the lips apart
     info: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        # the per-node and per-spring arrays print tens of kB
+        return (f"<Lattice: {self.n_nodes} nodes ({self.n_vertices} a layer), "
+                f"{self.n_springs} springs, {self.n_elements} elements>")
+
     @property
     def n_nodes(self) -> int:
         """Number of nodes (all layers)."""

@@ -34,7 +34,7 @@ from faceanalysis.io.outputs import (
     prepare_output_dir,
     remove_new_folders,
 )
-from faceanalysis.io.report import write_analysis
+from faceanalysis.io.report import input_name, summary_line, write_analysis
 from faceanalysis.io.table import (
     FIDUCIALS,
     JAW,
@@ -105,6 +105,17 @@ class Analysis:
     mirrored_tracks: Tracks | None = None
     estimate: Estimate | None = None
 
+    def __repr__(self) -> str:
+        # a summary, not the fields: their repr grows with the video (a 100-frame clip's
+        # contours alone print 2 MB), which stalls a notebook that shows the result
+        meta = self.metadata or {}
+        params = meta.get("parameters") or {}
+        methods = ", ".join(f"{params[key]} {key}" for key in ("tracker", "estimator")
+                            if params.get(key))
+        return (f"<Analysis of {input_name(meta.get('input'))}: "
+                f"{summary_line(meta, len(self.table))}"
+                f"{'; ' + methods if methods else ''}>")
+
     @property
     def fiducials(self) -> np.ndarray:
         """Tracked fiducials, shape (T, 11, 2), pixels; NaN for lost frames."""
@@ -133,7 +144,7 @@ class Analysis:
         """Write ``contractions.csv``, ``analysis.json`` and ``contractions.png`` to ``output``."""
         with OutputFolder(output, overwrite=overwrite) as folder:
             return folder.write(self.table, self.metadata,
-                                title=self.metadata.get("input", {}).get("name"))
+                                title=input_name(self.metadata.get("input")))
 
 
 class OutputFolder:

@@ -152,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     from faceanalysis.analysis.pipeline import analyze_to_folder
     from faceanalysis.cli._common import UsageError
     from faceanalysis.io.outputs import CONTRACTIONS_CSV
+    from faceanalysis.io.report import summary_line
 
     check_analysis_options(args)
     if args.face is not None and (args.tracker == "snakes" or args.layout is not None):
@@ -166,56 +167,8 @@ def run(args: argparse.Namespace) -> int:
         mirror_check=args.mirror_check,
         backend=args.backend, device=args.device,
         suspect_points="keep" if args.keep_suspect_points else "exclude")
-    print(f"{closing_line(result.metadata, len(result.table))} -> {args.output}",
+    print(f"{summary_line(result.metadata, len(result.table))} -> {args.output}",
           file=sys.stderr)
     print(args.output / CONTRACTIONS_CSV)
     return 0
 
-
-def closing_line(metadata: dict, rows: int) -> str:
-    """What an analysis found, in a line: frames, lost frames and why, what is measured.
-
-    Examples
-    --------
-    >>> line = closing_line({
-    ...     "quality": {"frames_total": 3, "frames_lost": 1, "lost_reasons": {"hand": 1}},
-    ...     "identifiability": {"controls": {"a": {"identifiable": True}},
-    ...                         "mirror": {"frames_not_reproduced": {"a": [2]}}}}, 3)
-    >>> line.startswith("analysed 3 frames (1 lost: 1 under a hand; all 1 controls measured")
-    True
-    >>> line.endswith("but 1 value not reproduced mirrored, flagged 0)")
-    True
-    >>> closing_line({"quality": {"frames_total": 1, "frames_lost": 0}}, 1)
-    'analysed 1 frame (0 lost; all 0 controls measured)'
-    >>> closing_line({"quality": {"frames_total": 9, "frames_lost": 0},
-    ...               "parameters": {"neutral_frame": 4}}, 9)
-    'analysed 9 frames (0 lost; neutral frame 4; all 0 controls measured)'
-    >>> closing_line({"quality": {"frames_total": 3, "frames_lost": 0},
-    ...               "input": {"kind": "images", "fps_origin": "default", "frame_count": 3}}, 3)
-    'analysed 3 photographs (0 lost; all 0 controls measured)'
-    """
-    from faceanalysis.io.report import lost_reasons_text
-    from faceanalysis.io.video import is_photographs
-
-    q = metadata.get("quality") or {}
-    ident = metadata.get("identifiability") or {}
-    controls = ident.get("controls", {})
-    told = sum(bool(c.get("identifiable")) for c in controls.values())
-    measured = (f"all {told} controls measured" if told == len(controls) else
-                f"{told} of {len(controls)} controls measured, the others flagged 0 in "
-                f"<control>_identifiable")
-    by_frame = (ident.get("mirror") or {}).get("frames_not_reproduced") or {}
-    if by_frame:
-        n = sum(len(frames) for frames in by_frame.values())
-        measured += f", but {n} value{'s' if n > 1 else ''} not reproduced mirrored, flagged 0"
-    lost = f"{q.get('frames_lost', 0)} lost"
-    reasons = q.get("lost_reasons") or {}
-    if reasons:
-        lost += ": " + lost_reasons_text(reasons)
-    total = q.get("frames_total", rows)
-    # every value is measured from the neutral frame: say which, so that it gets looked at
-    neutral = (metadata.get("parameters") or {}).get("neutral_frame")
-    if neutral is not None:
-        lost += f"; neutral frame {neutral}"
-    unit = "photograph" if is_photographs(metadata.get("input")) else "frame"
-    return f"analysed {total} {unit}{'' if total == 1 else 's'} ({lost}; {measured})"

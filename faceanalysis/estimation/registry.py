@@ -110,6 +110,12 @@ class Estimate:
     fit_options: dict = field(default_factory=dict)
     residual: np.ndarray | None = None
 
+    def __repr__(self) -> str:
+        n_frames, n_controls = self.values.shape
+        return (f"<Estimate: {n_controls} controls on {n_frames} "
+                f"frame{'' if n_frames == 1 else 's'}, from {len(self.response.fiducials)} "
+                f"points{'' if self.residual is None else '; its own fit residual'}>")
+
 
 def _in_response_order(values: np.ndarray, obs: Observations) -> pd.DataFrame:
     return pd.DataFrame(values, columns=list(obs.response.muscles))

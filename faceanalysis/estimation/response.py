@@ -86,6 +86,12 @@ class FiducialResponse:
             object.__setattr__(self, "pairs", pairs)
             object.__setattr__(self, "interaction", inter)
 
+    def __repr__(self) -> str:
+        # the tables themselves print tens of kB
+        pairs = "" if self.pairs is None else f", {len(self.pairs)} pair terms"
+        return (f"<FiducialResponse: {len(self.muscles)} controls x {len(self.fiducials)} "
+                f"points, {len(self.levels)} levels{pairs}>")
+
     @property
     def n_levels(self) -> int:
         return self.levels.size

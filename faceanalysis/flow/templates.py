@@ -120,6 +120,12 @@ class FlowTemplates:
     head: np.ndarray
     meta: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        # the fields are image-sized arrays
+        return (f"<FlowTemplates: {len(self.controls)} controls, {len(self.expressions)} "
+                f"expressions ({', '.join(self.expressions)}), on a {self.grid.rows}x"
+                f"{self.grid.cols} face grid>")
+
     @property
     def apex(self) -> np.ndarray:
         """Apex displacement of each expression, (E, rows, cols, 2)."""

@@ -33,9 +33,11 @@ __all__ = [
     "frame_ranges",
     "hidden_frames_of",
     "input_metadata",
+    "input_name",
     "lost_reasons_text",
     "quality_summary",
     "read_analysis",
+    "summary_line",
     "write_analysis",
 ]
 
@@ -72,6 +74,55 @@ def lost_reasons_text(counts) -> str:
     """
     return ", ".join(f"{n} {LOST_REASONS[code][0] if code in LOST_REASONS else code}"
                      for code, n in counts.items())
+
+
+def summary_line(metadata: dict, rows: int) -> str:
+    """What an analysis found, in a line: frames, lost frames and why, the neutral frame,
+    and how many controls are measured (``faceanalysis analyze`` ends with it).
+
+    Examples
+    --------
+    >>> line = summary_line({
+    ...     "quality": {"frames_total": 3, "frames_lost": 1, "lost_reasons": {"hand": 1}},
+    ...     "identifiability": {"controls": {"a": {"identifiable": True}},
+    ...                         "mirror": {"frames_not_reproduced": {"a": [2]}}}}, 3)
+    >>> line.startswith("analysed 3 frames (1 lost: 1 under a hand; all 1 controls measured")
+    True
+    >>> line.endswith("but 1 value not reproduced mirrored, flagged 0)")
+    True
+    >>> summary_line({"quality": {"frames_total": 1, "frames_lost": 0}}, 1)
+    'analysed 1 frame (0 lost; all 0 controls measured)'
+    >>> summary_line({"quality": {"frames_total": 9, "frames_lost": 0},
+    ...               "parameters": {"neutral_frame": 4}}, 9)
+    'analysed 9 frames (0 lost; neutral frame 4; all 0 controls measured)'
+    >>> summary_line({"quality": {"frames_total": 3, "frames_lost": 0},
+    ...               "input": {"kind": "images", "fps_origin": "default", "frame_count": 3}}, 3)
+    'analysed 3 photographs (0 lost; all 0 controls measured)'
+    """
+    from faceanalysis.io.video import is_photographs
+
+    q = metadata.get("quality") or {}
+    ident = metadata.get("identifiability") or {}
+    controls = ident.get("controls", {})
+    told = sum(bool(c.get("identifiable")) for c in controls.values())
+    measured = (f"all {told} controls measured" if told == len(controls) else
+                f"{told} of {len(controls)} controls measured, the others flagged 0 in "
+                f"<control>_identifiable")
+    by_frame = (ident.get("mirror") or {}).get("frames_not_reproduced") or {}
+    if by_frame:
+        n = sum(len(frames) for frames in by_frame.values())
+        measured += f", but {n} value{'s' if n > 1 else ''} not reproduced mirrored, flagged 0"
+    lost = f"{q.get('frames_lost', 0)} lost"
+    reasons = q.get("lost_reasons") or {}
+    if reasons:
+        lost += ": " + lost_reasons_text(reasons)
+    total = q.get("frames_total", rows)
+    # every value is measured from the neutral frame: say which, so that it gets looked at
+    neutral = (metadata.get("parameters") or {}).get("neutral_frame")
+    if neutral is not None:
+        lost += f"; neutral frame {neutral}"
+    unit = "photograph" if is_photographs(metadata.get("input")) else "frame"
+    return f"analysed {total} {unit}{'' if total == 1 else 's'} ({lost}; {measured})"
 
 
 #: Longest list of lost-frame ranges kept in the summary (the count is always exact).
@@ -244,6 +295,18 @@ def input_metadata(source) -> dict:
            if getattr(source, "placed", None) else {}),
     }
 
+
+def input_name(described) -> str:
+    """The input's file or folder name from its description (:func:`input_metadata`),
+    ``'frames in memory'`` where it has no path: what titles and summaries call it.
+
+    Examples
+    --------
+    >>> input_name({"path": "/data/clips/smile.mp4"}), input_name({"path": None})
+    ('smile.mp4', 'frames in memory')
+    """
+    path = (described or {}).get("path")
+    return Path(path).name if path else "frames in memory"
 
 def check_analysed_input(video, recorded, *, analysis) -> None:
     """Raise ValueError when ``video`` is not the input an analysis was made from.

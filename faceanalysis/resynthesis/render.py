@@ -433,6 +433,15 @@ class Resynthesis:
     def __len__(self) -> int:
         return len(self.series.frames)
 
+    def __repr__(self) -> str:
+        n = len(self)
+        on = ("the generic face" if self.subject is None else
+              f"{Path(self.subject.source).name if self.subject.source else 'the subject'}'s face")
+        written = f" -> {self.path}" if self.path is not None else ""
+        return (f"<Resynthesis: {n} frame{'' if n == 1 else 's'} of {self.size[0]}x"
+                f"{self.size[1]} at {self.fps:g} fps, {self.view} view, {self.shading}, on "
+                f"{on}{written}>")
+
     def write(self, output, *, export_meshes=None, mesh_format: str = "obj",
               overwrite: bool = False, progress: bool = False) -> Path:
         """Write the video (atomically) and, optionally, the meshes; returns the video path.

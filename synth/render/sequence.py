@@ -277,6 +277,18 @@ class SyntheticSequence:
     meta: dict = field(default_factory=dict)
     clean_images: np.ndarray | None = None  # before blur/noise
 
+    def __repr__(self) -> str:
+        # the fields are the frames and their per-pixel truth
+        t, h, w = self.images.shape[:3]
+        fps, seed = self.meta.get("fps"), self.meta.get("seed")
+        expression = (self.meta.get("source") or {}).get("expression")
+        extras = [name for name in ("flow", "clean_images") if getattr(self, name) is not None]
+        return (f"<SyntheticSequence: {t} frame{'' if t == 1 else 's'} of {w}x{h}"
+                f"{f' at {fps:g} fps' if fps else ''}"
+                f"{f', {expression}' if expression else ''}"
+                f"{f', seed {seed}' if seed is not None else ''}"
+                f"{'; with ' + ' and '.join(extras) if extras else ''}>")
+
 
 def _model_for(seed: int, resolution: float, identity_spread: float):
     try:

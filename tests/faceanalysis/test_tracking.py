@@ -413,3 +413,25 @@ def test_a_subject_who_leaves_beside_someone_else_is_lost_not_replaced(face):  #
     assert tr.success.tolist() == [True] * 4 + [False] * 4 + [True] * 4
     assert tr.lost_reasons[4:8] == ["other_face"] * 4
     assert (tr.heads[tr.success, 0] < 320).all()
+
+
+def test_tracks_print_as_a_summary_whatever_their_length():
+    # a notebook shows the tracks: each frame's contours and landmarks must not be printed
+    def tracks(n, lost):
+        success = np.ones(n, bool)
+        success[list(lost)] = False
+        reasons = [("hand" if i % 2 else "no_face") if i in lost else None for i in range(n)]
+        contour = {"brow_l": np.zeros((40, 2))}
+        return Tracks(video="/data/clips/smile.mp4", input={"path": "/data/clips/smile.mp4"},
+                      frames=np.arange(n), timestamps=np.zeros(n), success=success,
+                      confidence=np.ones(n), heads=np.zeros((n, 4)),
+                      fiducials=np.zeros((n, 11, 2)), point_names=(),
+                      points=np.zeros((n, 0, 2)), stretch=np.zeros((n, 0)),
+                      contours=[contour] * n, tracker="landmarks",
+                      landmarks=[np.zeros((468, 3), np.float32)] * n, lost_reasons=reasons)
+
+    short, long = repr(tracks(3, {1})), repr(tracks(3000, {1, 2, 3}))
+    assert short == ("<Tracks of smile.mp4: 3 frames, 2 tracked, 1 lost (1 under a hand); "
+                     "landmarks tracker>")
+    assert long == ("<Tracks of smile.mp4: 3000 frames, 2997 tracked, 3 lost (2 under a hand, "
+                    "1 without a face); landmarks tracker>")

@@ -164,3 +164,10 @@ def test_bad_thickness(standin):
     thick[3] = 0.0
     with pytest.raises(ValueError, match="tissue_thickness"):
         build_lattice(replace(standin, tissue_thickness=thick))
+
+
+def test_lattice_prints_its_size_not_its_arrays(lattice):
+    assert repr(lattice) == (f"<Lattice: {lattice.n_nodes} nodes ({lattice.n_vertices} a "
+                             f"layer), {lattice.n_springs} springs, {lattice.n_elements} "
+                             "elements>")
+    assert lattice.n_nodes == 4 * lattice.n_vertices

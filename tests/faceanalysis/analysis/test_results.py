@@ -70,3 +70,43 @@ def test_context_removes_the_folder_it_created_when_nothing_was_written(tmp_path
         writer.write(np.zeros((48, 64), np.uint8))
         raise ValueError("no face")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_analysis_prints_as_a_summary_whatever_its_length():
+    from faceanalysis.analysis.results import Analysis
+
+    def analysis(n):
+        t = table(n)
+        t.loc[2, "success"] = 0
+        meta = analysis_metadata({"path": "/data/clips/smile.mp4", "kind": "video"}, t,
+                                 parameters={"tracker": "landmarks", "estimator": "mesh",
+                                             "neutral_frame": 0},
+                                 versions={"faceanalysis": "t"})
+        contours = [{"brow_l": np.zeros((40, 2)), "lips": np.zeros((80, 2))}] * n
+        return Analysis(table=t, contours=contours, metadata=meta,
+                        measurements=np.zeros((n, 12, 2)))
+
+    text = repr(analysis(2000))
+    assert text.startswith("<Analysis of smile.mp4: analysed 2000 frames (1 lost; neutral "
+                           "frame 0; ")
+    assert text.endswith("; landmarks tracker, mesh estimator>")
+    assert len(text) == len(repr(analysis(20))) + 2 and "\n" not in text
+
+
+def test_saved_plot_is_titled_with_the_input_file(tmp_path, monkeypatch):
+    import faceanalysis.analysis.results as results
+
+    titles = []
+
+    def plot(table, path, **kwargs):
+        from types import SimpleNamespace
+
+        titles.append(kwargs.get("title"))
+        path.write_bytes(b"png")
+        return SimpleNamespace(clear=lambda: None)
+
+    monkeypatch.setattr(results, "plot_contractions", plot)
+    meta = analysis_metadata({"path": "/data/clips/smile.mp4"}, table(),
+                             versions={"faceanalysis": "t"})
+    results.Analysis(table=table(), contours=[], metadata=meta).save(tmp_path / "out")
+    assert titles == ["smile.mp4"]

@@ -588,3 +588,7 @@ def test_fit_residual_of_a_long_video_is_each_frame_own():
         assert r[t] == pytest.approx(np.sqrt(np.nanmean(e)), rel=1e-12)
     assert np.isnan(r[[20, 900]]).all()
     assert np.isfinite(np.delete(r, [20, 900])).all()
+
+
+def test_response_prints_its_size_not_its_tables(rng):
+    assert repr(_response(rng)) == "<FiducialResponse: 4 controls x 4 points, 6 levels>"

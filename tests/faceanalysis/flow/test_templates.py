@@ -277,3 +277,9 @@ def test_an_npz_without_the_templates_arrays_is_named_as_such(tmp_path):
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with pytest.raises(ValueError, match=r"other.npz: not a flow-templates file.*has no grid"):
         FlowTemplates.load(tmp_path / "other.npz")
+
+
+def test_templates_print_their_size_not_their_fields(templates):
+    assert repr(templates) == (
+        f"<FlowTemplates: {len(templates.controls)} controls, 6 expressions (happiness, "
+        "sadness, surprise, fear, anger, disgust), on a 48x36 face grid>")

@@ -42,6 +42,8 @@ def test_video_and_mesh_export(tmp_path, model):
     assert sum(1 for line in objs[0].read_text().splitlines() if line.startswith("v ")) == \
         len(model.mesh.vertices)
     assert res.report["timing"]["frames"] == 3
+    assert repr(res) == (f"<Resynthesis: 3 frames of 64x64 at 12 fps, front view, plain, on "
+                         f"the generic face -> {out}>")
     with pytest.raises(FileExistsError):
         resynthesize(_drive(3), model=model, output=out)
     # one .npz of trajectories, equal to the states

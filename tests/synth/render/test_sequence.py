@@ -228,3 +228,8 @@ def test_physics_model_surprise_opens_a_dark_mouth():
     assert below.min() < 0.5 * np.median(col0[int(y) - 20:int(y) - 10])
     assert seq.disoccluded[:apex].any()                        # the opening mouth uncovers
     assert seq.meta["identity"]["shape"] is not None
+
+
+def test_sequence_prints_its_size_not_its_frames(moving):
+    assert repr(moving) == ("<SyntheticSequence: 6 frames of 160x160 at 8 fps, seed 3; with "
+                            "flow and clean_images>")
