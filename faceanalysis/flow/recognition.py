@@ -182,6 +182,20 @@ class Recognition:
     reference_rest: str | None = None
     unmatched: list = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        score = self.scores.get(self.label)
+        parts = [f"{len(self.segments)} segment{'' if len(self.segments) == 1 else 's'}"]
+        if self.unmatched:
+            parts.append(f"{len(self.unmatched)} unmatched")
+        lost = int(np.count_nonzero(~np.isfinite(np.asarray(self.energy, dtype=float))))
+        if lost:
+            parts.append(f"{lost} frame{'' if lost == 1 else 's'} not classified")
+        reference = ("" if self.reference is None else
+                     f" from neutral frame {self.reference} ({self.reference_source}"
+                     f"{', ' + self.reference_rest if self.reference_rest else ''})")
+        return (f"<Recognition: {self.label}{'' if score is None else f' ({score:.3f})'}"
+                f"{reference}; {', '.join(parts)}>")
+
     def table(self) -> pd.DataFrame:
         """One row per segment, the unmatched ones (label :data:`UNMATCHED`) included, in
         order of their start (``start, apex, end, label, peak_energy, score_<class>``)."""

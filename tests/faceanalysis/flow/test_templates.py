@@ -241,6 +241,8 @@ def test_motion_matching_no_expression_and_lost_frames_are_reported(templates, r
     assert rec.lost_ranges() == [(end, end + 3)]
     d = rec.as_dict()
     assert d["lost_ranges"] == [[end, end + 3]] and d["unmatched"][0]["label"] == UNMATCHED
+    assert repr(rec) == (f"<Recognition: happiness ({rec.scores['happiness']:.3f}); 1 segment, "
+                         "1 unmatched, 4 frames not classified>")
     # alone, the same motion leaves the sequence neutral, with its score from that segment
     alone = classify_flow(other, t)
     assert alone.label == "neutral" and not alone.segments and len(alone.unmatched) == 1
