@@ -355,10 +355,7 @@ class Tracks:
         # 10 kB a frame
         n, tracked = len(self.frames), int(np.count_nonzero(self.success))
         lost = f"{n - tracked} lost"
-        reasons = {}
-        for code in self.lost_reasons or ():
-            if code is not None:
-                reasons[code] = reasons.get(code, 0) + 1
+        reasons = lost_reason_counts(self.lost_reasons or ())
         if reasons:
             lost += f" ({lost_reasons_text(reasons)})"
         name = (self.video.name if isinstance(self.video, Frames)

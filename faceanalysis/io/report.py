@@ -308,6 +308,7 @@ def input_name(described) -> str:
     path = (described or {}).get("path")
     return Path(path).name if path else "frames in memory"
 
+
 def check_analysed_input(video, recorded, *, analysis) -> None:
     """Raise ValueError when ``video`` is not the input an analysis was made from.
 
