@@ -223,6 +223,8 @@ def imm(quick: bool = False) -> list[Figure]:
                          f"of {len(people)}", True))
         figs.append(_fig(case, "side-lit neutral: median largest muscle", np.median(rest), "",
                          False))
+        figs.append(_fig(case, "side-lit neutral: smallest largest muscle", rest.min(), "",
+                         False))
         figs.append(_fig(case, "zygomaticus major AUC, smile vs side-lit neutral",
                          _auc(smile, lit), "", True))
     halves = {"all": people, "21-30": [p for p in people if p <= 30],
