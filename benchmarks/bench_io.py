@@ -4,7 +4,9 @@ memory, contractions.csv writing and reading, AU derivation and the contractions
 Cases: a 640x480 MPEG-4 video made here (noise over a moving gradient, so the decoder
 has real work; quick: 150 frames, full: 900) read through
 :func:`faceanalysis.io.video.open_video` and through a bare ``cv2.VideoCapture.read`` loop
-(the peer: the figure shows what the layer's checks and timestamps cost); the peak
+(the peer: the figure shows what the layer's checks and timestamps cost), and the time to
+its tenth-last frame when reading starts there (a seek, against decoding every frame before
+it); the peak
 Python-heap growth while streaming it (tracemalloc, in frames of 640x480x3 bytes); a
 contractions table of 54,000 rows (30 min at 30 fps; quick: 9,000) written with
 :func:`faceanalysis.io.table.write_contractions`, read back with validation, converted to
@@ -68,6 +70,18 @@ def _read_cv2(path: Path) -> int:
     return n
 
 
+def _first_frame_from(path: Path, start: int, *, seek: bool) -> int:
+    import faceanalysis.io.video as video_module
+
+    kept = video_module.SEEK_FROM
+    video_module.SEEK_FROM = 1 if seek else 2**62
+    try:
+        with open_video(path, start=start, end=start + 1) as video:
+            return next(iter(video)).index
+    finally:
+        video_module.SEEK_FROM = kept
+
+
 def _table(n: int):
     rng = np.random.default_rng(1)
     t = empty_table(n, timestamps=np.arange(n) / 30)
@@ -97,6 +111,16 @@ def run(quick: bool = False) -> list[Figure]:
                               ratio=ratio(n_frames / ours, n_frames / peer,
                                           higher_is_better=True),
                               extra={"peer_value": n_frames / peer}))
+
+        # reading from far into the video: a seek against decoding every frame before
+        late = n_frames - 10
+        seek = median_time(lambda: _first_frame_from(video, late, seek=True), repeat=repeat)
+        decode = median_time(lambda: _first_frame_from(video, late, seek=False), repeat=repeat)
+        figures.append(Figure("io", f"first frame from frame {late} of {W}x{H} mp4v",
+                              "time (open, reach the frame, decode it)", seek, "s",
+                              higher_is_better=False, peer="decoding every frame before it",
+                              ratio=ratio(seek, decode, higher_is_better=False),
+                              extra={"peer_value": decode}))
 
         tracemalloc.start()
         _read_ours(video)

@@ -477,7 +477,10 @@ class VideoSource:
 
     def _iter_video(self) -> Iterator[Frame]:
         self.close()
-        capture = cv2.VideoCapture(str(self.path))
+        capture = seek_video(self.path, self.start) if self.start >= SEEK_FROM else None
+        index = 0 if capture is None else self.start   # the next frame out of the decoder
+        if capture is None:
+            capture = cv2.VideoCapture(str(self.path))
         if not capture.isOpened():
             raise ValueError(f"{self.path}: cannot be opened as a video any more")
         self._capture = capture
@@ -486,7 +489,6 @@ class VideoSource:
         expected = self.end if self.end is not None else self.frame_count
         use_container_time = self.fps_origin != "user"
         max_run = self._max_failed_run()
-        index = 0          # index of the next frame to come out of the decoder
         failed_run = 0     # reads that failed since the last good frame
         previous: float | None = None
         n_yielded = 0
@@ -555,6 +557,81 @@ class VideoSource:
             # A first timestamp of 0 after skipping frames means the backend has none.
             return fallback if (index > 0 and t == 0.0) else t
         return t if t > previous else fallback
+
+
+#: Reading a video file from this frame on or later seeks to it (:func:`seek_video`) instead
+#: of decoding every frame before it; nearer the start, decoding them costs less than the seek.
+SEEK_FROM = 250
+#: Pictures read past the target in the container's decoding order to be sure of the
+#: presentation order up to it (codecs reorder by at most 16).
+_REORDER = 64
+# Time stamps (ms) closer than this are the same picture's.
+_SAME_MS = 1e-3
+
+
+def seek_video(path, start: int) -> cv2.VideoCapture | None:
+    """A capture of the video file ``path`` whose next read is its frame ``start``
+    (0-based, in display order, as reading every frame from the first counts them), or
+    None where that cannot be made sure of.
+
+    Decoding every frame before ``start`` costs 0.5 ms a frame at 640x360 and 3 ms at
+    1920x1080 (an hour of 30 frames/s video: 1-5 minutes); a seek lands on a keyframe and
+    decodes from there. Seeking by frame number is not exact for every file (variable frame
+    rates, streams that do not start at time 0), so the frame is found by its time stamp:
+    the stamps of the first ``start`` + 64 pictures, read from the container without
+    decoding (about 7 us each), put in display order, give the stamp of frame ``start - 1``;
+    the capture seeks to a second before it and reads on until a picture carries exactly
+    that stamp. None (read from the first frame instead) where the backend is not FFmpeg's,
+    a stamp is missing or repeated, a picture precedes the first one decoded (an edit list
+    that drops pictures), or the stamp is not met.
+
+    Examples
+    --------
+    >>> import tempfile, cv2, numpy as np
+    >>> path = tempfile.mkdtemp() + "/clip.avi"
+    >>> writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48))
+    >>> for i in range(40):
+    ...     writer.write(np.full((48, 64, 3), 6 * i, np.uint8))
+    >>> writer.release()
+    >>> capture = seek_video(path, 30)
+    >>> round(capture.read()[1].mean() / 6)      # frame i was written at grey level 6 i
+    30
+    """
+    start = int(start)
+    if start < 1:
+        return None
+    first = cv2.VideoCapture(str(path))
+    try:
+        if first.getBackendName() != "FFMPEG" or not first.grab():
+            return None
+        t0 = first.get(cv2.CAP_PROP_POS_MSEC)
+    finally:
+        first.release()
+    raw = cv2.VideoCapture(str(path))
+    try:
+        # the encoded pictures as the container stores them, not decoded
+        if raw.getBackendName() != "FFMPEG" or not raw.set(cv2.CAP_PROP_FORMAT, -1):
+            return None
+        stamps = []
+        while len(stamps) < start + _REORDER and raw.grab():
+            stamps.append(raw.get(cv2.CAP_PROP_POS_MSEC))
+    finally:
+        raw.release()
+    stamps = np.sort(np.asarray(stamps, dtype=float))
+    if (len(stamps) <= start or not np.isfinite(stamps).all()
+            or abs(stamps[0] - t0) > _SAME_MS or np.any(np.diff(stamps) <= _SAME_MS)):
+        return None
+    target = stamps[start - 1]
+    capture = cv2.VideoCapture(str(path))
+    capture.set(cv2.CAP_PROP_POS_MSEC, max(0.0, target - 1000.0))
+    while capture.grab():
+        t = capture.get(cv2.CAP_PROP_POS_MSEC)
+        if abs(t - target) <= _SAME_MS:
+            return capture
+        if t > target:
+            break
+    capture.release()
+    return None
 
 
 #: EXIF orientation (tag 274) -> how the stored pixels are turned upright, as numpy ops on

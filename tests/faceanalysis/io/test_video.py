@@ -88,6 +88,65 @@ def test_start_end_select_the_right_frames(video):
                                atol=1e-6)
 
 
+def _numbered_frame(i: int) -> np.ndarray:
+    """A frame whose halves' brightness encode its index up to 899 (robust to coding)."""
+    img = np.empty((H, W, 3), np.uint8)
+    img[:, : W // 2] = 20 + 7 * (i % 30)
+    img[:, W // 2:] = 20 + 7 * (i // 30)
+    return img
+
+
+def _frame_number(img: np.ndarray) -> int:
+    low, high = (int(round((float(np.median(half)) - 20) / 7))
+                 for half in (img[:, : W // 2], img[:, W // 2:]))
+    return 30 * high + low
+
+
+@pytest.mark.parametrize("fourcc", ["mp4v", "MJPG"])
+def test_reading_far_into_a_video_seeks_to_the_frames_decoding_gives(tmp_path, fourcc,
+                                                                    monkeypatch):
+    import faceanalysis.io.video as video_module
+    from faceanalysis.io.video import SEEK_FROM, seek_video
+
+    path = tmp_path / ("clip.mp4" if fourcc == "mp4v" else "clip.avi")
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 25.0, (W, H))
+    for i in range(SEEK_FROM + 60):
+        writer.write(_numbered_frame(i))
+    writer.release()
+    whole = {f.index: f for f in open_video(path)}
+    assert [_frame_number(whole[i].image) for i in (0, 299)] == [0, 299]
+    for start in (SEEK_FROM, SEEK_FROM + 31, SEEK_FROM + 58):
+        part = list(open_video(path, start=start, end=start + 2))
+        assert [f.index for f in part] == [start, start + 1]
+        for f in part:
+            assert f.timestamp == whole[f.index].timestamp
+            np.testing.assert_array_equal(f.image, whole[f.index].image)
+    # the seek put the decoder there, not decoding from the first frame
+    capture = seek_video(path, SEEK_FROM + 31)
+    assert _frame_number(capture.read()[1]) == SEEK_FROM + 31
+    assert seek_video(path, 0) is None and seek_video(path, SEEK_FROM + 60) is None
+    # where it cannot seek, every frame is decoded: the same frames
+    monkeypatch.setattr(video_module, "seek_video", lambda path, start: None)
+    part = list(open_video(path, start=SEEK_FROM + 31, end=SEEK_FROM + 33))
+    assert [_frame_number(f.image) for f in part] == [SEEK_FROM + 31, SEEK_FROM + 32]
+
+
+@pytest.mark.real_data
+def test_seeking_in_real_clips_gives_the_frames_decoding_gives(real_video_dir):
+    from faceanalysis.io.video import SEEK_FROM, seek_video
+
+    for path in sorted(real_video_dir.glob("*.mp4")):
+        n = int(cv2.VideoCapture(str(path)).get(cv2.CAP_PROP_FRAME_COUNT))
+        starts = [s for s in (SEEK_FROM, n - 2) if s < n]
+        wanted = {s + k for s in starts for k in (0, 1) if s + k < n}
+        decoded = {f.index: f for f in open_video(path) if f.index in wanted}
+        for start in starts:
+            assert seek_video(path, start) is not None, path.name
+            for f in open_video(path, start=start, end=min(n, start + 2)):
+                assert f.timestamp == decoded[f.index].timestamp, (path.name, f.index)
+                np.testing.assert_array_equal(f.image, decoded[f.index].image)
+
+
 def test_iterating_twice_restarts(video):
     src = open_video(video, start=3, end=6)
     assert [f.index for f in src] == [3, 4, 5]
