@@ -494,8 +494,7 @@ class VideoSource:
         n_yielded = 0
         try:
             while self.end is None or index + failed_run < self.end:
-                # Frames before start are decoded and dropped: seeking is not
-                # frame-accurate for every codec.
+                # Frames before start that no seek stepped over are decoded and dropped.
                 if index + failed_run < self.start:
                     ok, image = capture.grab(), None
                 else:
@@ -562,28 +561,68 @@ class VideoSource:
 #: Reading a video file from this frame on or later seeks to it (:func:`seek_video`) instead
 #: of decoding every frame before it; nearer the start, decoding them costs less than the seek.
 SEEK_FROM = 250
-#: Pictures read past the target in the container's decoding order to be sure of the
-#: presentation order up to it (codecs reorder by at most 16).
-_REORDER = 64
 # Time stamps (ms) closer than this are the same picture's.
 _SAME_MS = 1e-3
 
 
+def display_stamps(path) -> np.ndarray | None:
+    """Time stamps (ms) of a video file's pictures in display order, read from the
+    container without decoding (about 7 us a picture): the ``n``-th is frame ``n``'s.
+
+    None where the stamps cannot be trusted to number the frames: the backend is not
+    FFmpeg's, a stamp is missing or repeated, or a picture comes before the first one the
+    decoder gives (an edit list that drops pictures, or damage at the start).
+
+    Examples
+    --------
+    >>> import tempfile, cv2, numpy as np
+    >>> path = tempfile.mkdtemp() + "/clip.avi"
+    >>> writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48))
+    >>> for i in range(4):
+    ...     writer.write(np.zeros((48, 64, 3), np.uint8))
+    >>> writer.release()
+    >>> display_stamps(path).tolist()
+    [0.0, 40.0, 80.0, 120.0]
+    """
+    first = cv2.VideoCapture(str(path))
+    try:
+        if first.getBackendName() != "FFMPEG" or not first.grab():
+            return None
+        t0 = first.get(cv2.CAP_PROP_POS_MSEC)
+    finally:
+        first.release()
+    raw = cv2.VideoCapture(str(path))
+    try:
+        # the encoded pictures as the container stores them, not decoded
+        if raw.getBackendName() != "FFMPEG" or not raw.set(cv2.CAP_PROP_FORMAT, -1):
+            return None
+        stamps = []
+        while raw.grab():
+            stamps.append(raw.get(cv2.CAP_PROP_POS_MSEC))
+    finally:
+        raw.release()
+    stamps = np.sort(np.asarray(stamps, dtype=float))
+    if (not len(stamps) or not np.isfinite(stamps).all() or abs(stamps[0] - t0) > _SAME_MS
+            or np.any(np.diff(stamps) <= _SAME_MS)):
+        return None
+    return stamps
+
+
 def seek_video(path, start: int) -> cv2.VideoCapture | None:
     """A capture of the video file ``path`` whose next read is its frame ``start``
-    (0-based, in display order, as reading every frame from the first counts them), or
-    None where that cannot be made sure of.
+    (0-based, in display order, as decoding from the first frame counts them), or None
+    where that cannot be made sure of.
 
     Decoding every frame before ``start`` costs 0.5 ms a frame at 640x360 and 3 ms at
     1920x1080 (an hour of 30 frames/s video: 1-5 minutes); a seek lands on a keyframe and
     decodes from there. Seeking by frame number is not exact for every file (variable frame
     rates, streams that do not start at time 0), so the frame is found by its time stamp:
-    the stamps of the first ``start`` + 64 pictures, read from the container without
-    decoding (about 7 us each), put in display order, give the stamp of frame ``start - 1``;
-    the capture seeks to a second before it and reads on until a picture carries exactly
-    that stamp. None (read from the first frame instead) where the backend is not FFmpeg's,
-    a stamp is missing or repeated, a picture precedes the first one decoded (an edit list
-    that drops pictures), or the stamp is not met.
+    :func:`display_stamps` gives frame ``start - 1``'s, the capture seeks to a second before
+    it and reads on until a picture carries exactly that stamp. None (decode from the first
+    frame instead) where the stamps cannot be trusted, where the container holds another
+    number of pictures than its header counts (damage the demuxer stepped over: reading from
+    the first frame then numbers the later frames otherwise than the file's index does), or
+    where that stamp is not met.
 
     Examples
     --------
@@ -600,36 +639,20 @@ def seek_video(path, start: int) -> cv2.VideoCapture | None:
     start = int(start)
     if start < 1:
         return None
-    first = cv2.VideoCapture(str(path))
-    try:
-        if first.getBackendName() != "FFMPEG" or not first.grab():
-            return None
-        t0 = first.get(cv2.CAP_PROP_POS_MSEC)
-    finally:
-        first.release()
-    raw = cv2.VideoCapture(str(path))
-    try:
-        # the encoded pictures as the container stores them, not decoded
-        if raw.getBackendName() != "FFMPEG" or not raw.set(cv2.CAP_PROP_FORMAT, -1):
-            return None
-        stamps = []
-        while len(stamps) < start + _REORDER and raw.grab():
-            stamps.append(raw.get(cv2.CAP_PROP_POS_MSEC))
-    finally:
-        raw.release()
-    stamps = np.sort(np.asarray(stamps, dtype=float))
-    if (len(stamps) <= start or not np.isfinite(stamps).all()
-            or abs(stamps[0] - t0) > _SAME_MS or np.any(np.diff(stamps) <= _SAME_MS)):
+    stamps = display_stamps(path)
+    if stamps is None or len(stamps) <= start:
         return None
-    target = stamps[start - 1]
     capture = cv2.VideoCapture(str(path))
-    capture.set(cv2.CAP_PROP_POS_MSEC, max(0.0, target - 1000.0))
-    while capture.grab():
-        t = capture.get(cv2.CAP_PROP_POS_MSEC)
-        if abs(t - target) <= _SAME_MS:
-            return capture
-        if t > target:
-            break
+    count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+    if math.isfinite(count) and round(count) == len(stamps):
+        target = stamps[start - 1]
+        capture.set(cv2.CAP_PROP_POS_MSEC, max(0.0, target - 1000.0))
+        while capture.grab():
+            t = capture.get(cv2.CAP_PROP_POS_MSEC)
+            if abs(t - target) <= _SAME_MS:
+                return capture
+            if t > target:
+                break
     capture.release()
     return None
 

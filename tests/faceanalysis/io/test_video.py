@@ -131,6 +131,31 @@ def test_reading_far_into_a_video_seeks_to_the_frames_decoding_gives(tmp_path, f
     assert [_frame_number(f.image) for f in part] == [SEEK_FROM + 31, SEEK_FROM + 32]
 
 
+def test_no_seek_where_the_container_lost_pictures(tmp_path):
+    """Damage that the demuxer steps over shifts the numbers decoding from the first frame
+    gives the later frames, where the file's index does not: no seek there."""
+    from faceanalysis.io.video import SEEK_FROM, seek_video
+
+    path = tmp_path / "damaged.avi"
+    rng = np.random.default_rng(0)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (W, H))
+    for i in range(SEEK_FROM + 80):
+        img = _numbered_frame(i)
+        img[:8] = rng.integers(0, 255, img[:8].shape, dtype=np.uint8)   # incompressible
+        writer.write(img)
+    writer.release()
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3: len(data) // 3 + 3000] = bytes(3000)
+    path.write_bytes(bytes(data))
+    whole = {f.index: f for f in open_video(path)}
+    assert len(whole) < SEEK_FROM + 80               # pictures lost without a failed read
+    start = SEEK_FROM + 20
+    assert seek_video(path, start) is None
+    part = list(open_video(path, start=start, end=start + 2))
+    for f in part:
+        np.testing.assert_array_equal(f.image, whole[f.index].image)
+
+
 @pytest.mark.real_data
 def test_seeking_in_real_clips_gives_the_frames_decoding_gives(real_video_dir):
     from faceanalysis.io.video import SEEK_FROM, seek_video
