@@ -586,7 +586,8 @@ def display_stamps(path) -> np.ndarray | None:
     """
     first = cv2.VideoCapture(str(path))
     try:
-        if first.getBackendName() != "FFMPEG" or not first.grab():
+        if (not first.isOpened() or first.getBackendName() != "FFMPEG"
+                or not first.grab()):
             return None
         t0 = first.get(cv2.CAP_PROP_POS_MSEC)
     finally:
@@ -594,7 +595,8 @@ def display_stamps(path) -> np.ndarray | None:
     raw = cv2.VideoCapture(str(path))
     try:
         # the encoded pictures as the container stores them, not decoded
-        if raw.getBackendName() != "FFMPEG" or not raw.set(cv2.CAP_PROP_FORMAT, -1):
+        if (not raw.isOpened() or raw.getBackendName() != "FFMPEG"
+                or not raw.set(cv2.CAP_PROP_FORMAT, -1)):
             return None
         stamps = []
         while raw.grab():

@@ -798,3 +798,14 @@ def test_frames_in_memory_are_named_in_messages_and_checked():
         list(video)
     with pytest.raises(ValueError, match="'rgb' or 'bgr'"):
         Frames(np.zeros((2, H, W)), channel_order="BGR")
+
+
+def test_a_video_gone_before_it_is_read_from_far_in_is_named(tmp_path):
+    from faceanalysis.io.video import SEEK_FROM, display_stamps, seek_video
+
+    path = make_video(tmp_path / "clip.avi", SEEK_FROM + 5, fourcc="MJPG")
+    src = open_video(path, start=SEEK_FROM + 1)
+    path.unlink()
+    assert display_stamps(path) is None and seek_video(path, SEEK_FROM + 1) is None
+    with pytest.raises(ValueError, match="cannot be opened as a video any more"):
+        list(src)
